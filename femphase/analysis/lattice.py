@@ -1,0 +1,428 @@
+"""Neighbours, order parameters, lattice angle and T1 events of particle centroids.
+
+The paper measures the structure of the suspension on the particles' centroids:
+
+* neighbours are the edges of the Delaunay triangulation of the centroids, periodic in x
+  (:func:`periodic_delaunay_pairs`);
+* bond order ψ_{m,j} = (1/N_j) Σ_k exp(i m θ_jk) (:func:`bond_order`, m = 6 for Ψ6) and the
+  nematic order of neighbouring deformation axes ψ_{2,j} (:func:`nematic_order`); the global
+  parameters are |(1/N) Σ_j ψ_j| per frame (:func:`global_order`), averaged over frames
+  (:func:`frame_average`);
+* the lattice angle φ ∈ [π/4, π/3] of lanes sliding along x (:func:`lattice_angle`);
+* T1 neighbour exchanges as flips of Delaunay edges (:func:`t1_events`,
+  :func:`t1_event_times`).
+
+Conventions:
+
+* the channel is [0, Lx) × [0, Ly]: periodic in x with period ``period_x`` = Lx, bounded by
+  walls at y = 0 and y = Ly, which are *not* periodic;
+* centroids are an ``(N, 2)`` array of (x, y) in the length unit of ``period_x``, with x in
+  [0, Lx); particle j is row j, in every frame;
+* orientations are nematic angles of the elongation axis from the x axis, in radians,
+  θ + π ≡ θ; every returned angle is in radians;
+* neighbour pairs are an ``(M, 2)`` int array, one bond per row, ``i < j``, rows unique;
+* bond vectors are minimum images in x, which is exact because
+  :func:`periodic_delaunay_pairs` only keeps bonds shorter than Lx/2 along x.
+
+Walls: the particles of the rows next to a wall have neighbours on one side only, and the
+edges of the triangulation along a wall (its convex hull) join wall particles, skipping one
+that sits slightly inward.  They are kept: interior particles need the wall rows to complete
+their neighbour shells, and for a lattice with rows along the walls the in-row and inclined
+bonds of a wall particle are lattice directions, so a perfect lattice has ψ6 = 1 at the walls
+too.  In a disordered or noisy configuration the hull edges can lower ψ6 of the wall
+particles; exclude them with the ``where`` mask of :func:`global_order` (e.g.
+``margin < y < Ly - margin``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.spatial import Delaunay
+
+#: Bonds within this angle (radians) of the lanes' axis x are in-lane neighbours, and bonds
+#: within it of the normal y join particles stacked on top of each other; neither carries the
+#: lattice angle (see :func:`particle_lattice_angles`).  π/8 is halfway between the axis and
+#: the square-lattice diagonal π/4, the smallest lattice angle to be measured.
+DEFAULT_AXIS_TOLERANCE = np.pi / 8
+
+#: An edge flip counts as a T1 once the lost bond is this much longer (relative) than the
+#: gained one; nearer to a square, where the two diagonals are equally long, the Delaunay
+#: choice flips back and forth with noise (see :func:`t1_event_times`).
+DEFAULT_LENGTH_CONTRAST = 0.1
+
+_Pair = tuple[int, int]
+
+
+def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray:
+    """Neighbour pairs from the Delaunay triangulation, periodic in x only.
+
+    The centroids are triangulated together with their images at x − Lx and x + Lx; the edges
+    with at least one original endpoint are mapped back to particle indices and deduplicated.
+    Edges whose extent along x exceeds Lx/2 are dropped: the same two particles are then closer
+    through the other image, so the edge is not a minimum-image bond.  Such edges only bridge
+    an empty gap of more than about half the period along x, never in a dense suspension.
+
+    Parameters
+    ----------
+    centroids
+        ``(N, 2)`` particle centroids (x, y), x in [0, Lx), same length unit as `period_x`.
+    period_x
+        The period Lx of the channel along x.
+
+    Returns
+    -------
+    np.ndarray
+        ``(M, 2)`` int array of unique pairs, ``i < j`` in each row, rows sorted.
+    """
+    centroids = _as_centroids(centroids)
+    n_particles = len(centroids)
+    images = np.concatenate(
+        [centroids + (shift, 0.0) for shift in (0.0, -period_x, period_x)]
+    )
+    edges = Delaunay(images).simplices[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
+    extent_x = np.abs(images[edges[:, 1], 0] - images[edges[:, 0], 0])
+    edges = edges[(edges < n_particles).any(axis=1) & (extent_x <= period_x / 2)]
+    pairs = np.sort(edges % n_particles, axis=1)
+    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+
+
+def bond_vectors(centroids: ArrayLike, period_x: float, pairs: ArrayLike) -> np.ndarray:
+    """Minimum-image vectors from particle ``pairs[:, 0]`` to particle ``pairs[:, 1]``.
+
+    Returns an ``(M, 2)`` float array in the length unit of the centroids, with the x
+    component in [−Lx/2, Lx/2].
+    """
+    centroids = _as_centroids(centroids)
+    pairs = _as_pairs(pairs)
+    vectors = centroids[pairs[:, 1]] - centroids[pairs[:, 0]]
+    vectors[:, 0] -= period_x * np.round(vectors[:, 0] / period_x)
+    return vectors
+
+
+def bond_order(
+    centroids: ArrayLike,
+    period_x: float,
+    pairs: ArrayLike | None = None,
+    m: int = 6,
+) -> np.ndarray:
+    """Per-particle m-fold bond order ψ_{m,j} = (1/N_j) Σ_k exp(i m θ_jk).
+
+    θ_jk is the angle from the x axis to the bond from particle j to its neighbour k, and N_j
+    the number of neighbours of j.  `pairs` defaults to :func:`periodic_delaunay_pairs`.
+
+    Returns
+    -------
+    np.ndarray
+        Complex array of length N; NaN for a particle without neighbours (e.g. one that
+        coincides with another and so is not a vertex of the triangulation).
+    """
+    centroids = _as_centroids(centroids)
+    pairs = periodic_delaunay_pairs(centroids, period_x) if pairs is None else _as_pairs(pairs)
+    vectors = bond_vectors(centroids, period_x, pairs)
+    angle = np.arctan2(vectors[:, 1], vectors[:, 0])
+    # the bond seen from its second particle points the other way, θ_kj = θ_jk + π, which
+    # matters for odd m
+    return _neighbour_mean(
+        pairs, np.exp(1j * m * angle), np.exp(1j * m * (angle + np.pi)), len(centroids)
+    )
+
+
+def nematic_order(
+    orientations: ArrayLike, pairs: ArrayLike, n_particles: int
+) -> np.ndarray:
+    """Per-particle nematic order of neighbouring deformation axes.
+
+    ψ_{2,j} = (1/N_j) Σ_k exp(2i(θ_j − θ_k)): θ^d_jk = θ_j − θ_k is the angle between the
+    deformation axes of particle j and its neighbour k, doubled because the axes are nematic
+    (θ and θ + π are the same axis).  (The paper prints exp(6iθ^d_jk); the 6 is a typo.)
+    ψ_{2,j} = 1 when j is aligned with all its neighbours, whatever the common direction;
+    a neighbour at right angles contributes −1.  This is the local alignment the paper
+    describes, not the alignment with a global director, |⟨exp(2iθ_j)⟩|.
+
+    Parameters
+    ----------
+    orientations
+        Length-N nematic angles θ_j of the elongation axes from the x axis (radians).
+    pairs
+        ``(M, 2)`` neighbour pairs, e.g. from :func:`periodic_delaunay_pairs`.
+    n_particles
+        N, the number of particles (``len(orientations)``).
+
+    Returns
+    -------
+    np.ndarray
+        Complex array of length N (NaN for a particle without neighbours).
+    """
+    orientations = np.asarray(orientations, dtype=float)
+    if orientations.shape != (n_particles,):
+        raise ValueError(
+            f"orientations must have shape ({n_particles},); got {orientations.shape}"
+        )
+    pairs = _as_pairs(pairs)
+    alignment = np.exp(2j * (orientations[pairs[:, 0]] - orientations[pairs[:, 1]]))
+    return _neighbour_mean(pairs, alignment, alignment.conj(), n_particles)
+
+
+def global_order(psi: ArrayLike, where: ArrayLike | None = None) -> float:
+    """|(1/N) Σ_j ψ_j|, the global order parameter of one frame.
+
+    `where` is an optional boolean mask of the particles to average over (e.g. away from the
+    walls); particles with NaN ψ_j (no neighbours) are always left out.
+    """
+    psi = np.asarray(psi, dtype=complex)
+    chosen = ~np.isnan(psi)
+    if where is not None:
+        chosen &= np.asarray(where, dtype=bool)
+    if not chosen.any():
+        raise ValueError("no particle with neighbours to average the order parameter over")
+    return float(np.abs(psi[chosen].mean()))
+
+
+def frame_average(values: ArrayLike) -> tuple[float, float]:
+    """Mean and standard deviation of a per-frame quantity over the frames given.
+
+    The paper averages Ψ6 and Ψ2^L over the last 50 of 250 frames: pass those frames' values
+    (e.g. ``[global_order(psi) for psi in last_frames]``).  The standard deviation is that of
+    the per-frame values (ddof = 0), i.e. the size of the fluctuations, not the error of the
+    mean.
+    """
+    values = np.asarray(values, dtype=float).ravel()
+    if values.size == 0:
+        raise ValueError("frame_average needs at least one frame")
+    return float(values.mean()), float(values.std())
+
+
+def particle_lattice_angles(
+    centroids: ArrayLike,
+    period_x: float,
+    pairs: ArrayLike | None = None,
+    *,
+    axis_tolerance: float = DEFAULT_AXIS_TOLERANCE,
+) -> np.ndarray:
+    """Per-particle lattice angle φ_j of lanes along x (radians).
+
+    Consider lanes along x with in-lane spacing a and lane spacing h, the lane above having
+    slid by s along x from the hexagonal stacking.  A particle has two inclined bonds to the
+    lane above, at angles (folded into [0, π/2]) α = atan(h / (a/2 + s)) and
+    β = atan(h / (a/2 − s)) for 0 ≤ s ≤ a/2.  The hexagonal lattice (s = 0, h = a√3/2) has
+    α = β = π/3.  As the lanes slide, α falls and β rises until the T1 at s = a/2, where the
+    lanes are stacked into a rectangular lattice (square in the paper, whose elongated
+    particles make h = a): β = π/2, and α = atan(h/a) (π/4 for the square) is the angle of the
+    diagonal that flips.  After the flip the new diagonal plays α and rises back to π/3.  The
+    lattice angle of the paper, φ ∈ [π/4, π/3], is therefore α: the smaller inclination of
+    the bonds to a neighbouring lane.
+
+    So, for each particle and each side (neighbours above, neighbours below):
+
+    1. fold every bond's angle into [0, π/2] (its inclination to the lanes);
+    2. drop bonds within `axis_tolerance` of the x axis (in-lane neighbours) and of the y axis
+       (a particle stacked on top of another: β near the T1; the Delaunay diagonal of that
+       near-square cell may belong to the neighbours, leaving only the vertical bond, which
+       carries no lattice angle);
+    3. take the smallest remaining inclination, α of that side.
+
+    φ_j is the mean over the sides that have an inclined bond.  Each side is a single lane
+    interface, so lanes in different phases of sliding are not mixed within a side.
+
+    With positional noise the minimum of two nearly equal angles is biased low, by about half
+    the angular noise of a bond near the hexagonal lattice.
+
+    Returns
+    -------
+    np.ndarray
+        Length-N array; NaN for a particle without inclined bonds.
+    """
+    centroids = _as_centroids(centroids)
+    n_particles = len(centroids)
+    pairs = periodic_delaunay_pairs(centroids, period_x) if pairs is None else _as_pairs(pairs)
+    vectors = bond_vectors(centroids, period_x, pairs)
+    # every bond, seen from each of its two particles
+    owners = pairs.T.ravel()
+    outgoing = np.concatenate([vectors, -vectors])
+    inclination = np.arctan2(np.abs(outgoing[:, 1]), np.abs(outgoing[:, 0]))
+    inclined = (inclination > axis_tolerance) & (inclination < np.pi / 2 - axis_tolerance)
+    above = (outgoing[:, 1] > 0).astype(int)
+
+    smallest = np.full((n_particles, 2), np.inf)
+    np.minimum.at(smallest, (owners[inclined], above[inclined]), inclination[inclined])
+    found = np.isfinite(smallest)
+    n_sides = found.sum(axis=1)
+    return np.divide(
+        np.where(found, smallest, 0.0).sum(axis=1),
+        n_sides,
+        out=np.full(n_particles, np.nan),
+        where=n_sides > 0,
+    )
+
+
+def lattice_angle(
+    centroids: ArrayLike,
+    period_x: float,
+    pairs: ArrayLike | None = None,
+    *,
+    axis_tolerance: float = DEFAULT_AXIS_TOLERANCE,
+) -> float:
+    """The lattice angle φ of one frame (radians): π/3 hexagonal, π/4 square at the T1.
+
+    The median of :func:`particle_lattice_angles` over the particles that have inclined
+    bonds; the median ignores the few wall or defect particles whose bonds are not those of
+    the lattice.
+
+    Raises
+    ------
+    ValueError
+        If no particle has an inclined bond.
+    """
+    angles = particle_lattice_angles(
+        centroids, period_x, pairs, axis_tolerance=axis_tolerance
+    )
+    if np.isnan(angles).all():
+        raise ValueError(
+            "no inclined bonds: every bond is within axis_tolerance of the x or y axis"
+        )
+    return float(np.nanmedian(angles))
+
+
+def t1_events(
+    pairs_before: ArrayLike, pairs_after: ArrayLike
+) -> tuple[np.ndarray, np.ndarray]:
+    """Bonds lost and gained between two frames.
+
+    A T1 neighbour exchange shows as one lost and one gained pair; :func:`t1_event_times`
+    counts them robustly over a sequence of frames.  Returns ``(lost, gained)``, each a
+    ``(K, 2)`` int array with ``i < j`` in each row, rows sorted.
+    """
+    before, after = _pair_set(pairs_before), _pair_set(pairs_after)
+    return _pair_array(before - after), _pair_array(after - before)
+
+
+def t1_event_times(
+    centroid_frames: Sequence[ArrayLike],
+    times: ArrayLike,
+    period_x: float,
+    *,
+    length_contrast: float = DEFAULT_LENGTH_CONTRAST,
+) -> np.ndarray:
+    """Times of the T1 events in a sequence of frames.
+
+    A T1 is one Delaunay edge flip: the bond (a, b) is lost and the bond (c, d) gained, where
+    a-c-b-d is a quadrilateral whose four sides are bonds both before and after.  Lost and
+    gained bonds are matched into flips greedily; changes that match no flip (the convex hull
+    at a wall changing, several coupled flips in one triangle fan) are not counted.
+
+    A square cell is degenerate: its two diagonals are equally long, and the Delaunay choice
+    between them flips back and forth with any noise.  Flips are therefore counted with
+    hysteresis against a reference topology.  A flip counts, at the time of the first frame in
+    which the lost diagonal is at least ``1 + length_contrast`` times as long as the gained
+    one; until then the reference keeps the old diagonal, so a flip that reverts before
+    becoming decisive is not counted at all, and a flip that becomes decisive over several
+    frames is counted once.  Several T1s in one frame give repeated times.
+
+    Parameters
+    ----------
+    centroid_frames
+        Sequence of ``(N, 2)`` centroids, same particle order in every frame.
+    times
+        Time of each frame (any unit; returned in the same unit).
+    period_x
+        The period Lx of the channel along x.
+    length_contrast
+        Relative excess length of the lost over the gained diagonal that makes a flip count.
+
+    Returns
+    -------
+    np.ndarray
+        Sorted times of the T1 events; its length is the number of T1 events.
+    """
+    times = np.asarray(times, dtype=float)
+    if len(times) != len(centroid_frames):
+        raise ValueError(
+            f"{len(centroid_frames)} frames but {len(times)} times; need one time per frame"
+        )
+    if len(times) == 0:
+        return np.empty(0)
+
+    reference = _pair_set(periodic_delaunay_pairs(centroid_frames[0], period_x))
+    event_times = []
+    for time, centroids in zip(times[1:], centroid_frames[1:]):
+        current = _pair_set(periodic_delaunay_pairs(centroids, period_x))
+        flips = _edge_flips(reference - current, current - reference, reference & current)
+        undecided = [
+            (lost, gained)
+            for lost, gained in flips
+            if not _is_decisive(centroids, period_x, lost, gained, length_contrast)
+        ]
+        event_times += [time] * (len(flips) - len(undecided))
+        reference = (current - {gained for _, gained in undecided}) | {
+            lost for lost, _ in undecided
+        }
+    return np.sort(np.asarray(event_times, dtype=float))
+
+
+def _edge_flips(
+    lost: set[_Pair], gained: set[_Pair], kept: set[_Pair]
+) -> list[tuple[_Pair, _Pair]]:
+    """Match lost with gained bonds into edge flips (see :func:`t1_event_times`)."""
+    flips = []
+    unmatched = set(gained)
+    for old in sorted(lost):
+        new = next((new for new in sorted(unmatched) if _is_flip(old, new, kept)), None)
+        if new is not None:
+            flips.append((old, new))
+            unmatched.remove(new)
+    return flips
+
+
+def _is_flip(old: _Pair, new: _Pair, kept: set[_Pair]) -> bool:
+    (a, b), (c, d) = old, new
+    sides = ((a, c), (a, d), (b, c), (b, d))
+    return len({a, b, c, d}) == 4 and all(
+        (min(side), max(side)) in kept for side in sides
+    )
+
+
+def _is_decisive(
+    centroids: ArrayLike, period_x: float, lost: _Pair, gained: _Pair, length_contrast: float
+) -> bool:
+    lost_length, gained_length = np.linalg.norm(
+        bond_vectors(centroids, period_x, [lost, gained]), axis=1
+    )
+    return bool(lost_length >= (1 + length_contrast) * gained_length)
+
+
+def _neighbour_mean(
+    pairs: np.ndarray, to_first: np.ndarray, to_second: np.ndarray, n_particles: int
+) -> np.ndarray:
+    """Mean over each particle's bonds; bond p contributes to_first[p] to particle
+    pairs[p, 0] and to_second[p] to particle pairs[p, 1]."""
+    owners = pairs.T.ravel()
+    contributions = np.concatenate([to_first, to_second])
+    sums = np.bincount(owners, contributions.real, n_particles) + 1j * np.bincount(
+        owners, contributions.imag, n_particles
+    )
+    counts = np.bincount(owners, minlength=n_particles)
+    return np.divide(
+        sums, counts, out=np.full(n_particles, np.nan, dtype=complex), where=counts > 0
+    )
+
+
+def _as_centroids(centroids: ArrayLike) -> np.ndarray:
+    centroids = np.array(centroids, dtype=float)
+    if centroids.ndim != 2 or centroids.shape[1] != 2:
+        raise ValueError(f"centroids must have shape (N, 2); got {centroids.shape}")
+    return centroids
+
+
+def _as_pairs(pairs: ArrayLike) -> np.ndarray:
+    return np.asarray(pairs, dtype=int).reshape(-1, 2)
+
+
+def _pair_set(pairs: ArrayLike) -> set[_Pair]:
+    return set(map(tuple, np.sort(_as_pairs(pairs), axis=1).tolist()))
+
+
+def _pair_array(pairs: set[_Pair]) -> np.ndarray:
+    return np.array(sorted(pairs), dtype=int).reshape(-1, 2)

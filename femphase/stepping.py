@@ -1,0 +1,246 @@
+"""Semi-implicit time stepping of all phase fields.
+
+One step of length dt is Lie splitting of advection and relaxation:
+
+1. advection over dt (:mod:`femphase.advection`; skipped without flow);
+2. relaxation, linearly implicit in the gradient term, explicit in the rest:
+
+       (G/dt + J0 S M_L + J0 2γλ K) φ¹ = (G/dt + J0 S M_L) φ* − J0 M_L g(φ*) + M_L s
+
+   with G the mass matrix of the time derivative (lumped M_L or consistent M), g the
+   explicit part of δF/δφ (:func:`femphase.energy.explicit_derivative`), s an optional
+   source term (manufactured solutions) and S the stabilisation
+   (:func:`femphase.model.stabilisation_for` unless set), which makes the no-flow step
+   decrease the discrete free energy for any dt.
+
+The matrix is symmetric positive definite and the same for all particles; every window
+solves its principal submatrix (see :mod:`femphase.windows`), one solver per window key,
+all windows of a key in one multi-right-hand-side call.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from .advection import advect_row_flow, advect_semi_lagrangian
+from .discretisation import P1Operators, assemble_operators
+from .energy import explicit_derivative
+from .errors import BlowUpError, SceneError
+from .flows import Flow, no_flow
+from .mesh import ChannelGrid, grid_dof_map, structured_channel_mesh
+from .model import ModelParameters, stabilisation_for
+from .solvers import make_solver
+from .state import State
+from .windows import Layout, WindowPolicy, transfer
+
+MASS_TYPES = ("lumped", "consistent")
+
+
+@dataclass(frozen=True)
+class Numerics:
+    """Discretisation choices (scene table ``[numerics]``).
+
+    mass            "lumped" (default) or "consistent" mass matrix in the time derivative
+    stabilisation   "auto" (the smallest energy-stable S for each dt) or a number ≥ 0
+    solver          "auto", "direct" (cached LU) or "amg" (pyamg-preconditioned CG)
+    tolerance       relative residual of the AMG-Krylov solves
+    windows         False: every field on the whole mesh (full-mesh mode)
+    threshold       φ above which a node belongs to a particle (window fitting)
+    margin          lattice units kept between a particle and its window's edge
+    diagonals       "right", "left" or "alternating" (structured mesh pattern)
+    blowup_margin   a step fails when φ leaves [−blowup_margin, 1 + blowup_margin]
+    """
+
+    mass: str = "lumped"
+    stabilisation: float | str = "auto"
+    solver: str = "auto"
+    tolerance: float = 1e-10
+    windows: bool = True
+    threshold: float = 0.01
+    margin: float = 4.0
+    diagonals: str = "right"
+    blowup_margin: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.mass not in MASS_TYPES:
+            raise SceneError("numerics.mass", self.mass, f"one of {MASS_TYPES}")
+        if self.stabilisation != "auto" and not (
+            isinstance(self.stabilisation, (int, float)) and self.stabilisation >= 0
+        ):
+            raise SceneError("numerics.stabilisation", self.stabilisation, '"auto" or a number ≥ 0')
+        if not 0 < self.threshold < 0.5:
+            raise SceneError("numerics.threshold", self.threshold, "a number in (0, 0.5)")
+        if not self.margin > 0:
+            raise SceneError("numerics.margin", self.margin, "a length > 0 (lattice units)")
+        if not self.tolerance > 0:
+            raise SceneError("numerics.tolerance", self.tolerance, "a number > 0")
+        if not self.blowup_margin > 0:
+            raise SceneError("numerics.blowup_margin", self.blowup_margin, "a number > 0")
+
+
+@dataclass(frozen=True)
+class Discretisation:
+    """The channel's grid, mesh and assembled P1 operators (built once per scene)."""
+
+    grid: ChannelGrid
+    operators: P1Operators
+    alternating: bool
+    mesh: object  # the non-periodic skfem.MeshTri (what output files are written on)
+    dof_map: np.ndarray  # its nodes' dofs in grid order
+
+    @classmethod
+    def structured(cls, grid: ChannelGrid, diagonals: str = "right", mesh=None) -> "Discretisation":
+        """Operators on the structured channel mesh, or on ``mesh`` (a non-periodic MeshTri
+        whose nodes are the grid's, e.g. read from a file)."""
+        mesh = structured_channel_mesh(grid, diagonals) if mesh is None else mesh
+        dof_map = grid_dof_map(mesh, grid)
+        operators = assemble_operators(mesh, dof_map, grid.n_nodes)
+        return cls(grid, operators, _has_alternating_diagonals(mesh, grid), mesh, dof_map)
+
+
+def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:
+    """True unless every cell is split along the same diagonal (then windows of a shape share
+    one submatrix regardless of position)."""
+    p = mesh.p[:, mesh.t] / grid.h
+    spans = np.ptp(p[0], axis=0) + np.ptp(p[1], axis=0)  # 2 for the right-angle triangles
+    corner_sum = np.rint(p[0] + p[1]).astype(int)
+    rising = (np.ptp(corner_sum, axis=0) == 2) & (spans == 2)
+    return bool(rising.any() and not rising.all())
+
+
+class SemiImplicitStepper:
+    """Advances a :class:`State` by steps of fixed dt under a fixed flow."""
+
+    def __init__(
+        self,
+        discretisation: Discretisation,
+        params: ModelParameters,
+        numerics: Numerics,
+        dt: float,
+        flow: Flow | None = None,
+        radii: np.ndarray | None = None,
+        source: Callable[[np.ndarray, np.ndarray, float], np.ndarray] | None = None,
+    ) -> None:
+        if not (dt > 0 and np.isfinite(dt)):
+            raise SceneError("phases.dt", dt, "a time step > 0")
+        self.disc, self.params, self.numerics, self.dt = discretisation, params, numerics, dt
+        self.flow = flow or no_flow()
+        self.source = source
+        self.policy = WindowPolicy.for_spacing(
+            discretisation.grid.h, threshold=numerics.threshold, margin=numerics.margin,
+            enabled=numerics.windows,
+        )
+        ops = discretisation.operators
+        smallest_radius = float(np.min(radii)) if radii is not None and len(radii) else params.radius
+        consistent = numerics.mass == "consistent"
+        if numerics.stabilisation == "auto":
+            self.stabilisation = stabilisation_for(params, dt, smallest_radius, 0.25 if consistent else 1.0)
+        else:
+            self.stabilisation = float(numerics.stabilisation)
+        j0 = params.mobility
+        time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
+        self._time_mass = sp.csr_matrix(time_mass) if consistent else None
+        self.system = (
+            time_mass / dt
+            + j0 * self.stabilisation * sp.diags(ops.lumped_mass)
+            + params.diffusivity * ops.stiffness
+        ).tocsr()
+        self._solvers: dict[tuple, tuple] = {}
+        self._layout: Layout | None = None
+
+    # -- structure reused between steps ---------------------------------------------------
+    def layout(self, windows) -> Layout:
+        if self._layout is None or self._layout.windows != tuple(windows):
+            self._layout = Layout(windows, self.disc.grid, self.disc.alternating)
+        return self._layout
+
+    def _solver(self, key: tuple, window) -> tuple:
+        """(solver, consistent-mass submatrix or None) for windows with this key."""
+        if key not in self._solvers:
+            nodes = window.node_indices(self.disc.grid)
+            block = self.system[nodes][:, nodes]
+            mass = self._time_mass[nodes][:, nodes] if self._time_mass is not None else None
+            self._solvers[key] = (
+                make_solver(block, self.numerics.solver, self.numerics.tolerance), mass,
+            )
+        return self._solvers[key]
+
+    # -- one step -------------------------------------------------------------------------
+    def step(self, state: State) -> None:
+        """Advance ``state`` by dt in place; raises BlowUpError (state unchanged) on failure."""
+        fields, windows = state.fields, state.windows
+        if not self.flow.is_still:
+            if self.flow.row_velocity is not None:
+                fields, windows = advect_row_flow(
+                    fields, windows, state.grid, self.flow, self.dt, self.layout(windows).groups
+                )
+            else:
+                fields, windows = advect_semi_lagrangian(fields, windows, state.grid, self.flow, self.dt)
+        layout = self.layout(windows)
+        phi = layout.gather(fields)
+        phi_new = self._relax(phi, layout, state.radii, state.time + self.dt)
+        self._check(phi_new, state.step + 1, state.time + self.dt)
+        new_fields = layout.scatter(phi_new)
+        new_windows = list(windows)
+        for group, (_, members, *_) in enumerate(layout.groups):
+            block = layout.group_block(phi_new, group)
+            for i in members[self.policy.misfits(block, [windows[i] for i in members], state.grid)]:
+                fitted = self.policy.fit(new_fields[i], windows[i], state.grid)
+                if fitted == windows[i]:
+                    continue
+                new_fields[i] = transfer(new_fields[i], windows[i], fitted, state.grid)
+                new_windows[i] = fitted
+        state.fields, state.windows = new_fields, new_windows
+        state.time += self.dt
+        state.step += 1
+
+    def _relax(self, phi: np.ndarray, layout: Layout, radii: np.ndarray, new_time: float) -> np.ndarray:
+        ops, params, grid = self.disc.operators, self.params, self.disc.grid
+        j0, dt = params.mobility, self.dt
+        nodes = layout.node_index
+        mass = ops.lumped_mass[nodes]
+        squares = phi**2
+        sizes = np.diff(layout.offsets)
+        radius = np.asarray(radii, dtype=float)[layout.order]
+        ratio = np.add.reduceat(mass * squares, layout.offsets[:-1]) / (np.pi * radius**2)
+        # repulsion only where windows overlap: elsewhere Σ_{j≠i} φ_j² is exactly zero
+        others = np.zeros_like(phi)
+        shared = layout.overlap_positions
+        if shared.size:
+            total = np.bincount(nodes[shared], weights=squares[shared], minlength=grid.n_nodes)
+            others[shared] = total[nodes[shared]] - squares[shared]
+        g = explicit_derivative(
+            phi, others, np.repeat(ratio, sizes), np.repeat(radius, sizes), params
+        )
+        explicit = mass * (j0 * self.stabilisation * phi - j0 * g)
+        if self.source is not None:
+            x = (nodes % grid.nx) * grid.h
+            y = (nodes // grid.nx) * grid.h
+            explicit += mass * self.source(x, y, new_time)
+        out = np.empty_like(phi)
+        for group, (key, members, start, stop, size) in enumerate(layout.groups):
+            solver, time_mass = self._solver(key, layout.representative(group))
+            current = phi[start:stop].reshape(len(members), size).T
+            if time_mass is None:
+                rhs = current * (mass[start:stop].reshape(len(members), size).T / dt)
+            else:
+                rhs = (time_mass @ current) / dt
+            rhs += explicit[start:stop].reshape(len(members), size).T
+            out[start:stop] = solver.solve(rhs, current).T.ravel()
+        return out
+
+    def _check(self, phi: np.ndarray, step: int, time: float) -> None:
+        bound = self.numerics.blowup_margin
+        if not np.all(np.isfinite(phi)):
+            raise BlowUpError(step, time, "φ is not finite (NaN or inf)")
+        low, high = float(phi.min()), float(phi.max())
+        if low < -bound or high > 1.0 + bound:
+            raise BlowUpError(
+                step, time,
+                f"φ left [{-bound:g}, {1 + bound:g}] (min {low:.3g}, max {high:.3g}); "
+                "try a smaller dt or a larger numerics.stabilisation",
+            )

@@ -1,0 +1,124 @@
+"""Oscillation periods of synthetic signals shaped like the paper's r(t), and the limit cycle."""
+
+import numpy as np
+import pytest
+
+from femphase.analysis import periods
+
+PERIOD = 314.159
+
+
+def elongation(time: np.ndarray, *, secondary: float = 0.6, transient: float = 3.0) -> np.ndarray:
+    """r(t) like the paper's: each cycle a sharp primary peak, then 0.2 periods later a
+    smaller secondary one, on top of a transient decaying over half a period."""
+
+    def pulse(centre: float, width: float) -> np.ndarray:
+        phase = (time / PERIOD - centre + 0.5) % 1 - 0.5
+        return np.exp(-0.5 * (phase / width) ** 2)
+
+    return (
+        1
+        + 2 * pulse(0.0, 0.04)
+        + 2 * secondary * pulse(0.2, 0.05)
+        + transient * np.exp(-time / (0.5 * PERIOD))
+    )
+
+
+def uniform_times(n_cycles: float, per_cycle: int = 125) -> np.ndarray:
+    return np.linspace(0, n_cycles * PERIOD, int(n_cycles * per_cycle) + 1)
+
+
+def uneven_times(n_cycles: float, rng: np.random.Generator) -> np.ndarray:
+    return np.sort(rng.uniform(0, n_cycles * PERIOD, int(n_cycles * 125)))
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.05, 0.2])
+@pytest.mark.parametrize("sampling", ["uniform", "uneven"])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_period_of_elongation_with_transient_and_secondary_peak(noise, sampling, seed):
+    rng = np.random.default_rng(seed)
+    time = uniform_times(12) if sampling == "uniform" else uneven_times(12, rng)
+    signal = elongation(time) + noise * rng.standard_normal(time.size)
+
+    estimate = periods.oscillation_period(time, signal)
+
+    assert abs(estimate.period - PERIOD) <= estimate.uncertainty
+    assert estimate.uncertainty < 0.01 * PERIOD
+    # the last 9 of 12 cycles, one interval fewer than peaks
+    assert 7 <= estimate.n_cycles <= 9
+
+
+def test_discarding_the_transient_is_what_handles_it():
+    # a transient five times the oscillation's height
+    time = uniform_times(12)
+    signal = elongation(time, transient=10.0)
+    estimate = periods.oscillation_period(time, signal)
+    assert abs(estimate.period - PERIOD) <= estimate.uncertainty
+    with pytest.raises(ValueError, match="no consistent period"):
+        periods.oscillation_period(time, signal, discard_fraction=0.0)
+
+
+def test_period_of_the_lattice_angle():
+    omega = np.pi / PERIOD
+    time = uniform_times(8)
+    angle = np.pi / 12 * np.cos(omega * time) ** 2 + np.pi / 4
+    estimate = periods.oscillation_period(time, angle)
+    assert abs(estimate.period - PERIOD) <= estimate.uncertainty
+    assert estimate.uncertainty < 0.01 * PERIOD
+
+
+def test_period_that_varies_from_cycle_to_cycle():
+    # phase jitter: cycle k lasts PERIOD (1 + 3 % noise); the estimate is of the mean period
+    rng = np.random.default_rng(3)
+    lengths = PERIOD * (1 + 0.03 * rng.standard_normal(40))
+    starts = np.concatenate([[0.0], np.cumsum(lengths)])
+    time = uniform_times(38)
+    cycle = np.searchsorted(starts, time, side="right") - 1
+    signal = elongation(PERIOD * (time - starts[cycle]) / lengths[cycle], transient=0.0)
+
+    estimate = periods.oscillation_period(time, signal)
+
+    # the mean length of the cycles that were measured
+    measured = lengths[10:37].mean()
+    assert abs(estimate.period - measured) <= estimate.uncertainty
+    # the uncertainty reflects the scatter of the cycles
+    assert estimate.uncertainty > 0.5 * 0.03 * PERIOD / np.sqrt(estimate.n_cycles)
+
+
+@pytest.mark.parametrize("n_cycles", [1.5, 2.0, 2.5, 2.9])
+def test_too_few_cycles_raise(n_cycles):
+    time = uniform_times(n_cycles)
+    with pytest.raises(ValueError, match="cycles"):
+        periods.oscillation_period(time, elongation(time, transient=0.0), discard_fraction=0.0)
+
+
+def test_noise_alone_raises():
+    time = uniform_times(12)
+    noise = np.random.default_rng(4).standard_normal(time.size)
+    with pytest.raises(ValueError, match="no oscillation"):
+        periods.oscillation_period(time, noise)
+
+
+@pytest.mark.parametrize(
+    "time, signal, message",
+    [
+        (np.arange(10.0), np.zeros(9), "equal length"),
+        (np.arange(10.0)[::-1], np.zeros(10), "increasing"),
+        (np.arange(10.0), np.full(10, np.nan), "finite"),
+        (np.arange(100.0), np.ones(100), "constant"),
+    ],
+)
+def test_malformed_input_raises(time, signal, message):
+    with pytest.raises(ValueError, match=message):
+        periods.oscillation_period(time, signal)
+
+
+def test_limit_cycle_is_the_polar_plane_of_r_and_2theta():
+    x, y = periods.limit_cycle([1.0, 2.0, 0.5], [np.pi / 4, 0.0, -np.pi / 4])
+    np.testing.assert_allclose(x, [0.0, 2.0, 0.0], atol=1e-15)
+    np.testing.assert_allclose(y, [1.0, 0.0, -0.5])
+    # nematic: θ and θ + π are the same point
+    np.testing.assert_allclose(
+        np.column_stack(periods.limit_cycle([1.5], [0.3 + np.pi])),
+        np.column_stack(periods.limit_cycle([1.5], [0.3])),
+    )

@@ -1,0 +1,201 @@
+"""The paper's minimal ODE model: φ(t), the closed-form and integrated θ(t), and r(t)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+from scipy.signal import find_peaks
+
+from femphase.ode import (
+    MinimalModelParameters,
+    elongation_rate,
+    lattice_angle,
+    orientation,
+    period,
+    register_cli,
+    solve_minimal_model,
+    t1_times,
+    wrap_orientation,
+)
+
+PAPER_RATES = (0.0778, 0.1487, 0.3857)
+
+
+@pytest.fixture(scope="module")
+def solutions():
+    """Four periods at each of the paper's rates, sampled every ~P/5000 to resolve the T1s."""
+    return {rate: solve_minimal_model(rate, 4 * period(rate), n_samples=20001) for rate in PAPER_RATES}
+
+
+def after_transient(solution, periods: float = 2.0) -> np.ndarray:
+    """Which samples lie past the first `periods` periods (the transient lasts ~1 time unit)."""
+    return solution.time >= periods * solution.period
+
+
+def test_lattice_angle_spans_square_to_hexagonal_with_period_pi_over_omega():
+    rate = 0.1487
+    P = period(rate)
+    t = np.linspace(0.0, 3 * P, 3001)
+    phi = lattice_angle(t, rate)
+    assert np.all(phi >= np.pi / 4 - 1e-15) and np.all(phi <= np.pi / 3 + 1e-15)
+    assert phi.min() == pytest.approx(np.pi / 4) and phi.max() == pytest.approx(np.pi / 3)
+    np.testing.assert_allclose(lattice_angle(t + P, rate), phi, atol=1e-12)
+    np.testing.assert_allclose(lattice_angle(t1_times(rate, 3 * P), rate), np.pi / 4, atol=1e-12)
+
+
+def test_t1_times_are_the_odd_multiples_of_half_a_period():
+    rate, k = 0.0778, 0.02
+    omega = k * rate
+    tau = t1_times(rate, 7 * np.pi / (2 * omega) + 1.0, k)
+    n = np.arange(4)
+    np.testing.assert_allclose(tau, (2 * n + 1) * np.pi / (2 * omega), rtol=1e-14)
+
+
+def test_closed_form_orientation_matches_the_integrated_one(solutions):
+    for rate, solution in solutions.items():
+        closed_form = orientation(solution.time, rate)
+        assert np.all(closed_form > -np.pi / 2) and np.all(closed_form <= np.pi / 2)
+        # nematic difference, so that −π/2 + δ and π/2 count as close
+        difference = wrap_orientation(closed_form - solution.orientation)
+        assert np.max(np.abs(difference)) < 1e-6, rate
+
+
+def test_closed_form_orientation_at_the_paper_landmarks():
+    rate = 0.1487
+    half = period(rate) / 2
+    # θ(0) = π/2; θ → π/4 just before τ_0; reset to −π/4 at τ_0; −π/2 ≡ π/2 halfway to τ_1
+    theta = orientation(np.array([0.0, half * (1 - 1e-9), half, 2 * half]), rate)
+    np.testing.assert_allclose(theta, [np.pi / 2, np.pi / 4, -np.pi / 4, np.pi / 2], atol=1e-9)
+
+
+def test_orientation_resets_to_minus_pi_over_4_exactly_at_the_t1_times(solutions):
+    solution = solutions[0.1487]
+    tau = t1_times(solution.rate, solution.time[-1])
+    assert tau.size == 4
+    at_t1 = np.flatnonzero(np.isin(solution.time, tau))
+    assert at_t1.size == tau.size
+    np.testing.assert_allclose(solution.orientation[at_t1], -np.pi / 4, atol=1e-12)
+    # one sample earlier θ is still at its pre-T1 value π/4: the jump happens at τ_n itself
+    np.testing.assert_allclose(solution.orientation[at_t1 - 1], np.pi / 4, atol=1e-6)
+    np.testing.assert_allclose(orientation(tau, solution.rate), -np.pi / 4, atol=1e-12)
+
+
+def test_elongation_is_periodic_with_period_pi_over_omega(solutions):
+    for rate, solution in solutions.items():
+        keep = after_transient(solution, periods=1.0)
+        t, r = solution.time[keep], solution.elongation[keep]
+        peaks, _ = find_peaks(r)
+        np.testing.assert_allclose(np.diff(t[peaks]), solution.period, rtol=0.01)
+        # upward crossings of the mid level, placed by interpolation between samples
+        level = 0.5 * (r.min() + r.max())
+        up = np.flatnonzero((r[:-1] < level) & (r[1:] >= level))
+        crossings = t[up] + (level - r[up]) / (r[up + 1] - r[up]) * (t[up + 1] - t[up])
+        assert crossings.size == 3
+        np.testing.assert_allclose(np.diff(crossings), solution.period, rtol=0.01)
+
+
+def test_periodic_state_does_not_depend_on_the_initial_elongation():
+    rate = 0.1487
+    t_end = 2 * period(rate)
+    near_circle = solve_minimal_model(rate, t_end, initial_elongation=0.01)
+    elongated = solve_minimal_model(rate, t_end, initial_elongation=1.0)
+    settled = near_circle.time >= 0.1 * near_circle.period
+    np.testing.assert_allclose(
+        near_circle.elongation[settled], elongated.elongation[settled], atol=1e-6
+    )
+
+
+def primary_peak_and_shoulder(solution):
+    """r at the one maximum per cycle, and r where the fast drop after that T1 levels off.
+
+    The drop levels off where dr/dt, negative all along, comes closest to zero: the first
+    local maximum of dr/dt after the T1.
+    """
+    keep = after_transient(solution)
+    t, r = solution.time[keep], solution.elongation[keep]
+    drdt = elongation_rate(
+        r, solution.orientation[keep], solution.lattice_angle[keep], solution.rate,
+        solution.parameters,
+    )
+    peaks, _ = find_peaks(r)
+    primary = peaks[0]
+    shoulder = primary + find_peaks(drdt[primary:])[0][0]
+    return t, r, drdt, primary, shoulder
+
+
+def test_secondary_peak_at_rate_0_0778_is_a_shoulder_not_a_second_maximum(solutions):
+    # The paper reads a "large primary peak immediately followed by a smaller secondary
+    # peak" off its figure. In the model r has one maximum per cycle, a cusp at the T1; the
+    # reset θ: π/4 → −π/4 flips sin 2θ and r drops within a few time units (≪ π/ω) onto the
+    # slowly decaying branch that starts flat at τ_n⁺ — on the scale of a period that reads
+    # as a second, smaller peak.
+    solution = solutions[0.0778]
+    t, r, drdt, primary, shoulder = primary_peak_and_shoulder(solution)
+    peaks, _ = find_peaks(r)
+    assert peaks.size == 2
+    np.testing.assert_allclose(t[peaks], t1_times(solution.rate, t[-1])[-2:], rtol=1e-12)
+
+    assert t[shoulder] - t[primary] < 0.01 * solution.period
+    assert np.all(drdt[primary + 1 : shoulder + 1] < 0)
+    assert abs(drdt[shoulder]) < 1e-3
+    assert r.min() + 0.5 * (r[primary] - r.min()) < r[shoulder] < r[primary] - 0.05
+
+
+def test_primary_peak_grows_and_secondary_shrinks_with_rate(solutions):
+    heights = [primary_peak_and_shoulder(solutions[rate]) for rate in PAPER_RATES]
+    primary = [r[p] for _, r, _, p, _ in heights]
+    secondary = [r[s] for _, r, _, _, s in heights]
+    assert np.all(np.diff(primary) > 0)
+    assert np.all(np.diff(secondary) < 0)
+
+
+def parse(argv):
+    parser = argparse.ArgumentParser(prog="femphase")
+    register_cli(parser.add_subparsers())
+    return parser.parse_args(argv)
+
+
+def test_cli_writes_csv_and_json(tmp_path):
+    args = parse(["ode", "--rate", "0.1487", "-o", str(tmp_path / "run"), "--K", "0.02"])
+    assert args.func(args) == 0
+
+    csv_path = tmp_path / "run" / "ode.csv"
+    assert csv_path.read_text().splitlines()[0] == "time,elongation,orientation,lattice_angle"
+    table = np.loadtxt(csv_path, delimiter=",", skiprows=1)
+    assert table.shape[1] == 4 and table.shape[0] >= 2001
+
+    metadata = json.loads((tmp_path / "run" / "ode.json").read_text())
+    assert metadata["rate"] == 0.1487
+    assert metadata["parameters"] == {"A": 2.0, "epsilon": 2.3, "K": 0.02, "k": 0.01}
+    assert metadata["period"] == pytest.approx(np.pi / (0.01 * 0.1487))
+    assert metadata["t_end"] == pytest.approx(5 * metadata["period"])
+    assert table[-1, 0] == pytest.approx(metadata["t_end"])
+
+
+@pytest.mark.parametrize(
+    ("call", "named"),
+    [
+        (lambda: solve_minimal_model(0.0, 100.0), "rate = 0.0"),
+        (lambda: solve_minimal_model(-0.1, 100.0), "rate = -0.1"),
+        (lambda: solve_minimal_model(0.1, 0.0), "t_end = 0.0"),
+        (lambda: solve_minimal_model(0.1, 100.0, initial_elongation=0.0), "initial_elongation"),
+        (lambda: MinimalModelParameters(A=-1.0), "A = -1.0"),
+        (lambda: MinimalModelParameters(epsilon=-2.3), "epsilon = -2.3"),
+        (lambda: MinimalModelParameters(K=-0.01), "K = -0.01"),
+        (lambda: MinimalModelParameters(k=0.0), "k = 0.0"),
+        (lambda: orientation(np.zeros(3), float("nan")), "rate = nan"),
+    ],
+)
+def test_bad_values_raise_value_error_naming_them(call, named):
+    with pytest.raises(ValueError, match=named):
+        call()
+
+
+def test_cli_rejects_a_negative_rate(tmp_path):
+    args = parse(["ode", "--rate", "-0.1", "-o", str(tmp_path)])
+    with pytest.raises(ValueError, match=r"rate = -0\.1 is invalid: .*> 0"):
+        args.func(args)
+    assert not (tmp_path / "ode.csv").exists()
