@@ -15,9 +15,10 @@ from pathlib import Path
 import numpy as np
 
 from . import __version__
+from .analysis.order import OrderObserver
 from .analysis.shape import ShapeObservables, shape_observables
 from .energy import FreeEnergy, free_energy
-from .errors import FemphaseError, SceneError
+from .errors import SceneError
 from .io import (
     GLOBAL_COLUMNS, ORDER_GLOBAL_COLUMNS, ORDER_PARTICLE_COLUMNS, PARTICLE_COLUMNS,
     CsvWriter, FieldWriter, load_checkpoint, point_data, save_checkpoint, to_toml, write_json,
@@ -63,6 +64,7 @@ class Simulation:
             raise SceneError("--method", method, f"one of {METHODS}")
         self.scene, self.method = scene, method
         self.discretisation = scene.discretisation()
+        self._order: OrderObserver | None = None
 
     def stepper(self, phase: Phase, radii: np.ndarray):
         flow = self.scene.flow(phase)
@@ -106,7 +108,7 @@ class Simulation:
                         self._frame(state, phase, trackers, needs)
                     if finished:
                         break
-        except FemphaseError as exc:
+        except BaseException as exc:  # interrupted runs are recorded as failed too
             error = exc
             raise
         finally:
@@ -122,9 +124,9 @@ class Simulation:
         if "energy" in needs:
             frame.energy = free_energy(state.global_fields(), state.radii, self.scene.model, ops)
         if "order" in needs and "order" in self.scene.output.observables:
-            from .analysis.order import order_observables
-
-            frame.order = order_observables(state, frame.shape)
+            if self._order is None:
+                self._order = OrderObserver(state.grid.length)
+            frame.order = self._order(frame.shape)
         for tracker in trackers:
             tracker.frame(frame)
 
@@ -236,7 +238,7 @@ class RunDirectory(Tracker):
             "time": state.time,
             "wall_time_s": wallclock.perf_counter() - self.started,
             "status": "completed" if error is None else "failed",
-            "message": "" if error is None else str(error),
+            "message": "" if error is None else (str(error) or type(error).__name__),
             "resumed": self.resume,
         })
 

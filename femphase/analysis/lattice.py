@@ -345,21 +345,40 @@ def t1_event_times(
     if len(times) == 0:
         return np.empty(0)
 
-    reference = _pair_set(periodic_delaunay_pairs(centroid_frames[0], period_x))
+    counter = T1Counter(centroid_frames[0], period_x, length_contrast=length_contrast)
     event_times = []
     for time, centroids in zip(times[1:], centroid_frames[1:]):
-        current = _pair_set(periodic_delaunay_pairs(centroids, period_x))
+        event_times += [time] * counter.update(centroids)
+    return np.sort(np.asarray(event_times, dtype=float))
+
+
+class T1Counter:
+    """Counts T1 events frame by frame, with the hysteresis of :func:`t1_event_times`."""
+
+    def __init__(
+        self, centroids: ArrayLike, period_x: float, *, length_contrast: float = DEFAULT_LENGTH_CONTRAST
+    ) -> None:
+        self.period_x = period_x
+        self.length_contrast = length_contrast
+        self.reference = _pair_set(periodic_delaunay_pairs(centroids, period_x))
+        self.count = 0
+
+    def update(self, centroids: ArrayLike) -> int:
+        """Take the next frame's centroids; return how many T1 events became decisive."""
+        current = _pair_set(periodic_delaunay_pairs(centroids, self.period_x))
+        reference = self.reference
         flips = _edge_flips(reference - current, current - reference, reference & current)
         undecided = [
             (lost, gained)
             for lost, gained in flips
-            if not _is_decisive(centroids, period_x, lost, gained, length_contrast)
+            if not _is_decisive(centroids, self.period_x, lost, gained, self.length_contrast)
         ]
-        event_times += [time] * (len(flips) - len(undecided))
-        reference = (current - {gained for _, gained in undecided}) | {
+        self.reference = (current - {gained for _, gained in undecided}) | {
             lost for lost, _ in undecided
         }
-    return np.sort(np.asarray(event_times, dtype=float))
+        events = len(flips) - len(undecided)
+        self.count += events
+        return events
 
 
 def _edge_flips(

@@ -1,0 +1,134 @@
+"""Scenes, their errors, and the command line: run, resume, blow-up."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from femphase.cli import main
+from femphase.errors import SceneError
+from femphase.io import load_checkpoint, read_csv
+from femphase.scene import hexagonal_centres, load_scene, scene_from_dict
+from femphase.simulation import Simulation, Tracker, run_scene
+
+SMALL = {
+    "name": "tiny",
+    "domain": {"Lx": 30.0, "Ly": 30.0, "h": 1.0},
+    "particles": {"layout": "list", "centres": [[10.0, 15.0], [21.0, 15.0]], "initial_radius": 5.0},
+    "output": {"fields": True},
+    "phases": [
+        {"name": "relax", "duration": 20.0, "dt": 1.0, "frame_interval": 5.0},
+        {"name": "shear", "duration": 30.0, "dt": 1.0, "frame_interval": 5.0, "flow": {"type": "shear", "rate": 0.5}},
+    ],
+}
+
+
+def write_scene(path: Path, data: dict = SMALL) -> Path:
+    from femphase.io import to_toml
+
+    path.write_text(to_toml(data))
+    return path
+
+
+@pytest.mark.parametrize(
+    "assignment, key",
+    [
+        ("model.R=-1", "model.R"),
+        ("model.lambda=0", "model.interface_width"),
+        ("model.colour=3", "model.colour"),
+        ("domain.h=3", "domain.h"),
+        ("domain.Lx=31.5", "domain.Lx"),
+        ("particles.layout='grid'", "particles.layout"),
+        ("phases.1.dt=0.7", "phases.1.duration"),
+        ("phases.1.flow.type='vortex'", "phases.1.flow.type"),
+        ("numerics.mass='heavy'", "numerics.mass"),
+    ],
+)
+def test_invalid_scene_values_name_the_key(tmp_path, assignment, key):
+    path = write_scene(tmp_path / "scene.toml")
+    with pytest.raises(SceneError) as info:
+        load_scene(path, [assignment])
+    assert info.value.key == key
+    assert "invalid" in str(info.value)
+
+
+def test_too_many_particles_is_refused_with_the_limit():
+    data = {**SMALL, "particles": {"layout": "random", "N": 40}}
+    with pytest.raises(SceneError, match="at most"):
+        scene_from_dict(data)
+
+
+def test_the_cli_prints_one_message_and_no_traceback(tmp_path):
+    path = write_scene(tmp_path / "scene.toml")
+    result = subprocess.run(
+        [sys.executable, "-m", "femphase.cli", "run", str(path), "-o", str(tmp_path / "out"), "--set", "model.mu=-3"],
+        capture_output=True, text=True,
+    )
+    assert result.returncode == 2
+    assert "model.area_stiffness" in result.stderr or "model.mu" in result.stderr
+    assert "Traceback" not in result.stderr
+
+
+def test_hexagonal_layout_is_the_papers_lattice():
+    centres = hexagonal_centres(100, 70.0, 240.0)
+    assert centres.shape == (100, 2)
+    assert np.allclose(np.diff(np.unique(centres[:, 1])), 12.0)  # 20 rows
+    row = np.sort(centres[centres[:, 1] == 6.0, 0])
+    assert np.allclose(np.diff(row), 14.0)  # 5 per row
+
+
+def test_run_directory_holds_every_output(tmp_path):
+    path = write_scene(tmp_path / "scene.toml")
+    assert main(["run", str(path), "-o", str(tmp_path / "run"), "-q"]) == 0
+    run = tmp_path / "run"
+    for name in ("scene.toml", "fields.xdmf", "fields.h5", "particles.csv", "global.csv", "checkpoint.npz", "run.json"):
+        assert (run / name).exists(), name
+    particles = read_csv(run / "particles.csv")
+    assert set(particles) >= {"time", "id", "x", "y", "area", "elongation", "orientation"}
+    assert len(particles["time"]) == 2 * 11  # two particles, frames at 0, 5, …, 50
+    info = json.loads((run / "run.json").read_text())
+    assert info["status"] == "completed" and info["steps"] == 50
+    # the resolved scene is itself a valid scene that reproduces the settings
+    assert load_scene(run / "scene.toml").to_dict()["phases"] == load_scene(path).to_dict()["phases"]
+
+
+class StopAt(Tracker):
+    def __init__(self, step):
+        self.stop = step
+
+    def after_step(self, state):
+        if state.step == self.stop:
+            raise KeyboardInterrupt
+
+
+def test_resume_continues_to_the_same_state_as_an_uninterrupted_run(tmp_path):
+    scene = load_scene(write_scene(tmp_path / "scene.toml"))
+    straight = run_scene(scene, tmp_path / "straight", progress=False)
+    from femphase.simulation import RunDirectory
+
+    interrupted_dir = tmp_path / "interrupted"
+    with pytest.raises(KeyboardInterrupt):
+        Simulation(scene).run(scene.initial_state(), [RunDirectory(interrupted_dir), StopAt(33)])
+    assert json.loads((interrupted_dir / "run.json").read_text())["status"] == "failed"
+    assert load_checkpoint(interrupted_dir / "checkpoint.npz").step == 30  # last frame
+    resumed = run_scene(scene, interrupted_dir, resume=True, progress=False)
+    assert resumed.step == straight.step
+    assert np.allclose(resumed.global_fields(), straight.global_fields(), atol=1e-12)
+    a, b = read_csv(tmp_path / "straight" / "global.csv"), read_csv(interrupted_dir / "global.csv")
+    assert np.allclose(a["time"], b["time"]) and np.allclose(a["free_energy"], b["free_energy"])
+
+
+def test_a_blow_up_names_the_step_and_keeps_the_last_good_checkpoint(tmp_path):
+    path = write_scene(tmp_path / "scene.toml")
+    run = tmp_path / "run"
+    # an explicit area term 250× stiffer than the paper's, unstabilised: unstable at dt = 1
+    code = main(["run", str(path), "-o", str(run), "-q", "--set", "model.mu=5000", "--set", "numerics.stabilisation=0"])
+    assert code == 3
+    info = json.loads((run / "run.json").read_text())
+    assert info["status"] == "failed" and "step" in info["message"]
+    checkpoint = load_checkpoint(run / "checkpoint.npz")
+    assert all(np.isfinite(f).all() for f in checkpoint.fields)
+    assert checkpoint.step < info["steps"] + 1

@@ -1,0 +1,156 @@
+"""The FEM stepper: relaxation, shear, windows against the full mesh, advection, solvers."""
+
+import numpy as np
+import pytest
+
+from femphase.advection import shift_rows
+from femphase.analysis.shape import shape_observables
+from femphase.energy import free_energy
+from femphase.flows import linear_shear, python_flow
+from femphase.mesh import channel_grid, load_mesh
+from femphase.model import ModelParameters
+from femphase.solvers import AMGSolver, DirectSolver
+from femphase.stepping import Discretisation
+
+from helpers import small_system, stepper
+
+
+def test_isolated_particle_relaxes_to_the_area_set_by_tension_and_constraint():
+    # Equilibrium of σ·2πr + μ(1 − a)² with σ = 2γ/3 (the tanh profile's line tension)
+    # gives 1 − a ≈ πσR/(2μ): the area settles slightly below πR².
+    params = ModelParameters()
+    disc, state = small_system([[20, 20]], initial_radius=4.0)
+    step = stepper(disc, state)
+    ratios = []
+    for _ in range(400):
+        step.step(state)
+        ratios.append(shape_observables(state, disc.operators).area[0] / (np.pi * 64))
+    sigma = 2 * params.tension / 3
+    expected = 1 - np.pi * sigma * 8 / (2 * params.area_stiffness)
+    assert ratios[0] < 0.5  # started from R/2
+    assert abs(ratios[-1] - expected) < 0.005
+    assert abs(ratios[-1] - ratios[-50]) < 1e-4  # settled
+
+
+def test_isolated_particle_in_shear_elongates_and_settles_without_oscillating():
+    disc, state = small_system([[35, 120]], length=70, width=240, initial_radius=8.0)
+    relax = stepper(disc, state)
+    for _ in range(100):
+        relax.step(state)
+    shear = stepper(disc, state, flow=linear_shear(1.0, 240.0))
+    elongation = []
+    for _ in range(1400):
+        shear.step(state)
+        elongation.append(shape_observables(state, disc.operators).elongation[0])
+    elongation = np.array(elongation)
+    late = elongation[-600:]
+    assert elongation.max() > 1.0  # deformed
+    assert np.ptp(late) < 0.05 * late.mean()  # settled: no sustained oscillation
+    assert np.all(np.abs(np.diff(late)) < 1e-3)
+
+
+def test_windows_agree_with_the_full_mesh():
+    results = []
+    for windows in (True, False):
+        disc, state = small_system([[15, 20], [30, 22]], length=50, width=40, initial_radius=6.0, windows=windows)
+        step = stepper(disc, state, windows=windows)
+        for _ in range(60):
+            step.step(state)
+        shear = stepper(disc, state, flow=linear_shear(0.5, 40.0), windows=windows)
+        for _ in range(60):
+            shear.step(state)
+        results.append((state.global_fields(), free_energy(state.global_fields(), state.radii, step.params, disc.operators).total))
+    (windowed, e_w), (full, e_f) = results
+    # a window drops the field beyond its edge, where the tanh tail has decayed from the
+    # threshold over the margin: φ_edge ≈ threshold · exp(−2 margin/λ) = 0.01 e^{−4} ≈ 1.8e-4
+    truncation = 0.01 * np.exp(-2 * 4.0 / 2.0)
+    assert np.abs(windowed - full).max() < 2 * truncation
+    assert e_w == pytest.approx(e_f, rel=1e-5)
+
+
+def test_row_shift_is_exact_for_integer_shifts_and_invertible():
+    rng = np.random.default_rng(0)
+    fields = rng.random((2, 5, 15))  # odd length: no Nyquist mode, so shifts are invertible
+    shifts = np.array([[0, 1, 2, 3, -4]] * 2, dtype=float)
+    shifted = shift_rows(fields, shifts)
+    for row in range(5):
+        assert np.allclose(shifted[0, row], np.roll(fields[0, row], int(shifts[0, row])))
+    fractional = rng.uniform(-0.5, 0.5, (2, 5))
+    assert np.allclose(shift_rows(shift_rows(fields, fractional), -fractional), fields)
+
+
+def test_shear_advection_does_not_limit_dt():
+    # the paper's highest shear, γ̇ = 1 in its channel (u = γ̇ y/Ly): at dt = 10 the top rows
+    # move 10 nodes per step; the step stays stable and moves the particle at u(y_c)
+    outcomes = {}
+    for dt in (1.0, 10.0):
+        disc, state = small_system([[35, 120]], length=70, width=240, initial_radius=8.0)
+        step = stepper(disc, state, dt=dt, flow=linear_shear(1.0, 240.0))
+        for _ in range(int(200 / dt)):
+            step.step(state)
+        outcomes[dt] = shape_observables(state, disc.operators)
+        assert all(np.isfinite(f).all() and -0.05 < f.min() and f.max() < 1.1 for f in state.fields)
+    for obs in outcomes.values():
+        expected = (35 + 0.5 * 200) % 70
+        assert abs((obs.x[0] - expected + 35) % 70 - 35) < 0.05
+    # dt = 10 is stable, not accurate: its stabilisation (S ≈ 2) slows the explicit forces by
+    # 1 + J0 S dt ≈ 11, so the particle is more elongated, but bounded
+    assert outcomes[1.0].elongation[0] < outcomes[10.0].elongation[0] < 10.0
+
+
+def test_semi_lagrangian_general_flow_matches_the_exact_row_shift():
+    finals = []
+    for flow in (linear_shear(0.6, 40.0), python_flow(lambda x, y: (0.6 * y / 40.0, 0.0 * x))):
+        disc, state = small_system([[20, 20]], length=60, width=40, initial_radius=8.0)
+        step = stepper(disc, state, flow=flow)
+        for _ in range(50):
+            step.step(state)
+        finals.append(state.global_fields()[0])
+    assert np.abs(finals[0] - finals[1]).max() < 0.02
+
+
+def test_amg_and_direct_solvers_agree():
+    grid = channel_grid(30, 20, 1.0)
+    ops = Discretisation.structured(grid).operators
+    matrix = (ops.mass + 0.12 * ops.stiffness).tocsr()
+    rhs = np.random.default_rng(1).random((grid.n_nodes, 3))
+    amg = AMGSolver(matrix, tol=1e-12)
+    assert amg.accel == "cg"
+    assert np.allclose(amg.solve(rhs), DirectSolver(matrix).solve(rhs), atol=1e-9)
+
+
+def test_the_stepper_gives_the_same_result_with_either_solver():
+    outcomes = []
+    for solver in ("direct", "amg"):
+        disc, state = small_system([[20, 20]], initial_radius=5.0)
+        step = stepper(disc, state, solver=solver, tolerance=1e-12)
+        for _ in range(20):
+            step.step(state)
+        outcomes.append(state.global_fields())
+    assert np.abs(outcomes[0] - outcomes[1]).max() < 1e-9
+
+
+def test_the_default_mesh_file_gives_the_generated_operators():
+    grid = channel_grid(70, 240, 1.0)
+    from_file = Discretisation.structured(grid, mesh=load_mesh("meshes/channel_70x240_h1.vtu")).operators
+    generated = Discretisation.structured(grid).operators
+    assert abs(from_file.stiffness - generated.stiffness).max() < 1e-12
+    assert np.allclose(from_file.lumped_mass, generated.lumped_mass)
+
+
+@pytest.mark.parametrize("diagonals", ["left", "alternating"])
+def test_other_diagonal_patterns_relax_like_the_default(diagonals):
+    areas = []
+    for pattern in ("right", diagonals):
+        disc, state = small_system([[20, 20]], initial_radius=4.0, diagonals=pattern)
+        step = stepper(disc, state, diagonals=pattern)
+        for _ in range(100):
+            step.step(state)
+        areas.append(shape_observables(state, disc.operators).area[0])
+    if diagonals == "left":
+        # the mirror-image mesh: same stiffness (5-point stencil), same lumped mass
+        assert areas[0] == pytest.approx(areas[1], rel=1e-9)
+    else:
+        # same stiffness, but the lumped mass alternates 2h²/3, 4h²/3: an O(h²) difference
+        assert areas[0] == pytest.approx(areas[1], rel=2e-3)
+        assert areas[0] != pytest.approx(areas[1], rel=1e-9)

@@ -1,0 +1,154 @@
+"""Shared helpers of the physics reproductions (``verification/physics_*.py``).
+
+The reproductions run long simulations, so every run is resumable and cached:
+
+* a run lives in ``verification/runs/<name>/`` (a femphase run directory, gitignored);
+* :func:`ensure_run` skips a run that already reached the end of its scene, resumes one
+  that was interrupted (from its checkpoint) and extends one whose scene got longer;
+* runs that share a relaxation start from one relaxed checkpoint (``branch_from``), so
+  that e.g. six shear rates on one lattice relax it only once;
+* :func:`cached` keeps each run's analysed result as JSON next to it, so that re-running a
+  script only analyses what is new.
+
+Conventions: times in solver time units, angles in radians, γ̇ ("rate") the wall velocity
+of the shear u = γ̇ y/Ly (DEVELOPERS.md).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+# one BLAS thread: the machine's two cores are shared with other long runs
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
+from femphase.io import load_checkpoint, read_csv, write_json  # noqa: E402
+from femphase.scene import Scene, load_scene, with_phases  # noqa: E402
+from femphase.simulation import RunDirectory, Simulation  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+EXAMPLES = REPO / "examples"
+RUNS = REPO / "verification" / "runs"
+RESULTS = REPO / "verification" / "results"
+
+
+def example_scene(name: str, assignments: list[str]) -> Scene:
+    """``examples/<name>.toml`` with ``--set``-style assignments applied."""
+    return load_scene(EXAMPLES / f"{name}.toml", assignments)
+
+
+def _is_complete(directory: Path, scene: Scene) -> bool:
+    info = directory / "run.json"
+    if not info.exists():
+        return False
+    run = json.loads(info.read_text())
+    total = sum(p.n_steps for p in scene.phases)
+    return run.get("status") == "completed" and run.get("steps") == total
+
+
+def _position(scene: Scene, step: int) -> tuple[int, int]:
+    """(phase, phase_step) of the scene after `step` steps in all (len(phases), 0) at the end."""
+    for index, phase in enumerate(scene.phases):
+        if step < phase.n_steps:
+            return index, step
+        step -= phase.n_steps
+    return len(scene.phases), 0
+
+
+def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None, log=print) -> Path:
+    """Run `scene` into `directory` unless it is already complete; returns `directory`.
+
+    An interrupted run resumes from its checkpoint; a complete run whose scene has since
+    grown longer (a longer last phase) continues to the new end.  With `branch_from`, a new
+    run starts from the relaxed state in that directory (which must hold the run of the
+    scene's first phase alone, see :func:`ensure_relaxation`): its checkpoint and CSV files
+    are copied over and the remaining phases run from there.
+    """
+    directory = Path(directory)
+    if _is_complete(directory, scene):
+        return directory
+    checkpoint = directory / "checkpoint.npz"
+    if not checkpoint.exists() and branch_from is not None:
+        directory.mkdir(parents=True, exist_ok=True)
+        for name in ("checkpoint.npz", "particles.csv", "global.csv"):
+            shutil.copy2(Path(branch_from) / name, directory / name)
+    if checkpoint.exists():
+        state = load_checkpoint(checkpoint)
+        state.phase, state.phase_step = _position(scene, state.step)
+        log(f"  {directory.name}: continuing from t = {state.time:g}")
+        Simulation(scene).run(state, [RunDirectory(directory, resume=True)])
+    else:
+        log(f"  {directory.name}: starting")
+        Simulation(scene).run(scene.initial_state(), [RunDirectory(directory)])
+    return directory
+
+
+def ensure_relaxation(scene: Scene, directory: Path, log=print) -> Path:
+    """Run the first phase of `scene` alone (the relaxation shared by its branches)."""
+    return ensure_run(with_phases(scene, list(scene.phases[:1])), directory, log=log)
+
+
+def cached(path: Path, compute: Callable[[], dict], key: dict | None = None) -> dict:
+    """The JSON result at `path` if it exists (and was made with the same `key`), else
+    ``compute()``, written to `path` with the key under "key"."""
+    path = Path(path)
+    if path.exists():
+        stored = json.loads(path.read_text())
+        if key is None or stored.get("key") == json.loads(json.dumps(key)):
+            return stored
+    result = compute()
+    if key is not None:
+        result = {"key": key, **result}
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_json(path, result)
+    return json.loads(path.read_text())
+
+
+@dataclass(frozen=True)
+class ParticleSeries:
+    """Per-particle observables of a run directory as (n_frames, N) arrays, frames in time
+    order; ``time`` is (n_frames,)."""
+
+    time: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    area: np.ndarray
+    elongation: np.ndarray
+    orientation: np.ndarray
+
+
+def particle_series(directory: Path) -> ParticleSeries:
+    """Read ``particles.csv`` of a run directory into :class:`ParticleSeries`."""
+    columns = read_csv(Path(directory) / "particles.csv")
+    n = int(columns["id"].max()) + 1
+    frames = len(columns["time"]) // n
+
+    def table(name: str) -> np.ndarray:
+        return columns[name][: frames * n].reshape(frames, n)
+
+    return ParticleSeries(
+        time=table("time")[:, 0], x=table("x"), y=table("y"), area=table("area"),
+        elongation=table("elongation"), orientation=table("orientation"),
+    )
+
+
+def wall_seconds(directory: Path) -> float:
+    """Wall time of a run's last session (from run.json; sessions before it are not kept)."""
+    info = Path(directory) / "run.json"
+    return float(json.loads(info.read_text()).get("wall_time_s", float("nan"))) if info.exists() else float("nan")
+
+
+def fmt(value: float, uncertainty: float | None = None, digits: int = 3) -> str:
+    """A number for a Markdown table, with its uncertainty when given."""
+    if value is None or not np.isfinite(value):
+        return "—"
+    if uncertainty is None or not np.isfinite(uncertainty):
+        return f"{value:.{digits}g}"
+    return f"{value:.{digits}g} ± {uncertainty:.2g}"
