@@ -22,7 +22,7 @@ from scipy.ndimage import map_coordinates
 
 from .flows import Flow
 from .mesh import ChannelGrid
-from .windows import Window, pad_window
+from .windows import Layout, Window, pad_window
 
 
 def shift_rows(fields: np.ndarray, shifts: np.ndarray) -> np.ndarray:
@@ -40,30 +40,30 @@ def shift_rows(fields: np.ndarray, shifts: np.ndarray) -> np.ndarray:
 
 
 def advect_row_flow(
-    fields: list[np.ndarray], windows: list[Window], grid: ChannelGrid, flow: Flow, dt: float,
-    groups: list[tuple],
-) -> tuple[list[np.ndarray], list[Window]]:
-    """Advect all fields over dt in the row flow ``flow``; returns new fields and windows.
+    phi: np.ndarray, layout: Layout, grid: ChannelGrid, flow: Flow, dt: float
+) -> list[Window]:
+    """Advect the gathered fields ``phi`` (layout order) in place over dt in a row flow.
 
-    ``groups`` are the layout's groups (windows of one shape together), so that each
-    group is shifted by one batched FFT.
+    Returns the windows after the step: a window not spanning the whole width moves by the
+    whole-node part of its mean shift; each group of equal windows is shifted by one batched
+    FFT on its block of ``phi``.
     """
     _, y = grid.coordinates()
     row_shift = flow.row_velocity(y) * dt / grid.h
-    fields, windows = list(fields), list(windows)
-    for _key, members, *_ in groups:
+    windows = list(layout.windows)
+    for group, (_key, members, *_) in enumerate(layout.groups):
+        block = layout.group_block(phi, group)
         w0 = windows[members[0]]
-        shifts = np.stack([row_shift[windows[i].rows()] for i in members])
+        iy0 = np.array([windows[i].iy0 for i in members])
+        shifts = row_shift[iy0[:, None] + np.arange(w0.ny)[None, :]]
         if w0.nx < grid.nx:
             whole = np.rint(shifts.mean(axis=1))
-            shifts = shifts - whole[:, None]
+            shifts -= whole[:, None]
             for i, k in zip(members, whole.astype(int)):
                 w = windows[i]
                 windows[i] = Window(w.iy0, w.ny, (w.ix0 + k) % grid.nx, w.nx)
-        shifted = shift_rows(np.stack([fields[i] for i in members]), shifts)
-        for i, values in zip(members, shifted):
-            fields[i] = values
-    return fields, windows
+        block[...] = shift_rows(block, shifts)
+    return windows
 
 
 def advect_semi_lagrangian(

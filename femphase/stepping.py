@@ -156,6 +156,7 @@ class SemiImplicitStepper:
     def layout(self, windows) -> Layout:
         if self._layout is None or self._layout.windows != tuple(windows):
             self._layout = Layout(windows, self.disc.grid, self.disc.alternating)
+            self._node_mass = self.disc.operators.lumped_mass[self._layout.node_index]
         return self._layout
 
     def _solver(self, key: tuple, window) -> tuple:
@@ -172,16 +173,19 @@ class SemiImplicitStepper:
     # -- one step -------------------------------------------------------------------------
     def step(self, state: State) -> None:
         """Advance ``state`` by dt in place; raises BlowUpError (state unchanged) on failure."""
-        fields, windows = state.fields, state.windows
+        layout = self.layout(state.windows)
+        phi = layout.gather(state.fields)
+        if self.flow.row_velocity is not None:
+            moved = advect_row_flow(phi, layout, state.grid, self.flow, self.dt)
+            fields = layout.scatter(phi)
+        elif not self.flow.is_still:
+            fields, moved = advect_semi_lagrangian(state.fields, state.windows, state.grid, self.flow, self.dt)
         if not self.flow.is_still:
-            if self.flow.row_velocity is not None:
-                fields, windows = advect_row_flow(
-                    fields, windows, state.grid, self.flow, self.dt, self.layout(windows).groups
-                )
-            else:
-                fields, windows = advect_semi_lagrangian(fields, windows, state.grid, self.flow, self.dt)
-        layout = self.layout(windows)
-        phi = layout.gather(fields)
+            previous, layout = layout, self.layout(moved)
+            # moving windows can regroup them (alternating diagonals): gather again then
+            if self.flow.row_velocity is None or not np.array_equal(layout.order, previous.order):
+                phi = layout.gather(fields)
+        windows = layout.windows
         phi_new = self._relax(phi, layout, state.radii, state.time + self.dt)
         self._check(phi_new, state.step + 1, state.time + self.dt)
         new_fields = layout.scatter(phi_new)
@@ -199,13 +203,12 @@ class SemiImplicitStepper:
         state.step += 1
 
     def _relax(self, phi: np.ndarray, layout: Layout, radii: np.ndarray, new_time: float) -> np.ndarray:
-        ops, params, grid = self.disc.operators, self.params, self.disc.grid
+        params, grid = self.params, self.disc.grid
         j0, dt = params.mobility, self.dt
         nodes = layout.node_index
-        mass = ops.lumped_mass[nodes]
-        squares = phi**2
-        sizes = np.diff(layout.offsets)
+        mass = self._node_mass
         radius = np.asarray(radii, dtype=float)[layout.order]
+        squares = phi**2
         ratio = np.add.reduceat(mass * squares, layout.offsets[:-1]) / (np.pi * radius**2)
         # repulsion only where windows overlap: elsewhere Σ_{j≠i} φ_j² is exactly zero
         others = np.zeros_like(phi)
@@ -214,9 +217,9 @@ class SemiImplicitStepper:
             total = np.bincount(nodes[shared], weights=squares[shared], minlength=grid.n_nodes)
             others[shared] = total[nodes[shared]] - squares[shared]
         g = explicit_derivative(
-            phi, others, np.repeat(ratio, sizes), np.repeat(radius, sizes), params
+            phi, others, np.repeat(ratio, layout.sizes), np.repeat(radius, layout.sizes), params
         )
-        explicit = mass * (j0 * self.stabilisation * phi - j0 * g)
+        explicit = j0 * mass * (self.stabilisation * phi - g)
         if self.source is not None:
             x = (nodes % grid.nx) * grid.h
             y = (nodes // grid.nx) * grid.h
@@ -224,13 +227,14 @@ class SemiImplicitStepper:
         out = np.empty_like(phi)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, time_mass = self._solver(key, layout.representative(group))
+            # (size, members) views in Fortran order, as SuperLU wants them: no copies
             current = phi[start:stop].reshape(len(members), size).T
             if time_mass is None:
-                rhs = current * (mass[start:stop].reshape(len(members), size).T / dt)
+                rhs = current * mass[start:stop].reshape(len(members), size).T / dt
             else:
                 rhs = (time_mass @ current) / dt
             rhs += explicit[start:stop].reshape(len(members), size).T
-            out[start:stop] = solver.solve(rhs, current).T.ravel()
+            out[start:stop].reshape(len(members), size).T[...] = solver.solve(rhs, current)
         return out
 
     def _check(self, phi: np.ndarray, step: int, time: float) -> None:

@@ -226,6 +226,7 @@ class Layout:
             self.groups.append((key, members, start, stop, w.ny * w.nx))
             start = stop
         self.node_index = np.concatenate(blocks)
+        self.sizes = np.diff(self.offsets)
         coverage = np.bincount(self.node_index, minlength=grid.n_nodes)
         #: positions in the flat vector whose node is covered by more than one window
         self.overlap_positions = np.flatnonzero(coverage[self.node_index] > 1)
