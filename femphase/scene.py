@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 import sys
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 
 import numpy as np
@@ -364,7 +364,3 @@ def load_scene(path: str | Path, assignments: list[str] | None = None) -> Scene:
     for assignment in assignments or []:
         set_value(data, assignment)
     return scene_from_dict(data, path.parent)
-
-
-def with_phases(scene: Scene, phases: list[Phase]) -> Scene:
-    return replace(scene, phases=tuple(phases))
