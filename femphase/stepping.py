@@ -138,7 +138,10 @@ class SemiImplicitStepper:
         smallest_radius = float(np.min(radii)) if radii is not None and len(radii) else params.radius
         consistent = numerics.mass == "consistent"
         if numerics.stabilisation == "auto":
-            self.stabilisation = stabilisation_for(params, dt, smallest_radius, 0.25 if consistent else 1.0)
+            pairs = radii is None or len(radii) > 1
+            self.stabilisation = stabilisation_for(
+                params, dt, smallest_radius, 0.25 if consistent else 1.0, pairs
+            )
         else:
             self.stabilisation = float(numerics.stabilisation)
         j0 = params.mobility

@@ -1,0 +1,113 @@
+"""Fast subsets of the convergence checks in verification/ (their quick levels).
+
+The full studies run with ``python -m verification``; these take seconds and write nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from femphase.mesh import channel_grid
+from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper
+from verification import equilibrium, flat_interface, mms
+
+
+# -- manufactured solution ------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def mms_spatial():
+    return mms.spatial_study(mms.QUICK_SPACINGS)
+
+
+def test_mms_is_second_order_in_L2_and_first_in_H1(mms_spatial):
+    assert all(1.8 <= order <= 2.2 for order in mms_spatial["orders_L2"])
+    assert all(0.85 <= order <= 1.15 for order in mms_spatial["orders_H1"])
+    # dt ∝ h² keeps the raw (not time-extrapolated) error second order too
+    assert 1.8 <= mms_spatial["orders_L2_raw"][-1] <= 2.2
+
+
+def test_mms_is_first_order_in_dt():
+    h, steps = mms.QUICK_TEMPORAL
+    table = mms.temporal_study(h, steps)
+    assert all(0.85 <= order <= 1.15 for order in table["orders_L2"])
+    assert table["stabilisation"] == [0.0] * len(steps)
+
+
+def test_mms_detects_a_model_term_the_solver_gets_wrong(monkeypatch):
+    """A 10 % error in μ inside the solver (the source keeps the right one) must stall the
+    convergence: the check can fail."""
+    wrong = replace(mms.PARAMS, area_stiffness=0.9 * mms.PARAMS.area_stiffness)
+    stepper = mms.SemiImplicitStepper
+    monkeypatch.setattr(mms, "SemiImplicitStepper", lambda disc, params, *a, **k: stepper(disc, wrong, *a, **k))
+    assert mms.spatial_study((1.0, 0.5))["orders_L2"][-1] < 1.0
+
+
+def test_mms_error_norms_of_the_interpolant_have_the_interpolation_orders():
+    """The measurement itself: on the nodal interpolant of φ_e the norms must show the P1
+    interpolation orders, 2 in L2 and 1 in H1 (a centroid-only gradient rule would not be
+    accurate enough for this at the levels used)."""
+    errors = []
+    for h in (1.0, 0.5, 0.25):
+        grid = channel_grid(mms.LX, mms.LY, h)
+        errors.append(mms.error_norms(Discretisation.structured(grid), mms.exact(*_nodes(grid), 3.0), 3.0))
+    l2, h1 = np.array(errors).T
+    assert mms.observed_orders((1.0, 0.5, 0.25), l2) == pytest.approx([2.0, 2.0], abs=0.05)
+    assert mms.observed_orders((1.0, 0.5, 0.25), h1) == pytest.approx([1.0, 1.0], abs=0.05)
+
+
+def _nodes(grid):
+    x, y = grid.coordinates()
+    return np.tile(x, grid.ny), np.repeat(y, grid.nx)
+
+
+# -- flat interface -------------------------------------------------------------------------
+def test_flat_interface_converges_at_second_order():
+    table = flat_interface.study(flat_interface.QUICK_SPACINGS)
+    assert all(order >= 1.8 for order in table["orders_L2"])
+    assert all(order >= 1.8 for order in table["orders_max"])
+    assert all(order >= 1.8 for order in table["orders_energy"])
+    assert max(np.abs(table["centre_shift"])) < 1e-9  # the symmetry pins the interface
+    assert max(table["x_variation"]) < 1e-12  # exactly one-dimensional
+
+
+# -- isolated particle ------------------------------------------------------------------------
+def test_superlevel_area_is_exact_for_linear_fields():
+    grid = channel_grid(8.0, 6.0, 1.0)
+    disc = Discretisation.structured(grid)
+    _, y = _nodes(grid)
+    assert equilibrium.superlevel_area(disc, y / grid.width, 0.3) == pytest.approx(0.7 * 8.0 * 6.0, rel=1e-12)
+    # with the level between two rows, triangles with one and with two corners above occur
+    assert equilibrium.superlevel_area(disc, 1 - y / grid.width, 0.55) == pytest.approx(0.45 * 48.0, rel=1e-12)
+
+
+def test_richardson_recovers_limit_and_order():
+    h = [1.0, 0.5, 0.25]
+    fit = equilibrium.richardson(h, [3.0 + 0.7 * s**2 for s in h])
+    assert fit["order"] == pytest.approx(2.0, abs=1e-9)
+    assert fit["limit"] == pytest.approx(3.0, abs=1e-12)
+
+
+def test_equilibrium_area_converges_to_its_extrapolated_limit():
+    data = equilibrium.study([(h, 1.0) for h in (1.0, 0.5, 0.25)])
+    area = data["quantities"]["area"]
+    assert 1.7 <= area["order"] <= 2.5
+    finest = area["table"][-1][0]
+    assert abs(finest - area["limit"]) < 5e-5 * area["limit"]
+    # the soft constraint holds the area a few per cent below πR² against the tension
+    target = np.pi * equilibrium.PARAMS.radius**2
+    assert 0.96 < area["limit"] / target < 0.99
+
+
+def test_equilibrium_does_not_depend_on_dt():
+    """The equilibrium reached with dt = 1 is a fixed point of the steps with dt = 10 and 0.1
+    (compared through ∫φ² and ∫φ, blind to the particle's slow neutral drift)."""
+    disc, state = equilibrium.relaxed_state(2.0, 1.0)
+    area, mass = equilibrium.integrals_of(disc, state)
+    for dt in (10.0, 0.1):
+        moved = state.copy()
+        stepper = SemiImplicitStepper(disc, equilibrium.PARAMS, Numerics(), dt, None, moved.radii)
+        for _ in range(20):
+            stepper.step(moved)
+        assert equilibrium.integrals_of(disc, moved) == pytest.approx((area, mass), rel=1e-10)
