@@ -17,13 +17,27 @@ from .errors import BlowUpError, FemphaseError
 
 
 def _run(args: argparse.Namespace) -> int:
-    from .scene import load_scene
+    from pathlib import Path
+
+    from .scene import is_mesh_scene, read_scene_data, scene_from_dict
     from .simulation import run_scene
 
-    scene = load_scene(args.scene, args.set)
-    state = run_scene(scene, args.output, resume=args.resume, method=args.method,
-                      progress=False if args.quiet else None)
-    print(f"femphase: {scene.name}: reached t = {state.time:g} after {state.step} steps; output in {args.output}")
+    data = read_scene_data(args.scene, args.set)
+    progress = False if args.quiet else None
+    if is_mesh_scene(data):
+        from .errors import SceneError
+        from .unstructured.scene import mesh_scene_from_dict, run_mesh_scene
+
+        if args.method != "fem":
+            raise SceneError("--method", args.method, '"fem": meshed geometries have no finite-difference path')
+        mesh_scene = mesh_scene_from_dict(data, Path(args.scene).parent)
+        name = mesh_scene.scene.name
+        state = run_mesh_scene(mesh_scene, args.output, resume=args.resume, progress=progress)
+    else:
+        scene = scene_from_dict(data, Path(args.scene).parent)
+        name = scene.name
+        state = run_scene(scene, args.output, resume=args.resume, method=args.method, progress=progress)
+    print(f"femphase: {name}: reached t = {state.time:g} after {state.step} steps; output in {args.output}")
     return 0
 
 

@@ -123,15 +123,20 @@ def save_mesh(mesh: MeshTri, path: str | Path) -> None:
     meshio.write(path, meshio.Mesh(points, [("triangle", mesh.t.T)]))
 
 
-def load_mesh(path: str | Path) -> MeshTri:
-    """Read a 2D triangular mesh with meshio (gmsh .msh, .vtu, .xdmf, …)."""
+def read_meshio(path: str | Path) -> meshio.Mesh:
+    """meshio.read, with a SceneError (key domain.mesh) naming the reason on failure."""
     path = Path(path)
     if not path.is_file():
         raise SceneError("domain.mesh", str(path), "a mesh file that exists")
     try:
-        data = meshio.read(path)
+        return meshio.read(path)
     except Exception as exc:  # meshio raises many types; the user needs only the reason
         raise SceneError("domain.mesh", str(path), f"a file meshio can read ({exc})") from None
+
+
+def load_mesh(path: str | Path) -> MeshTri:
+    """Read a 2D triangular mesh with meshio (gmsh .msh, .vtu, .xdmf, …)."""
+    data = read_meshio(path)
     triangles = [block.data for block in data.cells if block.type == "triangle"]
     if not triangles:
         raise SceneError("domain.mesh", str(path), "a mesh with triangle cells")

@@ -29,6 +29,8 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 LAYOUTS = ("single", "hexagonal", "random", "list")
+#: "grid": the structured channel (this module); "mesh": any triangular mesh (femphase.unstructured)
+DOMAIN_KINDS = ("grid", "mesh")
 #: Largest total target area Σ πR_i² over channel area that a scene may ask for (the
 #: paper's scene is at 1.20: the particles are compressed and deformed).
 MAX_AREA_FRACTION = 1.5
@@ -42,6 +44,7 @@ class Domain:
     Ly: float = 240.0
     h: float = 1.0
     mesh: str = ""  # optional meshio file of the structured channel, relative to the scene
+    kind: str = "grid"  # "mesh" scenes are read by femphase.unstructured
 
 
 @dataclass(frozen=True)
@@ -352,8 +355,8 @@ def set_value(data: dict, assignment: str) -> None:
     target[parts[-1]] = value
 
 
-def load_scene(path: str | Path, assignments: list[str] | None = None) -> Scene:
-    """Read and validate a scene file, applying ``--set`` assignments first."""
+def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> dict:
+    """The parsed TOML of a scene file with ``--set`` assignments applied (not validated)."""
     path = Path(path)
     if not path.is_file():
         raise SceneError("scene", str(path), "a TOML scene file that exists")
@@ -363,4 +366,17 @@ def load_scene(path: str | Path, assignments: list[str] | None = None) -> Scene:
         raise SceneError("scene", str(path), f"valid TOML ({exc})") from None
     for assignment in assignments or []:
         set_value(data, assignment)
-    return scene_from_dict(data, path.parent)
+    return data
+
+
+def is_mesh_scene(data: dict) -> bool:
+    """True for scenes on a meshed geometry (``[domain] kind = "mesh"``)."""
+    kind = data.get("domain", {}).get("kind", "grid")
+    if kind not in DOMAIN_KINDS:
+        raise SceneError("domain.kind", kind, f"one of {DOMAIN_KINDS}")
+    return kind == "mesh"
+
+
+def load_scene(path: str | Path, assignments: list[str] | None = None) -> Scene:
+    """Read and validate a scene file on the structured channel, applying ``--set`` first."""
+    return scene_from_dict(read_scene_data(path, assignments), Path(path).parent)

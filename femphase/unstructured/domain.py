@@ -1,0 +1,334 @@
+"""Meshed channels: any 2D triangulation, periodic in x, with named boundaries.
+
+A channel is read from any file meshio reads (gmsh ``.msh``, ``.vtu``, ``.xdmf``, …):
+
+* triangle cells are the domain (first-order triangles only: the phase fields are P1);
+* line cells are boundary facets, each with an integer tag in the cell data
+  (``gmsh:physical`` as gmsh writes it, or ``boundary``, ``medit:ref``, ``cell_tags``);
+* tags are named by the file's ``field_data`` ``{name: [tag, 1]}`` when the format keeps it
+  (gmsh's physical names), else by a mapping the caller passes, else by
+  :data:`BOUNDARY_TAGS` (what ``meshes/make_*.py`` write into ``.vtu`` files, whose format
+  drops ``field_data``);
+* a file without line cells is a plain channel: its facets at the smallest and largest x are
+  the periodic pair ``left``/``right``, every other boundary facet is a wall.
+
+Two named boundaries, by default ``left`` and ``right``, are the periodic pair: both must be
+straight sides x = const, and ``right`` must be ``left`` moved by the period along x (the
+period is measured from the mesh). :func:`femphase.periodic.periodic_dof_map` matches their
+nodes by position and names any node without a partner. Every other boundary (``bottom``,
+``top``, ``obstacle``, … and untagged boundary facets) is a wall: the phase fields carry the
+natural (homogeneous Neumann) condition there, the Stokes flow no-slip.
+
+Dofs of the periodic P1 space number the mesh's nodes with each right-side node identified
+with its left-side partner; a dof's coordinates are its left-side node's, so x lies in
+[x0, x0 + period). Lengths are in the mesh's unit (lattice units for femphase scenes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+
+import meshio
+import numpy as np
+from scipy.spatial import cKDTree
+from skfem import MeshTri
+
+from ..discretisation import P1Operators, assemble_operators, element_gradients
+from ..errors import SceneError
+from ..mesh import read_meshio
+from ..periodic import fold_matrix, periodic_dof_map
+
+#: Tag numbers of the boundary names when a file cannot store names (``.vtu``, ``.xdmf``).
+BOUNDARY_TAGS = {"left": 1, "right": 2, "bottom": 3, "top": 4, "obstacle": 5, "wall": 6}
+#: The default periodic pair: ``right`` is ``left`` moved by the period in +x.
+PERIODIC_PAIR = ("left", "right")
+#: Cell-data keys that may hold the line cells' integer tags, in order of preference.
+TAG_KEYS = ("gmsh:physical", "boundary", "medit:ref", "cell_tags")
+
+
+@dataclass(frozen=True)
+class MeshDomain:
+    """A channel on a triangular mesh, periodic in x, with its P1 operators.
+
+    mesh        the non-periodic mesh as read (what output files are written on)
+    boundaries  name → indices into ``mesh.facets`` of the boundary facets with that name
+    periodic    the names of the periodic pair (min side, max side)
+    period      the length of the periodic cell in x
+    dof_map     (n_nodes,) the periodic dof of every mesh node (``dof_map`` of
+                :class:`femphase.stepping.Discretisation`, so output code serves both)
+    operators   P1 mass, stiffness, lumped mass and element gradients on the dofs
+    """
+
+    mesh: MeshTri
+    boundaries: dict
+    periodic: tuple
+    period: float
+    dof_map: np.ndarray
+    operators: P1Operators
+
+    @classmethod
+    def from_mesh(
+        cls,
+        mesh: MeshTri,
+        boundaries: dict[str, np.ndarray] | None = None,
+        periodic: tuple[str, str] = PERIODIC_PAIR,
+        tolerance: float | None = None,
+    ) -> "MeshDomain":
+        """Identify the periodic pair of ``mesh`` and assemble its operators.
+
+        ``boundaries`` maps names to facet indices; without it, :func:`channel_sides` names
+        the facets. ``tolerance`` (length) is the matching tolerance of the periodic nodes,
+        by default 1e-8 of the period. Raises ValueError naming what does not match.
+        """
+        _check_triangles(mesh)
+        boundaries = channel_sides(mesh) if boundaries is None else dict(boundaries)
+        low, high = periodic
+        for name in periodic:
+            if name not in boundaries or len(boundaries[name]) == 0:
+                raise ValueError(
+                    f"the periodic boundary {name!r} is not in the mesh; its boundaries are "
+                    f"{sorted(boundaries)} (name the pair with periodic=(min side, max side))"
+                )
+        low_nodes = np.unique(mesh.facets[:, boundaries[low]])
+        high_nodes = np.unique(mesh.facets[:, boundaries[high]])
+        x = mesh.p[0]
+        period = float(np.mean(x[high_nodes]) - np.mean(x[low_nodes]))
+        if not period > 0:
+            raise ValueError(
+                f"the periodic boundary {high!r} (mean x {np.mean(x[high_nodes]):.6g}) must lie "
+                f"at larger x than {low!r} (mean x {np.mean(x[low_nodes]):.6g})"
+            )
+        tol = 1e-8 * period if tolerance is None else tolerance
+        for name, nodes in ((low, low_nodes), (high, high_nodes)):
+            if np.ptp(x[nodes]) > tol:
+                raise ValueError(
+                    f"the periodic boundary {name!r} is not a straight side x = const: its "
+                    f"nodes span x from {x[nodes].min():.6g} to {x[nodes].max():.6g}"
+                )
+        side = np.concatenate([low_nodes, np.setdiff1d(high_nodes, low_nodes)])
+        try:
+            local = periodic_dof_map(mesh.p[:, side], period, axis=0, tol=tol)
+        except ValueError as exc:
+            raise ValueError(f"boundaries {low!r} and {high!r} are no periodic pair: {exc}") from None
+        partner = np.arange(mesh.p.shape[1])
+        partner[side] = side[local]
+        _, dof_map = fold_matrix(partner)
+        operators = assemble_operators(mesh, dof_map, int(dof_map.max()) + 1)
+        return cls(mesh, boundaries, tuple(periodic), period, dof_map, operators)
+
+    # -- geometry of the dofs --------------------------------------------------------------
+    @property
+    def n_dofs(self) -> int:
+        return self.operators.lumped_mass.size
+
+    @cached_property
+    def x0(self) -> float:
+        """The x of the min periodic side; dof x lies in [x0, x0 + period)."""
+        return float(self.mesh.p[0].min())
+
+    @cached_property
+    def coordinates(self) -> np.ndarray:
+        """(2, n_dofs): x and y of every dof (x of its min-side node)."""
+        out = np.empty((2, self.n_dofs))
+        # the max-side copies are written first so their min-side partners overwrite them
+        order = np.argsort(self.mesh.p[0])[::-1]
+        out[:, self.dof_map[order]] = self.mesh.p[:, order]
+        return out
+
+    @cached_property
+    def y_range(self) -> tuple[float, float]:
+        """Lowest and highest y of the mesh (the walls' extremes)."""
+        return float(self.mesh.p[1].min()), float(self.mesh.p[1].max())
+
+    @cached_property
+    def spacing(self) -> float:
+        """Median edge length: the mesh spacing h of window margins and tolerances."""
+        ends = self.mesh.p[:, self.mesh.facets]
+        return float(np.median(np.hypot(*(ends[:, 1] - ends[:, 0]))))
+
+    @property
+    def area(self) -> float:
+        return float(self.operators.element_area.sum())
+
+    @cached_property
+    def wall_facets(self) -> np.ndarray:
+        """Every boundary facet that is not on the periodic pair."""
+        periodic = np.concatenate([self.boundaries[name] for name in self.periodic])
+        return np.setdiff1d(self.mesh.boundary_facets(), periodic)
+
+    def nodal(self, values: np.ndarray) -> np.ndarray:
+        """Values given per dof (..., n_dofs) on every mesh node (..., n_nodes)."""
+        return np.asarray(values)[..., self.dof_map]
+
+    def inside(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether points (x wrapped into the period) lie in the meshed domain."""
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        x = self.x0 + np.mod(x - self.x0, self.period)
+        return locate(self.mesh, np.vstack([x.ravel(), y.ravel()])).reshape(x.shape) >= 0
+
+
+def locate(mesh: MeshTri, points: np.ndarray, candidates: int = 12) -> np.ndarray:
+    """The triangle containing each point (2, n), or −1 outside the mesh.
+
+    Checks the barycentric coordinates in the ``candidates`` triangles with the nearest
+    centroids, enough for triangles of bounded aspect ratio.
+    """
+    corners = mesh.p[:, mesh.t]  # (2, 3, n_elements)
+    tree = cKDTree(corners.mean(axis=1).T)
+    _, near = tree.query(points.T, k=min(candidates, mesh.t.shape[1]))
+    a, b, c = (corners[:, k][:, near] for k in range(3))  # (2, n, candidates)
+    e1, e2, d = b - a, c - a, points[:, :, None] - a
+    det = e1[0] * e2[1] - e1[1] * e2[0]
+    s = (d[0] * e2[1] - d[1] * e2[0]) / det
+    t = (e1[0] * d[1] - e1[1] * d[0]) / det
+    eps = 1e-12
+    inside = (s >= -eps) & (t >= -eps) & (s + t <= 1 + eps)
+    found = inside.any(axis=1)
+    return np.where(found, near[np.arange(len(near)), inside.argmax(axis=1)], -1)
+
+
+def _check_triangles(mesh: MeshTri) -> None:
+    _, areas = element_gradients(mesh)
+    small = areas <= 1e-12 * np.median(areas)
+    if small.any():
+        k = int(np.flatnonzero(small)[0])
+        corners = ", ".join(f"({a:.6g}, {b:.6g})" for a, b in mesh.p[:, mesh.t[:, k]].T)
+        raise ValueError(f"{int(small.sum())} degenerate triangles (zero area), e.g. {corners}")
+
+
+def channel_sides(mesh: MeshTri, tolerance: float | None = None) -> dict[str, np.ndarray]:
+    """Names for an untagged channel: boundary facets at the smallest x are ``left``, at
+    the largest x ``right``, all others ``wall``."""
+    facets = mesh.boundary_facets()
+    x = mesh.p[0, mesh.facets[:, facets]]
+    tol = 1e-8 * np.ptp(mesh.p[0]) if tolerance is None else tolerance
+    left = np.all(np.abs(x - mesh.p[0].min()) <= tol, axis=0)
+    right = np.all(np.abs(x - mesh.p[0].max()) <= tol, axis=0)
+    return {"left": facets[left], "right": facets[right], "wall": facets[~(left | right)]}
+
+
+def facet_indices(mesh: MeshTri, lines: np.ndarray) -> np.ndarray:
+    """Indices into ``mesh.facets`` of node pairs ``lines`` (2, n); raises when a pair is
+    no edge of the mesh."""
+    n = mesh.p.shape[1]
+    keys = np.sort(mesh.facets, axis=0)
+    keys = keys[0] * n + keys[1]
+    wanted = np.sort(lines, axis=0)
+    wanted = wanted[0] * n + wanted[1]
+    order = np.argsort(keys)
+    position = np.searchsorted(keys, wanted, sorter=order).clip(0, keys.size - 1)
+    found = keys[order[position]] == wanted
+    if not found.all():
+        a, b = np.sort(lines, axis=0)[:, ~found][:, 0]
+        raise ValueError(
+            f"{int((~found).sum())} line cells are no edges of the triangles, e.g. the line "
+            f"from ({mesh.p[0, a]:.6g}, {mesh.p[1, a]:.6g}) to ({mesh.p[0, b]:.6g}, {mesh.p[1, b]:.6g})"
+        )
+    return order[position]
+
+
+def read_domain(
+    path: str | Path,
+    *,
+    periodic: tuple[str, str] = PERIODIC_PAIR,
+    names: dict[str, int] | None = None,
+    tolerance: float | None = None,
+) -> MeshDomain:
+    """Read a meshed channel (see the module docstring for the file convention).
+
+    ``names`` maps boundary names to the file's integer tags when the file cannot hold
+    names itself; it overrides the file's names and :data:`BOUNDARY_TAGS`.
+    Raises :class:`~femphase.errors.SceneError` (key ``domain.mesh``) when the file cannot
+    be used, naming the reason.
+    """
+    data = read_meshio(path)
+    try:
+        mesh, lines, tags = _mesh_and_lines(data)
+        boundaries = None
+        if lines.shape[1]:
+            table = names or _file_names(data) or BOUNDARY_TAGS
+            boundaries = _named_facets(mesh, lines, tags, table)
+        return MeshDomain.from_mesh(mesh, boundaries, periodic, tolerance)
+    except ValueError as exc:
+        raise SceneError("domain.mesh", str(path), f"a periodic channel mesh ({exc})") from None
+
+
+def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]:
+    """The triangles as a MeshTri (unused points dropped) and the tagged line cells."""
+    kinds = {block.type for block in data.cells}
+    if "triangle" not in kinds:
+        raise ValueError(f"no linear triangle cells (the file has {sorted(kinds)})")
+    if data.points.shape[1] > 2 and np.ptp(data.points[:, 2]) > 0:
+        raise ValueError("the points are not in a plane z = const")
+    triangles = np.vstack([b.data for b in data.cells if b.type == "triangle"])
+    used, renumbered = np.unique(triangles, return_inverse=True)
+    new_index = np.full(len(data.points), -1)
+    new_index[used] = np.arange(used.size)
+    mesh = MeshTri(np.ascontiguousarray(data.points[used, :2].T, dtype=float),
+                   np.ascontiguousarray(renumbered.reshape(triangles.shape).T, dtype=np.int64))
+    key = next((k for k in TAG_KEYS if k in data.cell_data), None)
+    line_blocks = [i for i, b in enumerate(data.cells) if b.type == "line"]
+    if not line_blocks:
+        return mesh, np.zeros((2, 0), dtype=int), np.zeros(0, dtype=int)
+    if key is None:
+        raise ValueError(
+            f"line cells without integer tags (cell data {sorted(data.cell_data)}; expected "
+            f"one of {list(TAG_KEYS)})"
+        )
+    lines = np.vstack([data.cells[i].data for i in line_blocks])
+    tags = np.concatenate([np.asarray(data.cell_data[key][i]).ravel() for i in line_blocks])
+    lines = new_index[lines.T]
+    if (lines < 0).any():
+        raise ValueError("line cells use points that belong to no triangle")
+    return mesh, lines, tags.astype(int)
+
+
+def _file_names(data: meshio.Mesh) -> dict[str, int]:
+    """gmsh's physical names of dimension 1: {name: [tag, dim]} in field_data."""
+    return {name: int(v[0]) for name, v in data.field_data.items()
+            if np.size(v) >= 2 and int(np.ravel(v)[1]) == 1}
+
+
+def _named_facets(mesh: MeshTri, lines: np.ndarray, tags: np.ndarray,
+                  table: dict[str, int]) -> dict[str, np.ndarray]:
+    facets = facet_indices(mesh, lines)
+    by_tag = {tag: name for name, tag in table.items()}
+    unknown = sorted(int(t) for t in set(np.unique(tags)) - set(by_tag))
+    if unknown:
+        raise ValueError(f"line tags {unknown} have no name (names: {table})")
+    boundaries = {by_tag[t]: np.unique(facets[tags == t]) for t in np.unique(tags)}
+    interior = np.setdiff1d(facets, mesh.boundary_facets())
+    if interior.size:
+        raise ValueError(f"{interior.size} tagged line cells lie inside the domain, not on its boundary")
+    untagged = np.setdiff1d(mesh.boundary_facets(), facets)
+    if untagged.size:  # documented: untagged boundary is wall
+        boundaries["wall"] = np.union1d(boundaries.get("wall", np.zeros(0, int)), untagged)
+    return boundaries
+
+
+def write_domain(path: str | Path, mesh: MeshTri, boundaries: dict[str, np.ndarray]) -> None:
+    """Write ``mesh`` with its named boundary facets as tagged line cells.
+
+    Tags follow :data:`BOUNDARY_TAGS` (so formats without names read back correctly);
+    ``.msh`` files are written as gmsh 2.2 with the names as physical names.
+    """
+    path = Path(path)
+    unknown = set(boundaries) - set(BOUNDARY_TAGS)
+    if unknown:
+        raise ValueError(f"boundary names {sorted(unknown)} are not in {sorted(BOUNDARY_TAGS)}")
+    names = sorted(boundaries, key=BOUNDARY_TAGS.get)
+    lines = np.hstack([mesh.facets[:, boundaries[n]] for n in names]).T
+    tags = np.concatenate([np.full(len(boundaries[n]), BOUNDARY_TAGS[n]) for n in names])
+    points = np.vstack([mesh.p, np.zeros(mesh.p.shape[1])]).T
+    cells = [("triangle", mesh.t.T), ("line", lines)]
+    tag_data = [np.zeros(mesh.t.shape[1], dtype=int), tags]
+    field_data = {n: np.array([BOUNDARY_TAGS[n], 1]) for n in names}
+    if path.suffix == ".msh":
+        cell_data = {"gmsh:physical": tag_data, "gmsh:geometrical": tag_data}
+        meshio.write(path, meshio.Mesh(points, cells, cell_data=cell_data, field_data=field_data),
+                     file_format="gmsh22", binary=False)
+    else:
+        meshio.write(path, meshio.Mesh(points, cells, cell_data={"boundary": tag_data},
+                                       field_data=field_data))

@@ -1,0 +1,28 @@
+"""Write the straight channel, structured and unstructured: python meshes/make_straight.py
+
+The paper's channel, 70 × 240 lattice units, one node per unit area (h = 1):
+
+* straight_structured.vtu    femphase's structured mesh (right diagonals), tagged boundaries;
+* straight_unstructured.vtu  a Delaunay mesh of a rotated, jittered hexagonal lattice
+                             (femphase.unstructured.meshing.delaunay_channel).
+
+Boundaries are line cells with cell data "boundary" = femphase.unstructured.BOUNDARY_TAGS
+(left 1, right 2, bottom 3, top 4); ``right`` is ``left`` moved by 70 in x (periodic pair).
+"""
+
+from pathlib import Path
+
+from femphase.unstructured.domain import write_domain
+from femphase.unstructured.meshing import delaunay_channel, edge_for_spacing, mesh_quality, structured_channel
+
+LENGTH, HEIGHT, SPACING = 70.0, 240.0, 1.0
+HERE = Path(__file__).parent
+
+if __name__ == "__main__":
+    for name, (mesh, boundaries) in {
+        "straight_structured.vtu": structured_channel(LENGTH, HEIGHT, SPACING),
+        "straight_unstructured.vtu": delaunay_channel(
+            LENGTH, edge_for_spacing(SPACING), lambda x: 0 * x, lambda x: 0 * x + HEIGHT, seed=1),
+    }.items():
+        write_domain(HERE / name, mesh, boundaries)
+        print(HERE / name, {k: round(v, 3) for k, v in mesh_quality(mesh).items()})

@@ -1,0 +1,281 @@
+"""Phase fields on meshed channels: reading meshes, periodic identification, the unstructured
+stepper against the structured one, Stokes-driven transport, obstacles."""
+
+import meshio
+import numpy as np
+import pytest
+from skfem import MeshTri
+
+from femphase.analysis.shape import shape_observables
+from femphase.errors import BlowUpError, SceneError
+from femphase.flows import poiseuille, python_flow
+from femphase.model import ModelParameters
+from femphase.stepping import Numerics
+from femphase.unstructured import (
+    MeshDomain, UnstructuredStepper, load_mesh_checkpoint, mesh_discs_state, mesh_scene_from_dict,
+    mesh_shape_observables, read_domain, save_mesh_checkpoint, stokes_flow, write_domain,
+)
+from femphase.unstructured.meshing import delaunay_channel, edge_for_spacing, structured_channel
+from femphase.unstructured.windows import MeshWindowPolicy
+
+from helpers import small_system, stepper
+
+PARAMS = ModelParameters()
+EDGE = edge_for_spacing(1.0)  # one node per unit area, like the structured grid at h = 1
+
+
+def flat(height):
+    return lambda x: 0 * x + height
+
+
+def straight(length, height, seed=1):
+    return MeshDomain.from_mesh(*delaunay_channel(length, EDGE, flat(0.0), flat(height), seed=seed))
+
+
+def discs(domain, centres, initial_radius=8.0, windows=True):
+    centres = np.asarray(centres, dtype=float)
+    n = len(centres)
+    return mesh_discs_state(domain, centres, np.full(n, 8.0), np.full(n, initial_radius), 2.0,
+                            MeshWindowPolicy.for_spacing(domain.spacing, enabled=windows))
+
+
+def run(step, state, steps):
+    for _ in range(steps):
+        step.step(state)
+    return state
+
+
+# -- reading meshes and periodic identification -------------------------------------------
+
+@pytest.mark.parametrize("suffix", [".vtu", ".msh", ".xdmf"])
+def test_tagged_mesh_files_read_back_with_their_boundaries(tmp_path, suffix):
+    mesh, boundaries = delaunay_channel(20.0, EDGE, flat(0.0), flat(12.0), obstacles=[(10, 6, 2.5)])
+    path = tmp_path / f"channel{suffix}"
+    write_domain(path, mesh, boundaries)
+    domain = read_domain(path)
+    assert set(domain.boundaries) == {"left", "right", "bottom", "top", "obstacle"}
+    for name, facets in boundaries.items():
+        assert len(domain.boundaries[name]) == len(facets)
+    assert domain.period == pytest.approx(20.0)
+    assert domain.n_dofs == mesh.p.shape[1] - len(np.unique(mesh.facets[:, boundaries["right"]]))
+    assert domain.area == pytest.approx(20 * 12 - np.pi * 2.5**2, rel=0.01)
+
+
+def test_a_mesh_without_line_cells_is_a_plain_channel(tmp_path):
+    mesh, _ = structured_channel(10.0, 6.0, 1.0)
+    meshio.write(tmp_path / "plain.vtu", meshio.Mesh(np.vstack([mesh.p, 0 * mesh.p[0]]).T, [("triangle", mesh.t.T)]))
+    domain = read_domain(tmp_path / "plain.vtu")
+    assert set(domain.boundaries) == {"left", "right", "wall"}
+    assert domain.n_dofs == 10 * 7
+    # the walls are every non-periodic boundary facet: 10 at the bottom, 10 at the top
+    assert len(domain.wall_facets) == 20
+
+
+def test_names_of_integer_tags_can_be_given(tmp_path):
+    mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
+    write_domain(tmp_path / "c.vtu", mesh, boundaries)  # tags left 1, right 2, bottom 3, top 4
+    domain = read_domain(tmp_path / "c.vtu", periodic=("inlet", "outlet"),
+                         names={"inlet": 1, "outlet": 2, "floor": 3, "lid": 4})
+    assert domain.period == 10.0 and set(domain.boundaries) == {"inlet", "outlet", "floor", "lid"}
+
+
+def test_sides_that_do_not_match_are_named_in_the_error():
+    mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
+    p = mesh.p.copy()
+    moved = np.flatnonzero((p[0] == 10.0) & (p[1] == 3.0))[0]
+    p[1, moved] += 0.3
+    with pytest.raises(ValueError, match=r"'left' and 'right' are no periodic pair.*\(10, 3\.3\)"):
+        MeshDomain.from_mesh(MeshTri(p, mesh.t), boundaries)
+
+
+def test_a_missing_or_crooked_periodic_side_is_an_error():
+    mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
+    with pytest.raises(ValueError, match=r"periodic boundary 'inlet' is not in the mesh.*'bottom'"):
+        MeshDomain.from_mesh(mesh, boundaries, periodic=("inlet", "right"))
+    p = mesh.p.copy()
+    p[0, (p[0] == 0.0) & (p[1] == 3.0)] = 0.2
+    with pytest.raises(ValueError, match="'left' is not a straight side"):
+        MeshDomain.from_mesh(MeshTri(p, mesh.t), boundaries)
+
+
+def test_unreadable_or_unnamed_files_raise_scene_errors(tmp_path):
+    with pytest.raises(SceneError, match="domain.mesh"):
+        read_domain(tmp_path / "missing.vtu")
+    mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
+    write_domain(tmp_path / "c.vtu", mesh, boundaries)
+    with pytest.raises(SceneError, match=r"line tags \[3, 4\] have no name"):
+        read_domain(tmp_path / "c.vtu", names={"left": 1, "right": 2})
+
+
+# -- the unstructured stepper against the structured one ----------------------------------
+
+def test_on_the_structured_mesh_the_unstructured_stepper_is_the_structured_one():
+    # same mesh, same scheme: only the windows differ, which cut the tails (φ ~ 1e-4 at a
+    # margin of 4 beyond the threshold 0.01) at slightly different places
+    disc, grid_state = small_system([[20, 20]], length=40, width=40, initial_radius=4.0)
+    run(stepper(disc, grid_state), grid_state, 60)
+    domain = MeshDomain.from_mesh(*structured_channel(40.0, 40.0, 1.0))
+    state = discs(domain, [[20, 20]], 4.0)
+    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 60)
+    x, y = domain.coordinates
+    on_grid = grid_state.global_field(0)[np.rint(y).astype(int) * 40 + np.rint(x).astype(int)]
+    assert np.abs(state.global_field(0) - on_grid).max() < 1e-4
+
+
+def relaxed_then_poiseuille(domain, rate, centre):
+    """Relax a disc (80 steps), then 100 steps of Poiseuille flow, on the mesh or (None) grid."""
+    if domain is None:
+        disc, state = small_system([centre], length=40, width=60, initial_radius=8.0)
+        run(stepper(disc, state), state, 80)
+        relaxed = shape_observables(state, disc.operators)
+        run(stepper(disc, state, flow=poiseuille(rate, 60.0)), state, 100)
+        return relaxed, shape_observables(state, disc.operators)
+    state = discs(domain, [centre])
+    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 80)
+    relaxed = mesh_shape_observables(state)
+    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, poiseuille(rate, 60.0), state.radii), state, 100)
+    return relaxed, mesh_shape_observables(state)
+
+
+def test_unstructured_channel_agrees_with_the_structured_one_relaxing_and_in_poiseuille_flow():
+    grid_relaxed, grid_flowed = relaxed_then_poiseuille(None, 0.5, [20.0, 20.0])
+    mesh_relaxed, mesh_flowed = relaxed_then_poiseuille(straight(40.0, 60.0), 0.5, [20.0, 20.0])
+    # tolerances from h = 1: the interface (width 2λ = 4h) is resolved with O(h²) errors;
+    # the P1 shape tensor of a disc carries an elongation bias of ≈ 0.03 h² (0 on the grid's
+    # central differences); the grid advects rows exactly, the mesh with CN Galerkin, whose
+    # O(h²) phase error and the splitting move the centroid by ≈ 0.1 h over the 44 h travelled
+    assert mesh_relaxed.area[0] == pytest.approx(grid_relaxed.area[0], rel=2e-3)
+    assert abs(mesh_relaxed.elongation[0] - grid_relaxed.elongation[0]) < 0.05
+    assert mesh_flowed.area[0] == pytest.approx(grid_flowed.area[0], rel=2e-3)
+    assert mesh_flowed.elongation[0] > 2.0  # strongly sheared
+    assert mesh_flowed.elongation[0] == pytest.approx(grid_flowed.elongation[0], rel=0.05)
+    assert mesh_flowed.orientation[0] == pytest.approx(grid_flowed.orientation[0], abs=0.03)
+    assert abs(mesh_flowed.x[0] - grid_flowed.x[0]) < 0.25
+    assert abs(mesh_flowed.y[0] - grid_flowed.y[0]) < 0.1
+
+
+def test_windows_agree_with_the_full_mesh_on_an_unstructured_channel():
+    domain = straight(30.0, 40.0)
+    flow = poiseuille(0.3, 40.0)
+    results = []
+    for windows in (True, False):
+        state = discs(domain, [[10, 14], [22, 27]], 6.0, windows)
+        assert all(n.size < domain.n_dofs for n in state.nodes) == windows
+        run(UnstructuredStepper(domain, PARAMS, Numerics(windows=windows), 1.0, flow, state.radii), state, 40)
+        results.append(state.global_fields())
+    assert np.abs(results[0] - results[1]).max() < 1e-4
+
+
+# -- transport by the Stokes flow, large steps, obstacles -----------------------------------
+
+def test_stokes_flow_carries_a_particle_at_its_local_velocity():
+    # a constricted channel: the particle speeds up into the throat and slows after it
+    bump = lambda x: 6 * (1 + np.cos(2 * np.pi * (x - 20) / 40)) / 2  # noqa: E731
+    domain = MeshDomain.from_mesh(*delaunay_channel(40.0, EDGE, bump, lambda x: 40 - bump(x), seed=4))
+    flow = stokes_flow(domain, {"type": "stokes", "max_velocity": 0.5})
+    state = discs(domain, [[4.0, 20.0]])
+    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 30)
+    step = UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, flow, state.radii)
+    moved, expected = [], []
+    for _ in range(40):
+        before = mesh_shape_observables(state).x[0]
+        phi = state.fields[0]
+        u = step.velocity[0, state.nodes[0]]
+        weight = domain.operators.lumped_mass[state.nodes[0]] * phi**2
+        expected.append(weight @ u / weight.sum())  # the particle's φ²-weighted velocity
+        step.step(state)
+        moved.append((mesh_shape_observables(state).x[0] - before) % domain.period)
+    moved, expected = np.array(moved), np.array(expected)
+    assert np.ptp(expected) > 0.05  # the local velocity varies along the path
+    assert np.abs(moved - expected).max() < 0.03 * expected.max()
+    assert abs(mesh_shape_observables(state).y[0] - 20.0) < 0.1  # stays on the centre line
+
+
+def test_advection_does_not_limit_the_time_step():
+    # uniform flow u = 1 at Courant numbers 1 and 4: stable, the particle moves at u and keeps
+    # its shape (the Padé step's phase error grows as (ω dt)⁴: 0.1 % at dt = 1, 1 % at dt = 4)
+    domain = straight(40.0, 30.0)
+    uniform = python_flow(lambda x, y: (np.ones_like(x), np.zeros_like(y)))
+    for dt, tolerance in ((1.0, 0.003), (4.0, 0.015)):
+        state = discs(domain, [[10.0, 15.0]])
+        run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 40)
+        start = mesh_shape_observables(state)
+        run(UnstructuredStepper(domain, PARAMS, Numerics(), dt, uniform, state.radii), state, round(32 / dt))
+        end = mesh_shape_observables(state)
+        assert (end.x[0] - start.x[0]) % 40.0 == pytest.approx(32.0, rel=tolerance)
+        assert end.area[0] == pytest.approx(start.area[0], rel=0.01)
+        assert end.elongation[0] - start.elongation[0] < 0.1
+        assert np.concatenate(state.fields).min() > -0.02
+
+
+def test_a_particle_passes_an_obstacle_without_blowing_up():
+    # gaps of 18 beside the obstacle: room for the particle (diameter 16) to pass above it
+    domain = MeshDomain.from_mesh(*delaunay_channel(40.0, EDGE, flat(0.0), flat(48.0),
+                                                    obstacles=[(20.0, 24.0, 6.0)], seed=5))
+    flow = stokes_flow(domain, {"type": "stokes", "max_velocity": 1.0})
+    state = discs(domain, [[2.0, 36.0]])
+    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 20)
+    shape = mesh_shape_observables(state)
+    area, x, ys = shape.area[0], shape.x[0], [shape.y[0]]
+    plateau = state.fields[0].max()  # the area constraint lifts φ slightly above 1
+    step = UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, flow, state.radii)
+    travelled = 0.0
+    while travelled < 36.0:  # from upstream of the obstacle to past it
+        step.step(state)  # raises BlowUpError if φ leaves [−0.5, 1.5]
+        shape = mesh_shape_observables(state)
+        travelled += (shape.x[0] - x) % 40.0
+        x = shape.x[0]
+        ys.append(shape.y[0])
+        assert state.step < 200, "the particle got stuck at the obstacle"
+    assert max(ys) > ys[0] + 1.5  # pushed aside by the obstacle ...
+    assert ys[-1] < max(ys) - 1.0  # ... and back towards its streamline behind it
+    assert shape.area[0] == pytest.approx(area, rel=0.02)
+    phi = np.concatenate(state.fields)
+    assert phi.min() > -0.05 and phi.max() < plateau + 0.05
+
+
+# -- scenes and checkpoints -----------------------------------------------------------------
+
+def test_mesh_scene_validates_and_runs(tmp_path):
+    mesh, boundaries = delaunay_channel(30.0, EDGE, flat(0.0), flat(40.0), obstacles=[(15, 20, 4)], seed=6)
+    write_domain(tmp_path / "c.vtu", mesh, boundaries)
+    data = {
+        "domain": {"kind": "mesh", "mesh": "c.vtu"},
+        "particles": {"layout": "random", "N": 3, "seed": 2},
+        "phases": [{"duration": 4.0, "dt": 1.0, "frame_interval": 2.0,
+                    "flow": {"type": "stokes", "flux": 2.0}}],
+    }
+    scene = mesh_scene_from_dict(data, tmp_path)
+    assert scene.scene.domain.Lx == pytest.approx(30.0) and scene.scene.domain.Ly == pytest.approx(40.0)
+    state = scene.initial_state()
+    assert state.n_particles == 3
+    assert scene.flow(scene.scene.phases[0]).flux == pytest.approx(2.0)
+    for key, value, message in [
+        ("domain", {"kind": "mesh", "mesh": "c.vtu", "Lx": 20.0}, "domain.Lx"),
+        ("domain", {"kind": "mesh", "mesh": "c.vtu", "size": 1}, "domain.size"),
+        ("phases", [{"duration": 4.0, "dt": 1.0, "frame_interval": 2.0,
+                     "flow": {"type": "stokes", "flux": 1.0, "max_velocity": 1.0}}], "exactly one of"),
+        ("particles", {"layout": "list", "centres": [[15.0, 20.0]]}, "inside the meshed domain"),
+    ]:
+        with pytest.raises(SceneError, match=message):
+            mesh_scene_from_dict({**data, key: value}, tmp_path)
+
+
+def test_checkpoint_round_trip(tmp_path):
+    domain = straight(20.0, 20.0)
+    state = discs(domain, [[5.0, 10.0], [15.0, 10.0]], 4.0)
+    state.time, state.step = 3.5, 7
+    save_mesh_checkpoint(tmp_path / "c.npz", state)
+    back = load_mesh_checkpoint(tmp_path / "c.npz", domain)
+    assert back.boxes == state.boxes and back.time == 3.5 and back.step == 7
+    assert np.array_equal(back.global_fields(), state.global_fields())
+
+
+def test_a_blow_up_leaves_the_state_unchanged():
+    domain = straight(20.0, 20.0)
+    state = discs(domain, [[10.0, 10.0]], 4.0)
+    before = state.global_fields()
+    pump = lambda x, y, t: 1e3 + 0 * x  # noqa: E731  (a source that drives φ far above 1)
+    with pytest.raises(BlowUpError):
+        UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii, source=pump).step(state)
+    assert np.array_equal(state.global_fields(), before)
