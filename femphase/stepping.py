@@ -112,6 +112,41 @@ def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:
     return bool(rising.any() and not rising.all())
 
 
+def relaxation_system(
+    ops: P1Operators, params: ModelParameters, numerics: Numerics, dt: float, radii: np.ndarray | None,
+) -> tuple[float, sp.csr_matrix, sp.csr_matrix | None]:
+    """(S, G/dt + J0 S M_L + J0 2γλ K, G if consistent else None): the relaxation system
+    shared by the structured and unstructured steppers, with the stabilisation S of
+    ``numerics`` ("auto": :func:`femphase.model.stabilisation_for`)."""
+    smallest_radius = float(np.min(radii)) if radii is not None and len(radii) else params.radius
+    consistent = numerics.mass == "consistent"
+    if numerics.stabilisation == "auto":
+        pairs = radii is None or len(radii) > 1
+        stabilisation = stabilisation_for(params, dt, smallest_radius, 0.25 if consistent else 1.0, pairs)
+    else:
+        stabilisation = float(numerics.stabilisation)
+    time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
+    system = (
+        time_mass / dt
+        + params.mobility * stabilisation * sp.diags(ops.lumped_mass)
+        + params.diffusivity * ops.stiffness
+    ).tocsr()
+    return stabilisation, system, sp.csr_matrix(time_mass) if consistent else None
+
+
+def check_fields(phi: np.ndarray, margin: float, step: int, time: float) -> None:
+    """Raise BlowUpError when phi is not finite or leaves [−margin, 1 + margin]."""
+    if not np.all(np.isfinite(phi)):
+        raise BlowUpError(step, time, "φ is not finite (NaN or inf)")
+    low, high = float(phi.min()), float(phi.max())
+    if low < -margin or high > 1.0 + margin:
+        raise BlowUpError(
+            step, time,
+            f"φ left [{-margin:g}, {1 + margin:g}] (min {low:.3g}, max {high:.3g}); "
+            "try a smaller dt or a larger numerics.stabilisation",
+        )
+
+
 class SemiImplicitStepper:
     """Advances a :class:`State` by steps of fixed dt under a fixed flow."""
 
@@ -134,24 +169,9 @@ class SemiImplicitStepper:
             discretisation.grid.h, threshold=numerics.threshold, margin=numerics.margin,
             enabled=numerics.windows,
         )
-        ops = discretisation.operators
-        smallest_radius = float(np.min(radii)) if radii is not None and len(radii) else params.radius
-        consistent = numerics.mass == "consistent"
-        if numerics.stabilisation == "auto":
-            pairs = radii is None or len(radii) > 1
-            self.stabilisation = stabilisation_for(
-                params, dt, smallest_radius, 0.25 if consistent else 1.0, pairs
-            )
-        else:
-            self.stabilisation = float(numerics.stabilisation)
-        j0 = params.mobility
-        time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
-        self._time_mass = sp.csr_matrix(time_mass) if consistent else None
-        self.system = (
-            time_mass / dt
-            + j0 * self.stabilisation * sp.diags(ops.lumped_mass)
-            + params.diffusivity * ops.stiffness
-        ).tocsr()
+        self.stabilisation, self.system, self._time_mass = relaxation_system(
+            discretisation.operators, params, numerics, dt, radii
+        )
         self._solvers: dict[tuple, tuple] = {}
         self._layout: Layout | None = None
 
@@ -190,7 +210,7 @@ class SemiImplicitStepper:
                 phi = layout.gather(fields)
         windows = layout.windows
         phi_new = self._relax(phi, layout, state.radii, state.time + self.dt)
-        self._check(phi_new, state.step + 1, state.time + self.dt)
+        check_fields(phi_new, self.numerics.blowup_margin, state.step + 1, state.time + self.dt)
         new_fields = layout.scatter(phi_new)
         new_windows = list(windows)
         for group, (_, members, *_) in enumerate(layout.groups):
@@ -239,15 +259,3 @@ class SemiImplicitStepper:
             rhs += explicit[start:stop].reshape(len(members), size).T
             out[start:stop].reshape(len(members), size).T[...] = solver.solve(rhs, current)
         return out
-
-    def _check(self, phi: np.ndarray, step: int, time: float) -> None:
-        bound = self.numerics.blowup_margin
-        if not np.all(np.isfinite(phi)):
-            raise BlowUpError(step, time, "φ is not finite (NaN or inf)")
-        low, high = float(phi.min()), float(phi.max())
-        if low < -bound or high > 1.0 + bound:
-            raise BlowUpError(
-                step, time,
-                f"φ left [{-bound:g}, {1 + bound:g}] (min {low:.3g}, max {high:.3g}); "
-                "try a smaller dt or a larger numerics.stabilisation",
-            )

@@ -52,9 +52,9 @@ from ..discretisation import P1Operators
 from ..energy import explicit_derivative
 from ..errors import SceneError
 from ..flows import Flow
-from ..model import ModelParameters, stabilisation_for
+from ..model import ModelParameters
 from ..solvers import make_solver
-from ..stepping import Numerics, SemiImplicitStepper
+from ..stepping import Numerics, check_fields, relaxation_system
 from ..stokes import StokesFlow
 from .domain import MeshDomain
 from .state import MeshState
@@ -74,28 +74,6 @@ class _WindowSystems:
     time_mass: sp.csr_matrix | None
     advect: object | None  # the complex M − (dt/r) C
     advect_rhs: sp.csr_matrix | None  # M
-
-
-def relaxation_system(
-    ops: P1Operators, params: ModelParameters, numerics: Numerics, dt: float, radii: np.ndarray | None,
-) -> tuple[float, sp.csr_matrix, sp.csr_matrix | None]:
-    """(S, G/dt + J0 S M_L + J0 2γλ K, G if consistent else None): the relaxation system of
-    :class:`femphase.stepping.SemiImplicitStepper`, with its choice of S (kept identical; the
-    lead may move this function into :mod:`femphase.stepping` and call it from both)."""
-    smallest_radius = float(np.min(radii)) if radii is not None and len(radii) else params.radius
-    consistent = numerics.mass == "consistent"
-    if numerics.stabilisation == "auto":
-        pairs = radii is None or len(radii) > 1
-        stabilisation = stabilisation_for(params, dt, smallest_radius, 0.25 if consistent else 1.0, pairs)
-    else:
-        stabilisation = float(numerics.stabilisation)
-    time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
-    system = (
-        time_mass / dt
-        + params.mobility * stabilisation * sp.diags(ops.lumped_mass)
-        + params.diffusivity * ops.stiffness
-    ).tocsr()
-    return stabilisation, system, sp.csr_matrix(time_mass) if consistent else None
 
 
 class UnstructuredStepper:
@@ -166,7 +144,7 @@ class UnstructuredStepper:
         if self.velocity is not None:
             phi = self._advect_all(phi, layout, boxes, nodes)
         phi_new = self._relax(phi, layout, boxes, nodes, state.radii, state.time + self.dt)
-        SemiImplicitStepper._check(self, phi_new, state.step + 1, state.time + self.dt)
+        check_fields(phi_new, self.numerics.blowup_margin, state.step + 1, state.time + self.dt)
         state.boxes, state.nodes, state.fields = boxes, nodes, layout.split(phi_new)
         state.time += self.dt
         state.step += 1
