@@ -6,7 +6,12 @@ import os
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"
 
+import re  # noqa: E402
+from pathlib import Path  # noqa: E402
+
 from femphase.scene import scene_from_dict  # noqa: E402
+
+README = Path(__file__).parent / "README.md"
 
 
 def lattice_scene(h: float = 1.0, windows: bool = True, rate: float = 0.1487, **numerics):
@@ -20,3 +25,21 @@ def lattice_scene(h: float = 1.0, windows: bool = True, rate: float = 0.1487, **
         "phases": [{"name": "shear", "duration": 1.0, "dt": 1.0, "frame_interval": 1.0,
                     "flow": {"type": "shear", "rate": rate}}],
     })
+
+
+def markdown_table(header: list[str], rows: list[list]) -> str:
+    """A GitHub markdown table of already formatted cells."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(cell) for cell in row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def update_readme(section: str, text: str) -> None:
+    """Replace the generated ``section`` of benchmarks/README.md (between its markers) by
+    text; append the section if the README has none yet."""
+    begin, end = f"<!-- generated:{section} -->", f"<!-- /generated:{section} -->"
+    block = f"{begin}\n{text}\n{end}"
+    content = README.read_text() if README.exists() else ""
+    pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
+    content = pattern.sub(lambda _: block, content) if pattern.search(content) else content + f"\n{block}\n"
+    README.write_text(content)

@@ -1,0 +1,382 @@
+"""Work–precision: CPU time against error for FEM options and the FD reference scheme.
+
+    python benchmarks/work_precision.py [--quick] [--reuse-reference]
+
+Two problems, each against a converged reference computed in the same run:
+
+(a) ``particle``: one particle (R = 8) relaxing from R/2 in a 40 × 40 channel, t = 30 (the
+    area is then 0.86 πR², still growing). Errors: the area ∫φ² (relative) and max |φ − φ_ref|
+    on the nodes of the h = 2 grid (shared by all nested grids h = 2, 1, 0.5, 0.25).
+    Reference: Richardson extrapolation in h (O(h²)) of FEM full-mesh runs at h = 0.5 and
+    0.25 with dt = 0.01 (time error ~4e-5 relative in area, ≥ 10× below every point).
+(b) ``lattice``: the paper's N = 100 hexagonal lattice in 70 × 240 relaxed 300 and sheared
+    at γ̇ = 0.1487 for 600 time units. Error: max_t |r̄(t) − r̄_ref(t)| / max_t r̄_ref over
+    frames every 30 time units, r̄ the mean elongation. Reference: FEM h = 0.5, dt = 0.2
+    (the finest run affordable, ~3 CPU-min; no Richardson: only one finer h is affordable).
+    One oscillation period at this γ̇ (~2000 time units, 1e4 at the paper's dt = 0.1 for
+    FD) is beyond this benchmark's budget, so the window is shorter than a period.
+
+Times are CPU seconds of this process from the stepper's construction to the end of the
+run (factorisations, windows and frame observables included, the mesh assembly not), the
+best of up to three repeats for runs under 0.5 s. The same run measures FEM at its
+defaults (h = 1, dt = 1, lumped mass, right diagonals, windows, direct solver) and the FD
+reference at the paper's h = 1, dt = 0.1: ``speedup_vs_fd`` is the ratio of their times
+when the FEM error is at most the FD's; otherwise the cheapest FEM point at or below the
+FD's error is used (both are reported). Every point lists the command that reproduces it
+(``femphase run`` on examples/single.toml or examples/hexagonal.toml with ``--set``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import numpy as np
+
+from femphase.analysis.shape import shape_observables
+from femphase.errors import BlowUpError
+from femphase.scene import scene_from_dict
+from femphase.simulation import Simulation, Tracker
+
+from common import markdown_table, update_readme
+
+RESULTS = Path(__file__).parent / "results"
+DEFAULT = {"method": "fem", "h": 1.0, "dt": 1.0, "options": {}}
+FRAME = 30.0  # time units between frames (a multiple of every dt used)
+PARTICLE_TIME = 30.0
+RELAX, SHEAR, RATE = 300.0, 600.0, 0.1487
+
+
+@dataclass
+class Point:
+    """One run: method, spacing, step, numerics options; filled with time and result."""
+
+    problem: str
+    method: str
+    h: float
+    dt: float
+    options: dict = field(default_factory=dict)
+    seconds: float = 0.0
+    result: dict = field(default_factory=dict)
+    errors: dict = field(default_factory=dict)
+    failure: str = ""  # the BlowUpError's message of a run that did not finish
+
+    @property
+    def label(self) -> str:
+        if self.method == "fd":
+            return "FD (Heun)"
+        names = {"mass": "{} mass", "diagonals": "{} diagonals", "windows": "windows {}",
+                 "solver": "{}", "tolerance": "tol {:g}"}
+        parts = [names[k].format({True: "on", False: "off"}.get(v, v)) for k, v in sorted(self.options.items())]
+        return "FEM " + (", ".join(parts) if parts else "default")
+
+    @property
+    def is_default(self) -> bool:
+        return self.method == "fem" and self.h == 1.0 and self.dt == 1.0 and not self.options
+
+    def command(self) -> str:
+        """The femphase CLI call that runs this point (plus field output, which the timed run skips)."""
+        if self.problem == "particle":
+            sets = ["domain.Lx=40.0", "domain.Ly=40.0", "'particles.centres=[[20.0,20.0]]'",
+                    f"'phases=[{{name=\"relax\",duration={PARTICLE_TIME:g}.0,dt={self.dt:g},"
+                    f"frame_interval={PARTICLE_TIME:g}.0}}]'"]
+            scene = "examples/single.toml"
+        else:
+            sets = [f"phases.{i}.{key}={value:g}" for i, duration in enumerate((RELAX, SHEAR))
+                    for key, value in (("duration", duration), ("frame_interval", FRAME), ("dt", self.dt))]
+            scene = "examples/hexagonal.toml"
+        sets += [f"domain.h={self.h:g}"] + [f"numerics.{k}={json.dumps(v)}" for k, v in sorted(self.options.items())]
+        method = " --method fd" if self.method == "fd" else ""
+        return f"femphase run {scene} -o out{method} " + " ".join(f"--set {s}" for s in sets)
+
+
+def scene_for(point: Point):
+    tables = {"name": f"work-precision {point.problem}", "numerics": dict(point.options), "output": {"fields": False}}
+    if point.problem == "particle":
+        return scene_from_dict({
+            **tables, "domain": {"Lx": 40.0, "Ly": 40.0, "h": point.h},
+            "particles": {"layout": "single", "centres": [[20.0, 20.0]]},
+            "phases": [{"name": "relax", "duration": PARTICLE_TIME, "dt": point.dt, "frame_interval": PARTICLE_TIME}],
+        })
+    return scene_from_dict({
+        **tables, "domain": {"Lx": 70.0, "Ly": 240.0, "h": point.h},
+        "particles": {"layout": "hexagonal", "N": 100},
+        "phases": [{"name": "relax", "duration": RELAX, "dt": point.dt, "frame_interval": FRAME},
+                   {"name": "shear", "duration": SHEAR, "dt": point.dt, "frame_interval": FRAME,
+                    "flow": {"type": "shear", "rate": RATE}}],
+    })
+
+
+class MeanElongation(Tracker):
+    """Times and mean elongation at the frames."""
+
+    needs = frozenset({"shape"})
+
+    def __init__(self) -> None:
+        self.times: list[float] = []
+        self.values: list[float] = []
+
+    def frame(self, frame) -> None:
+        self.times.append(frame.state.time)
+        self.values.append(float(np.mean(frame.shape.elongation)))
+
+
+def run(point: Point) -> Point:
+    """Run ``point`` (timed) and store its observables in point.result."""
+    scene = scene_for(point)
+    simulation = Simulation(scene, point.method)
+    times = []
+    while True:
+        state = scene.initial_state()
+        tracker = MeanElongation()
+        started = time.process_time()
+        try:
+            simulation.run(state, [tracker])
+        except BlowUpError as exc:
+            point.failure = str(exc)
+            print(f"{point.problem:<8} {point.label:<36} h={point.h:<5g} dt={point.dt:<7g} {exc}", flush=True)
+            return point
+        times.append(time.process_time() - started)
+        if times[-1] > 0.5 or len(times) == 3:
+            break
+    point.seconds = min(times)
+    if point.problem == "particle":
+        stride = round(2.0 / point.h)  # the h = 2 grid's nodes
+        phi = state.global_field(0).reshape(state.grid.ny, state.grid.nx)[::stride, ::stride]
+        point.result = {"area": float(shape_observables(state, simulation.discretisation.operators).area[0]),
+                        "field": phi.tolist()}
+    else:
+        point.result = {"times": tracker.times, "mean_elongation": tracker.values}
+    print(f"{point.problem:<8} {point.label:<36} h={point.h:<5g} dt={point.dt:<7g} {point.seconds:8.2f} s", flush=True)
+    return point
+
+
+# -- references ----------------------------------------------------------------------------------
+def particle_reference() -> dict:
+    """Richardson (O(h²)) of full-mesh FEM runs at h = 0.5, 0.25 with dt = 0.01."""
+    fine, coarse = (run(Point("particle", "fem", h, 0.01, {"windows": False})) for h in (0.25, 0.5))
+    extrapolate = lambda f, c: f + (f - c) / 3.0  # noqa: E731
+    return {
+        "area": extrapolate(fine.result["area"], coarse.result["area"]),
+        "field": extrapolate(np.array(fine.result["field"]), np.array(coarse.result["field"])).tolist(),
+        "richardson_correction_area": abs(fine.result["area"] - coarse.result["area"]) / 3.0,
+        "seconds": fine.seconds + coarse.seconds,
+    }
+
+
+def lattice_reference() -> dict:
+    point = run(Point("lattice", "fem", 0.5, 0.2))
+    return {**point.result, "seconds": point.seconds}
+
+
+def particle_errors(point: Point, reference: dict) -> dict:
+    return {"area": abs(point.result["area"] - reference["area"]) / reference["area"],
+            "field": float(np.max(np.abs(np.array(point.result["field"]) - np.array(reference["field"]))))}
+
+
+def lattice_errors(point: Point, reference: dict) -> dict:
+    r, r_ref = np.array(point.result["mean_elongation"]), np.array(reference["mean_elongation"])
+    assert np.allclose(point.result["times"], reference["times"])
+    return {"elongation": float(np.max(np.abs(r - r_ref)) / np.max(np.abs(r_ref)))}
+
+
+# -- the sweeps ----------------------------------------------------------------------------------
+def particle_points(quick: bool) -> list[Point]:
+    dts = (0.1, 0.3, 1.0, 3.0)
+    points = [Point("particle", "fem", h, dt) for h in ((2.0, 1.0) if quick else (2.0, 1.0, 0.5, 0.25)) for dt in dts]
+    points += [Point("particle", "fd", h, dt) for h, dt in ((2.0, 0.4), (1.0, 0.1), (0.5, 0.025), (0.25, 0.00625))
+               if not (quick and h < 1)]
+    if quick:
+        return points
+    for h in (1.0, 0.5):
+        points += [Point("particle", "fem", h, dt, {"mass": "consistent"}) for dt in dts]
+        points += [Point("particle", "fem", h, dt, {"diagonals": "alternating"}) for dt in (0.3, 1.0, 3.0)]
+        points += [Point("particle", "fem", h, dt, {"windows": False}) for dt in (0.3, 1.0)]
+        points += [Point("particle", "fem", h, 1.0, {"solver": "amg", "tolerance": tol}) for tol in (1e-4, 1e-6, 1e-10)]
+    return points
+
+
+def lattice_points(quick: bool) -> list[Point]:
+    if quick:
+        return [Point("lattice", "fem", 1.0, dt) for dt in (1.0, 3.0)] + [Point("lattice", "fem", 2.0, 1.0)]
+    points = [Point("lattice", "fem", h, dt) for h, dts in ((2.0, (1.0, 3.0)), (1.0, (0.3, 1.0, 3.0)),
+                                                           (0.5, (1.0, 3.0))) for dt in dts]
+    points += [Point("lattice", "fem", 1.0, dt, {"mass": "consistent"}) for dt in (1.0, 3.0)]
+    points += [Point("lattice", "fem", 1.0, dt, {"diagonals": "alternating"}) for dt in (1.0, 3.0)]
+    points += [Point("lattice", "fd", 2.0, 0.4), Point("lattice", "fd", 1.0, 0.1)]
+    return points
+
+
+def pareto_front(points: list[Point], key: str) -> set[int]:
+    """Indices of the points no other point beats in both time and error."""
+    front = set()
+    for i, p in enumerate(points):
+        beaten = any(q.seconds < p.seconds and q.errors[key] < p.errors[key] for q in points)
+        if not beaten:
+            front.add(i)
+    return front
+
+
+def speedup_vs_fd(points: list[Point], key: str) -> dict:
+    fd = next(p for p in points if p.method == "fd" and p.h == 1.0 and p.dt == 0.1)
+    default = next(p for p in points if p.is_default)
+    matching = [p for p in points if p.method == "fem" and p.errors[key] <= fd.errors[key]]
+    cheapest = min(matching, key=lambda p: p.seconds) if matching else None
+    return {
+        "error": key, "fd_seconds": fd.seconds, "fd_error": fd.errors[key],
+        "default_seconds": default.seconds, "default_error": default.errors[key],
+        "default_speedup": fd.seconds / default.seconds,
+        "default_error_ratio": default.errors[key] / fd.errors[key],
+        "equal_error_fem": None if cheapest is None else {"label": cheapest.label, "h": cheapest.h, "dt": cheapest.dt,
+                                                           "seconds": cheapest.seconds, "error": cheapest.errors[key]},
+        "speedup_vs_fd": None if cheapest is None else fd.seconds / cheapest.seconds,
+    }
+
+
+# -- report --------------------------------------------------------------------------------------
+def plot(panels: list[tuple[str, list[Point], str]], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(panels), figsize=(5 * len(panels), 4.4))
+    for ax, (title, points, key) in zip(np.atleast_1d(axes), panels):
+        curves: dict[tuple, list[Point]] = {}
+        for p in points:
+            curves.setdefault((p.label, p.h if p.method == "fem" else None), []).append(p)
+        labels = sorted({p.label for p in points})
+        colours = {label: plt.cm.tab10(i % 10) for i, label in enumerate(labels)}
+        for (label, h), members in curves.items():
+            members.sort(key=lambda p: p.seconds)
+            x = [p.seconds for p in members]
+            y = [max(p.errors[key], 1e-16) for p in members]
+            name = label if h is None else f"{label}, h = {h:g}"
+            ax.loglog(x, y, "o-" if label != "FD (Heun)" else "s--", color=colours[label],
+                      alpha=1.0 if h in (None, 1.0) else 0.55, label=name, markersize=4)
+            for p, xi, yi in zip(members, x, y):
+                if label != "FD (Heun)" and p.h != 1.0 and p.dt == 1.0:
+                    ax.annotate(f"h={p.h:g}", (xi, yi), fontsize=6)
+        for p in points:
+            if p.is_default:
+                ax.loglog(p.seconds, p.errors[key], "*", color="k", markersize=14, label="femphase default")
+        ax.set_xlabel("CPU seconds")
+        ax.set_ylabel(f"{key} error")
+        ax.set_title(title, fontsize=9)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=5.5, ncol=2)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+
+
+def table(points: list[Point], keys: list[str]) -> str:
+    front = {key: pareto_front(points, key) for key in keys}
+    rows = []
+    for i, p in sorted(enumerate(points), key=lambda item: item[1].seconds):
+        marks = "".join("F" if i in front[k] else "·" for k in keys)
+        rows.append([p.label + (" **(default)**" if p.is_default else ""), f"{p.h:g}", f"{p.dt:g}", f"{p.seconds:.3g}"]
+                    + [f"{p.errors[k]:.2e}" for k in keys] + [marks, f"`{p.command()}`"])
+    return markdown_table(["method / options", "h", "dt", "CPU s"] + [f"{k} error" for k in keys]
+                          + ["on front (" + ", ".join(keys) + ")", "command"], rows)
+
+
+def report(result: dict) -> str:
+    text = []
+    for problem, keys in (("particle", ["area", "field"]), ("lattice", ["elongation"])):
+        points = result[f"_{problem}_points"]
+        text.append(f"**({'a' if problem == 'particle' else 'b'}) {problem}** — reference computed in "
+                    f"{result[problem]['reference_seconds']:.0f} CPU s; F = on the fastest front for that error.\n")
+        text.append(table(points, keys))
+        for f in result[problem]["failed"]:
+            text.append(f"\n- did not finish: {f['label']}, h = {f['h']:g}, dt = {f['dt']:g}: {f['message']} (`{f['command']}`)")
+        for key in keys:
+            s = result[problem]["speedup"][key]
+            equal = s["equal_error_fem"]
+            text.append(
+                f"\n- {key}: FEM default {s['default_seconds']:.3g} s (error {s['default_error']:.2e}) vs FD h = 1, dt = 0.1 "
+                f"{s['fd_seconds']:.3g} s (error {s['fd_error']:.2e}): time ratio {s['default_speedup']:.1f}×, "
+                f"error ratio {s['default_error_ratio']:.2f}; "
+                + (f"cheapest FEM at ≤ FD's error: {equal['label']} h = {equal['h']:g}, dt = {equal['dt']:g}, "
+                   f"{equal['seconds']:.3g} s → **speedup_vs_fd = {s['speedup_vs_fd']:.1f}×**" if equal else
+                   "no FEM point reached the FD's error")
+                + f"; default on the fastest front: {'yes' if result[problem]['default_on_front'][key] else '**no**'}.")
+        text.append("")
+    text.append("![work-precision](results/work_precision.png)")
+    return "\n".join(text)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a few coarse points, no fine references")
+    parser.add_argument("--report", action="store_true", help="only rewrite the README section from the JSON")
+    parser.add_argument("--reuse-reference", action="store_true",
+                        help="take the references from results/work_precision.json instead of recomputing them")
+    args = parser.parse_args()
+    started = time.process_time()
+    out = RESULTS / "work_precision.json"
+    if args.report:
+        stored = json.loads(out.read_text())
+        for problem in ("particle", "lattice"):
+            stored[f"_{problem}_points"] = [
+                Point(problem, d["method"], d["h"], d["dt"], d["options"], d["seconds"], errors=d["errors"])
+                for d in stored[problem]["points"]]
+        update_readme("work_precision", report(stored))
+        return
+    previous = json.loads(out.read_text()) if args.reuse_reference and out.exists() else None
+    result: dict = {}
+    panels = []
+    for problem, keys, points, make_reference, error in (
+        ("particle", ["area", "field"], particle_points(args.quick), particle_reference, particle_errors),
+        ("lattice", ["elongation"], lattice_points(args.quick), lattice_reference, lattice_errors),
+    ):
+        if args.quick:  # the reference is the finest point of the quick sweep
+            points = [run(p) for p in points]
+            failed = [p for p in points if p.failure]
+            points = [p for p in points if not p.failure]
+            finest = min(points, key=lambda p: (p.h, p.dt))
+            reference = {**finest.result, "seconds": 0.0}
+        else:
+            reference = previous[problem]["reference"] if previous else make_reference()
+            points = [run(p) for p in points]
+            failed = [p for p in points if p.failure]
+            points = [p for p in points if not p.failure]
+        for p in points:
+            p.errors = error(p, reference)
+        fronts = {key: pareto_front(points, key) for key in keys}
+        default_index = next(i for i, p in enumerate(points) if p.is_default)
+        result[problem] = {
+            "reference": reference, "reference_seconds": reference["seconds"],
+            "points": [{"label": p.label, "method": p.method, "h": p.h, "dt": p.dt, "options": p.options,
+                        "seconds": p.seconds, "errors": p.errors, "default": p.is_default, "command": p.command(),
+                        "on_front": {k: i in fronts[k] for k in keys}} for i, p in enumerate(points)],
+            "failed": [{"label": p.label, "h": p.h, "dt": p.dt, "options": p.options, "message": p.failure,
+                        "command": p.command()} for p in failed],
+            "default_on_front": {k: default_index in fronts[k] for k in keys},
+            "speedup": {k: speedup_vs_fd(points, k) for k in keys} if not args.quick else {},
+        }
+        result[f"_{problem}_points"] = points
+        panels += [(f"({'a' if problem == 'particle' else 'b'}) {problem}: {k}", points, k) for k in keys]
+    if not args.quick:
+        result["speedup_vs_fd"] = result["lattice"]["speedup"]["elongation"]["speedup_vs_fd"]
+    result["cpu_seconds"] = time.process_time() - started
+    RESULTS.mkdir(exist_ok=True)
+    serialisable = {k: v for k, v in result.items() if not k.startswith("_")}
+    if not args.quick:
+        out.write_text(json.dumps(serialisable, indent=1) + "\n")
+        plot(panels, RESULTS / "work_precision.png")
+        markdown = report(result)
+        print(markdown)
+        update_readme("work_precision", markdown)
+    else:
+        for problem in ("particle", "lattice"):
+            for p in result[f"_{problem}_points"]:
+                print(problem, p.label, p.h, p.dt, f"{p.seconds:.2f}", p.errors)
+    print(f"{result['cpu_seconds'] / 60:.1f} CPU-min")
+
+
+if __name__ == "__main__":
+    main()
