@@ -145,8 +145,8 @@ def check_fields(phi: np.ndarray, margin: float, step: int, time: float) -> None
         raise BlowUpError(
             step, time,
             f"φ left [{-margin:g}, {1 + margin:g}] (min {low:.3g}, max {high:.3g}); "
-            "try a smaller dt or numerics.stabilisation > 0, or, if the overshoot is physical, "
-            "a larger numerics.blowup_margin",
+            "try a smaller dt (with the FEM stepper, also numerics.stabilisation > 0), or, if "
+            "the overshoot is physical, a larger numerics.blowup_margin",
         )
 
 

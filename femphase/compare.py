@@ -1,0 +1,521 @@
+"""Compare two runs, or a run and external grid data: ``femphase compare DIR_A DIR_B``.
+
+    femphase compare DIR_A DIR_B [-o OUT] [--fields]
+
+Each input is a run directory (see :mod:`femphase.io`) or a file of **external grid data**,
+NumPy ``.npz`` or HDF5 (``.h5``/``.hdf5``) holding four arrays:
+
+    time  (F,)             frame times (time units)
+    x     (nx,)            node columns x = ix·h, ix = 0 … nx−1 (periodic: no copy of x = Lx)
+    y     (ny,)            node rows y = iy·h, iy = 0 … ny−1 (the walls are y = 0 and y = Ly)
+    phi   (F, N, ny, nx)   nodal values of every particle's field, phi[f, i, iy, ix]
+
+i.e. the nodes of the run's grid (:mod:`femphase.mesh`), the particles in the run's order.
+:func:`grid_data_from_run` and :func:`save_grid_data` write a run in this layout.
+
+What is compared, at the frame times both inputs have (matched to 1e-6 time units):
+
+* observables, per frame: the largest |difference| over the particles (particles matched by
+  id) of the centroid x (minimum image over the period) and y, the area ∫φ², the elongation
+  and the orientation (nematic: differences taken modulo π; only for particles whose
+  elongation is ≥ 0.01 in both inputs, a disc has no orientation). Runs read them from
+  particles.csv; for grid data they are computed from the fields
+  (:func:`femphase.analysis.shape.shape_observables`);
+* energies (two run directories only; global.csv): |difference| of the free energy and of
+  its interface, area and repulsion parts;
+* fields (with ``--fields``, always when an input is grid data): the L2 norm with the
+  lumped-mass (nodal) quadrature, ‖e‖ = (Σ_k m_k e_k²)^½, and the L∞ norm of the
+  difference. Per particle (``phi_l2`` = (Σ_i ‖Δφ_i‖²)^½, ``phi_linf`` = max_i ‖Δφ_i‖∞, and
+  every particle's ‖Δφ_i‖ in compare.json) when both inputs have per-particle fields (grid
+  data, or runs with ``output.per_particle_fields = true``); always for the total
+  Σ_i φ_i (``phi_sum_l2``, ``phi_sum_linf``).
+
+Output in OUT (default DIR_B/compare, or B's file name with the suffix ``_compare`` next to
+it): compare.csv (one row per common frame), compare.json (the same plus a summary and the
+per-particle field differences) and compare.png; a summary table is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .analysis.shape import shape_observables
+from .io import read_csv
+from .mesh import ChannelGrid
+from .state import State
+from .windows import full_window
+
+#: Frame times closer than this (time units) are the same frame.
+TIME_TOLERANCE = 1e-6
+GRID_SUFFIXES = (".npz", ".h5", ".hdf5")
+#: Orientations are compared only where both elongations are at least this: a disc has none.
+ORIENTATION_MIN_ELONGATION = 0.01
+OBSERVABLES = ("x", "y", "area", "elongation", "orientation")
+#: global.csv column → name in the comparison (``area`` is taken by the particle area).
+ENERGIES = {"free_energy": "energy_total", "interface": "energy_interface",
+            "area": "energy_area", "repulsion": "energy_repulsion"}
+FIELD_NORMS = ("phi_sum_l2", "phi_sum_linf", "phi_l2", "phi_linf")
+
+
+@dataclass
+class GridData:
+    """Fields on the nodes of a channel grid: phi (F, N, ny, nx) at times (F,)."""
+
+    time: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    phi: np.ndarray
+
+    def __post_init__(self) -> None:
+        self.time, self.x, self.y = (np.asarray(a, dtype=float) for a in (self.time, self.x, self.y))
+        for name in ("time", "x", "y"):
+            if getattr(self, name).ndim != 1:
+                raise ValueError(f"grid data: '{name}' has shape {getattr(self, name).shape}; expected a 1-D array")
+        shape = (self.time.size, self.y.size, self.x.size)
+        if self.phi.ndim != 4 or (self.phi.shape[0], *self.phi.shape[2:]) != shape:
+            raise ValueError(
+                f"grid data: 'phi' has shape {self.phi.shape}; expected (F, N, ny, nx) = "
+                f"({shape[0]}, N, {shape[1]}, {shape[2]}) from the sizes of time, y and x"
+            )
+
+    def grid(self) -> ChannelGrid:
+        """The channel grid of x and y; ValueError when they are not a uniform lattice from 0."""
+        if self.x.size < 2 or self.y.size < 2:
+            raise ValueError("grid data: x and y need at least 2 nodes each")
+        h = float(self.x[1] - self.x[0])
+        grid = ChannelGrid(nx=self.x.size, ny=self.y.size, h=h)
+        x, y = grid.coordinates()
+        if h <= 0 or not (np.allclose(self.x, x, atol=1e-9 * h) and np.allclose(self.y, y, atol=1e-9 * h)):
+            raise ValueError(
+                "grid data: x and y must be the nodes x = ix·h, y = iy·h of a uniform grid starting at 0 "
+                f"(got x from {self.x[0]:g} to {self.x[-1]:g}, y from {self.y[0]:g} to {self.y[-1]:g})"
+            )
+        return grid
+
+
+def save_grid_data(path: str | Path, data: GridData) -> None:
+    """Write grid data as .npz or HDF5 (.h5, .hdf5), chosen by the suffix."""
+    path = Path(path)
+    arrays = {"time": data.time, "x": data.x, "y": data.y, "phi": data.phi}
+    if path.suffix == ".npz":
+        np.savez_compressed(path, **arrays)
+    elif path.suffix in (".h5", ".hdf5"):
+        import h5py
+
+        with h5py.File(path, "w") as handle:
+            for name, values in arrays.items():
+                handle.create_dataset(name, data=values)
+    else:
+        raise ValueError(f"grid data file '{path}': the suffix must be one of {GRID_SUFFIXES}")
+
+
+def load_grid_data(path: str | Path) -> GridData:
+    """Read grid data written in the layout of the module docstring."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"'{path}' is neither a run directory nor a grid data file")
+    try:
+        if path.suffix == ".npz":
+            with np.load(path) as handle:
+                arrays = {name: handle[name] for name in handle.files}
+        elif path.suffix in (".h5", ".hdf5"):
+            import h5py
+
+            with h5py.File(path, "r") as handle:
+                arrays = {name: handle[name][()] for name in handle}
+        else:
+            raise ValueError(f"grid data file '{path}': the suffix must be one of {GRID_SUFFIXES}")
+    except (OSError, ValueError) as exc:
+        if "suffix" in str(exc):
+            raise
+        raise ValueError(f"grid data file '{path}' cannot be read: {exc}") from None
+    missing = [name for name in ("time", "x", "y", "phi") if name not in arrays]
+    if missing:
+        raise ValueError(
+            f"grid data file '{path}' lacks {missing}; it must hold time (F,), x (nx,), y (ny,) and phi (F, N, ny, nx)"
+        )
+    return GridData(arrays["time"], arrays["x"], arrays["y"], np.asarray(arrays["phi"], dtype=float))
+
+
+# -- the inputs, behind one interface ---------------------------------------------------------
+@dataclass
+class Source:
+    """One side of a comparison: a run directory or grid data."""
+
+    label: str
+    grid: ChannelGrid
+    lumped_mass: np.ndarray
+    is_run: bool
+    particle_times: np.ndarray = field(default_factory=lambda: np.empty(0))
+    observables: dict = field(default_factory=dict)  # name → (F, N)
+    energy_times: np.ndarray = field(default_factory=lambda: np.empty(0))
+    energies: dict = field(default_factory=dict)  # name → (F,)
+    field_times: np.ndarray = field(default_factory=lambda: np.empty(0))
+    per_particle: bool = False
+    _reader: object = None
+    _grid_data: GridData | None = None
+    _dof_map: np.ndarray | None = None
+
+    def fields(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Frame k of the fields: Σ_i φ_i (n_nodes,) and φ (N, n_nodes) or None, grid order."""
+        if self._grid_data is not None:
+            phi = self._grid_data.phi[k].reshape(self._grid_data.phi.shape[1], -1)
+            return phi.sum(axis=0), phi
+        _, data, _ = self._reader.read_data(k)
+        names = sorted(n for n in data if n.startswith("phi_") and n[4:].isdigit())
+
+        def on_grid(values):  # mesh nodes → grid order (the seam's copy lands on its partner)
+            out = np.empty(self.grid.n_nodes)
+            out[self._dof_map] = np.asarray(values).ravel()
+            return out
+
+        phi = np.stack([on_grid(data[n]) for n in names]) if names else None
+        return on_grid(data["phi_sum"]), phi
+
+    def close(self) -> None:
+        if self._reader is not None:
+            self._reader.__exit__(None, None, None)
+
+
+def _per_frame(columns: dict[str, np.ndarray], names) -> tuple[np.ndarray, dict]:
+    """particles.csv columns → frame times and {name: (F, N)} with particles ordered by id."""
+    times, frame = np.unique(columns["time"], return_inverse=True)
+    ids = columns["id"].astype(int)
+    n = ids.max() + 1 if ids.size else 0
+    counts = np.bincount(frame, minlength=times.size)
+    if np.any(counts != n):
+        raise ValueError("particles.csv: every frame must list the same particles 0 … N−1")
+    out = {}
+    for name in names:
+        table = np.empty((times.size, n))
+        table[frame, ids] = columns[name]
+        out[name] = table
+    return times, out
+
+
+def open_source(path: str | Path, need_fields: bool) -> Source:
+    """Read a run directory's scene and CSVs (and open its fields), or load grid data."""
+    path = Path(path)
+    if path.is_dir():
+        return _open_run(path, need_fields)
+    if path.suffix in GRID_SUFFIXES or path.is_file():
+        return _open_grid_data(path)
+    raise ValueError(
+        f"'{path}' does not exist; give a run directory (from `femphase run`) or a grid data file "
+        f"({', '.join(GRID_SUFFIXES)})"
+    )
+
+
+def _open_run(path: Path, need_fields: bool) -> Source:
+    from .mesh import grid_dof_map
+    from .scene import load_scene
+
+    for name in ("scene.toml", "particles.csv", "global.csv"):
+        if not (path / name).is_file():
+            raise ValueError(f"'{path}' is not a run directory: it has no {name}")
+    scene = load_scene(path / "scene.toml")
+    disc = scene.discretisation()
+    source = Source(str(path), disc.grid, disc.operators.lumped_mass, True)
+    source.particle_times, source.observables = _per_frame(read_csv(path / "particles.csv"), OBSERVABLES)
+    energies = read_csv(path / "global.csv")
+    source.energy_times = energies["time"]
+    source.energies = {ENERGIES[k]: energies[k] for k in ENERGIES}
+    if need_fields:
+        import meshio
+        from skfem import MeshTri
+
+        xdmf = path / "fields.xdmf"
+        if not xdmf.is_file():
+            raise ValueError(
+                f"run '{path}' has no fields.xdmf (it was run with output.fields = false); "
+                "compare it without --fields"
+            )
+        reader = meshio.xdmf.TimeSeriesReader(str(xdmf.resolve()))
+        points, cells = reader.read_points_cells()
+        triangles = np.vstack([c.data for c in cells if c.type == "triangle"])
+        source._reader = reader
+        source._dof_map = grid_dof_map(MeshTri(points[:, :2].T.copy(), triangles.T.copy()), disc.grid)
+        source.field_times = np.array([float(e.find("Time").get("Value")) for e in reader.collection])
+        source.per_particle = bool(scene.output.per_particle_fields)
+    return source
+
+
+def _open_grid_data(path: Path) -> Source:
+    from .stepping import Discretisation
+
+    data = load_grid_data(path)
+    grid = data.grid()
+    ops = Discretisation.structured(grid).operators
+    source = Source(str(path), grid, ops.lumped_mass, False, _grid_data=data)
+    source.field_times = data.time
+    source.per_particle = True
+    # observables from the fields, as a run computes them
+    window = full_window(grid)
+    shapes = []
+    for k in range(data.time.size):
+        state = State(grid, [window] * data.phi.shape[1], list(data.phi[k]), np.ones(data.phi.shape[1]))
+        shapes.append(shape_observables(state, ops))
+    source.particle_times = data.time
+    source.observables = {name: np.array([getattr(s, name) for s in shapes]) for name in OBSERVABLES}
+    return source
+
+
+def grid_data_from_run(directory: str | Path) -> GridData:
+    """A run's per-particle fields (output.per_particle_fields = true) as grid data."""
+    source = open_source(directory, need_fields=True)
+    try:
+        if not source.is_run or not source.per_particle:
+            raise ValueError(f"'{directory}' has no per-particle fields; run it with output.per_particle_fields = true")
+        grid = source.grid
+        phi = np.stack([source.fields(k)[1] for k in range(source.field_times.size)])
+        x, y = grid.coordinates()
+        return GridData(source.field_times, x, y, phi.reshape(phi.shape[0], phi.shape[1], grid.ny, grid.nx))
+    finally:
+        source.close()
+
+
+# -- the comparison -----------------------------------------------------------------------
+def match_times(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (ia, ib) of the frame times a and b share (within TIME_TOLERANCE); b sorted."""
+    if a.size == 0 or b.size == 0:
+        return np.empty(0, dtype=int), np.empty(0, dtype=int)
+    position = np.searchsorted(b, a)
+    below, above = np.clip(position - 1, 0, b.size - 1), np.clip(position, 0, b.size - 1)
+    nearest = np.where(np.abs(b[below] - a) <= np.abs(b[above] - a), below, above)
+    keep = np.abs(b[nearest] - a) <= TIME_TOLERANCE
+    return np.flatnonzero(keep), nearest[keep]
+
+
+def _span(times: np.ndarray) -> str:
+    return f"{times.size} frames, t = {times.min():g} … {times.max():g}" if times.size else "no frames"
+
+
+def _on_frames(times: np.ndarray, table_times: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """values (one per table time) at ``times``; NaN where the table has no such frame."""
+    out = np.full(times.size, np.nan)
+    rows, k = match_times(times, table_times)
+    out[rows] = values[k]
+    return out
+
+
+def _difference(name: str, a: np.ndarray, b: np.ndarray, length: float) -> np.ndarray:
+    d = a - b
+    if name == "x":  # centroids on the periodic line: the minimum image
+        d = (d + 0.5 * length) % length - 0.5 * length
+    elif name == "orientation":  # nematic axes: θ and θ + π are the same
+        d = (d + 0.5 * np.pi) % np.pi - 0.5 * np.pi
+    return np.abs(d)
+
+
+def compare_runs(a: str | Path, b: str | Path, fields: bool = False) -> dict:
+    """Differences between two runs, or a run and grid data (see the module docstring).
+
+    Returns {"a", "b", "grid", "time" (common frame times), "series" {quantity: per-frame
+    values}, "summary" {quantity: {"max", "at_time", "final"}}, "per_particle"
+    {"phi_l2": (F, N) list when available}, "field_mode"}. Raises ValueError with the reason
+    when an input cannot be read, the grids differ or there is no common frame time.
+    """
+    # grid data holds nothing but fields, so they are compared whenever an input is grid data
+    fields = fields or not (Path(a).is_dir() and Path(b).is_dir())
+    sa = open_source(a, fields)
+    try:
+        sb = open_source(b, fields)
+    except Exception:
+        sa.close()
+        raise
+    try:
+        return _compare(sa, sb, fields)
+    finally:
+        sa.close()
+        sb.close()
+
+
+def _compare(a: Source, b: Source, with_fields: bool) -> dict:
+    if a.grid != b.grid:
+        raise ValueError(
+            f"the grids differ: '{a.label}' has {a.grid.nx} × {a.grid.ny} nodes at h = {a.grid.h:g}, "
+            f"'{b.label}' has {b.grid.nx} × {b.grid.ny} at h = {b.grid.h:g}; compare runs on the same grid"
+        )
+    ia, ib = match_times(a.particle_times, b.particle_times)
+    if ia.size == 0:
+        raise ValueError(
+            f"no common frame times: '{a.label}' has {_span(a.particle_times)}, "
+            f"'{b.label}' has {_span(b.particle_times)}"
+        )
+    n_a, n_b = a.observables["x"].shape[1], b.observables["x"].shape[1]
+    if n_a != n_b:
+        raise ValueError(f"'{a.label}' has {n_a} particles, '{b.label}' has {n_b}; they must match")
+    times = a.particle_times[ia]
+    series: dict[str, np.ndarray] = {}
+    # an orientation is defined only for particles that are elongated in both inputs
+    elongated = np.minimum(a.observables["elongation"][ia], b.observables["elongation"][ib]) >= ORIENTATION_MIN_ELONGATION
+    for name in OBSERVABLES:
+        diff = _difference(name, a.observables[name][ia], b.observables[name][ib], a.grid.length)
+        if name == "orientation":
+            diff = np.where(elongated, diff, -np.inf)
+        largest = diff.max(axis=1)
+        series[name] = np.where(np.isfinite(largest), largest, np.nan)
+    if a.is_run and b.is_run:
+        for name in ENERGIES.values():
+            series[name] = np.abs(_on_frames(times, a.energy_times, a.energies[name])
+                                  - _on_frames(times, b.energy_times, b.energies[name]))
+    per_particle = {}
+    mode = "none"
+    if with_fields:
+        rows_a, ka = match_times(times, a.field_times)
+        rows_b, kb = match_times(times, b.field_times)
+        rows, pick_a, pick_b = np.intersect1d(rows_a, rows_b, return_indices=True)
+        if rows.size == 0:
+            raise ValueError(
+                f"no common frame times of the fields: '{a.label}' has {_span(a.field_times)}, "
+                f"'{b.label}' has {_span(b.field_times)}"
+            )
+        mode = "per_particle" if a.per_particle and b.per_particle else "phi_sum"
+        names = FIELD_NORMS if mode == "per_particle" else FIELD_NORMS[:2]
+        norms = {name: np.full(times.size, np.nan) for name in names}
+        particle_l2 = np.full((times.size, n_a), np.nan)
+        m = a.lumped_mass
+        for row, k_a, k_b in zip(rows, ka[pick_a], kb[pick_b]):
+            sum_a, phi_a = a.fields(k_a)
+            sum_b, phi_b = b.fields(k_b)
+            e = sum_a - sum_b
+            norms["phi_sum_l2"][row] = np.sqrt(e**2 @ m)
+            norms["phi_sum_linf"][row] = np.abs(e).max()
+            if mode == "per_particle":
+                if phi_a.shape != phi_b.shape:
+                    raise ValueError(
+                        f"'{a.label}' has fields of {phi_a.shape[0]} particles, '{b.label}' of {phi_b.shape[0]}"
+                    )
+                e = phi_a - phi_b
+                particle_l2[row] = np.sqrt(e**2 @ m)
+                norms["phi_l2"][row] = np.sqrt(np.sum(particle_l2[row] ** 2))
+                norms["phi_linf"][row] = np.abs(e).max()
+        series.update(norms)
+        if mode == "per_particle":
+            per_particle["phi_l2"] = particle_l2
+    summary = {}
+    for name, values in series.items():
+        finite = np.isfinite(values)
+        if not finite.any():
+            continue
+        k = int(np.nanargmax(values))
+        summary[name] = {"max": float(values[k]), "at_time": float(times[k]),
+                         "final": float(values[finite][-1])}
+    return {
+        "a": a.label,
+        "b": b.label,
+        "grid": {"nx": a.grid.nx, "ny": a.grid.ny, "h": a.grid.h},
+        "n_particles": int(n_a),
+        "time": times,
+        "series": series,
+        "summary": summary,
+        "per_particle": per_particle,
+        "field_mode": mode,
+    }
+
+
+# -- output -------------------------------------------------------------------------------
+def format_table(result: dict) -> str:
+    """The summary table that ``femphase compare`` prints."""
+    t = result["time"]
+    lines = [
+        f"A: {result['a']}",
+        f"B: {result['b']}",
+        f"{t.size} common frames, t = {t[0]:g} … {t[-1]:g}; {result['n_particles']} particles; "
+        f"fields compared: {result['field_mode']}",
+        "",
+        f"{'quantity':<18}{'max |A − B|':>14}{'at t':>12}{'final':>14}",
+    ]
+    for name, row in result["summary"].items():
+        lines.append(f"{name:<18}{row['max']:>14.4g}{row['at_time']:>12.6g}{row['final']:>14.4g}")
+    return "\n".join(lines)
+
+
+def write_comparison(result: dict, directory: str | Path) -> Path:
+    """compare.csv, compare.json and compare.png in ``directory`` (created)."""
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    names = list(result["series"])
+    with (directory / "compare.csv").open("w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(["time"] + names)
+        for k, t in enumerate(result["time"]):
+            writer.writerow([repr(float(t))] + [repr(float(result["series"][n][k])) for n in names])
+
+    def plain(value):
+        if isinstance(value, np.ndarray):
+            return [plain(v) for v in value.tolist()] if value.ndim else plain(value.item())
+        if isinstance(value, dict):
+            return {k: plain(v) for k, v in value.items()}
+        if isinstance(value, list):
+            return [plain(v) for v in value]
+        if isinstance(value, float) and not np.isfinite(value):
+            return None
+        return value
+
+    (directory / "compare.json").write_text(json.dumps(plain(result), indent=1) + "\n")
+    _plot(result, directory / "compare.png")
+    return directory
+
+
+def _plot(result: dict, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    panels = [("observables (max over particles)", OBSERVABLES),
+              ("energies", tuple(ENERGIES.values())), ("fields", FIELD_NORMS)]
+    panels = [(title, [n for n in names if n in result["series"]]) for title, names in panels]
+    panels = [(title, names) for title, names in panels if names]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 3.6), squeeze=False)
+    for ax, (title, names) in zip(axes[0], panels):
+        for name in names:
+            values = np.asarray(result["series"][name], dtype=float)
+            ax.plot(result["time"], np.where(values > 0, values, np.nan), marker=".", label=name)
+        ax.set_yscale("log")
+        ax.set_xlabel("time")
+        ax.set_ylabel("|A − B|")
+        ax.set_title(title, fontsize=10)
+        ax.legend(fontsize=7)
+    fig.suptitle(f"A = {Path(result['a']).name}, B = {Path(result['b']).name}", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def default_output(b: str | Path) -> Path:
+    b = Path(b)
+    return b / "compare" if b.is_dir() else b.with_name(b.stem + "_compare")
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    result = compare_runs(args.a, args.b, fields=args.fields)
+    out = write_comparison(result, args.output or default_output(args.b))
+    print(format_table(result))
+    print(f"\nper-frame differences in {out / 'compare.csv'}, {out / 'compare.json'}, plot {out / 'compare.png'}")
+    return 0
+
+
+def register_cli(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `compare` subcommand to the femphase command line."""
+    parser = subparsers.add_parser(
+        "compare",
+        help="compare two runs, or a run and external grid data",
+        description="Per-frame differences of observables, energies and (with --fields) fields between "
+        "two run directories, or a run directory and grid data (.npz/.h5 with time, x, y, "
+        "phi[F, N, ny, nx]; see `python -c 'import femphase.compare; help(femphase.compare)'`).",
+    )
+    parser.add_argument("a", metavar="DIR_A", help="run directory or grid data file")
+    parser.add_argument("b", metavar="DIR_B", help="run directory or grid data file")
+    parser.add_argument("-o", "--output", type=Path, default=None,
+                        help="output directory (default: DIR_B/compare)")
+    parser.add_argument("--fields", action="store_true",
+                        help="also compare the fields (L2 with the lumped mass, L∞), per frame")
+    parser.set_defaults(func=run_cli)
