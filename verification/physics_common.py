@@ -20,7 +20,7 @@ import json
 import os
 import shutil
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -29,8 +29,8 @@ import numpy as np
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-from femphase.io import load_checkpoint, read_csv, write_json  # noqa: E402
-from femphase.scene import Scene, load_scene, with_phases  # noqa: E402
+from femphase.io import load_checkpoint, write_json  # noqa: E402
+from femphase.scene import Scene, load_scene  # noqa: E402
 from femphase.simulation import RunDirectory, Simulation  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
@@ -44,7 +44,8 @@ def example_scene(name: str, assignments: list[str]) -> Scene:
     return load_scene(EXAMPLES / f"{name}.toml", assignments)
 
 
-def _is_complete(directory: Path, scene: Scene) -> bool:
+def is_complete(directory: Path, scene: Scene) -> bool:
+    """Whether `directory` holds a finished run of all of `scene`'s steps."""
     info = directory / "run.json"
     if not info.exists():
         return False
@@ -72,7 +73,7 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
     are copied over and the remaining phases run from there.
     """
     directory = Path(directory)
-    if _is_complete(directory, scene):
+    if is_complete(directory, scene):
         return directory
     checkpoint = directory / "checkpoint.npz"
     if not checkpoint.exists() and branch_from is not None:
@@ -92,7 +93,7 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
 
 def ensure_relaxation(scene: Scene, directory: Path, log=print) -> Path:
     """Run the first phase of `scene` alone (the relaxation shared by its branches)."""
-    return ensure_run(with_phases(scene, list(scene.phases[:1])), directory, log=log)
+    return ensure_run(replace(scene, phases=scene.phases[:1]), directory, log=log)
 
 
 def cached(path: Path, compute: Callable[[], dict], key: dict | None = None) -> dict:
@@ -109,34 +110,6 @@ def cached(path: Path, compute: Callable[[], dict], key: dict | None = None) -> 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_json(path, result)
     return json.loads(path.read_text())
-
-
-@dataclass(frozen=True)
-class ParticleSeries:
-    """Per-particle observables of a run directory as (n_frames, N) arrays, frames in time
-    order; ``time`` is (n_frames,)."""
-
-    time: np.ndarray
-    x: np.ndarray
-    y: np.ndarray
-    area: np.ndarray
-    elongation: np.ndarray
-    orientation: np.ndarray
-
-
-def particle_series(directory: Path) -> ParticleSeries:
-    """Read ``particles.csv`` of a run directory into :class:`ParticleSeries`."""
-    columns = read_csv(Path(directory) / "particles.csv")
-    n = int(columns["id"].max()) + 1
-    frames = len(columns["time"]) // n
-
-    def table(name: str) -> np.ndarray:
-        return columns[name][: frames * n].reshape(frames, n)
-
-    return ParticleSeries(
-        time=table("time")[:, 0], x=table("x"), y=table("y"), area=table("area"),
-        elongation=table("elongation"), orientation=table("orientation"),
-    )
 
 
 def wall_seconds(directory: Path) -> float:
