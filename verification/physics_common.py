@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import time as wallclock
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
@@ -70,7 +71,8 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
     grown longer (a longer last phase) continues to the new end.  With `branch_from`, a new
     run starts from the relaxed state in that directory (which must hold the run of the
     scene's first phase alone, see :func:`ensure_relaxation`): its checkpoint and CSV files
-    are copied over and the remaining phases run from there.
+    are copied over and the remaining phases run from there.  The wall time of every session
+    is appended to ``sessions.json`` (run.json keeps the last session's only).
     """
     directory = Path(directory)
     if is_complete(directory, scene):
@@ -80,6 +82,7 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
         directory.mkdir(parents=True, exist_ok=True)
         for name in ("checkpoint.npz", "particles.csv", "global.csv"):
             shutil.copy2(Path(branch_from) / name, directory / name)
+    started = wallclock.perf_counter()
     if checkpoint.exists():
         state = load_checkpoint(checkpoint)
         state.phase, state.phase_step = _position(scene, state.step)
@@ -88,6 +91,9 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
     else:
         log(f"  {directory.name}: starting")
         Simulation(scene).run(scene.initial_state(), [RunDirectory(directory)])
+    sessions = directory / "sessions.json"
+    previous = json.loads(sessions.read_text()) if sessions.exists() else []
+    sessions.write_text(json.dumps(previous + [{"wall_s": wallclock.perf_counter() - started}], indent=1))
     return directory
 
 
@@ -113,9 +119,12 @@ def cached(path: Path, compute: Callable[[], dict], key: dict | None = None) -> 
 
 
 def wall_seconds(directory: Path) -> float:
-    """Wall time of a run's last session (from run.json; sessions before it are not kept)."""
+    """Wall time spent on a run over all its sessions (NaN if none was logged)."""
+    sessions = Path(directory) / "sessions.json"
+    if sessions.exists():
+        return float(sum(s["wall_s"] for s in json.loads(sessions.read_text())))
     info = Path(directory) / "run.json"
-    return float(json.loads(info.read_text()).get("wall_time_s", float("nan"))) if info.exists() else float("nan")
+    return float(json.loads(info.read_text()).get("wall_time_s", np.nan)) if info.exists() else float("nan")
 
 
 def fmt(value: float, uncertainty: float | None = None, digits: int = 3) -> str:

@@ -31,7 +31,7 @@ import argparse
 import numpy as np
 
 from verification.physics_common import (
-    RESULTS, RUNS, cached, ensure_relaxation, ensure_run, example_scene, fmt,
+    RESULTS, RUNS, cached, ensure_relaxation, ensure_run, example_scene, fmt, wall_seconds,
 )
 
 RATES = (1e-4, 0.0017, 0.0161, 0.1083, 1.0)
@@ -87,7 +87,7 @@ def analyse(directory, rate: float) -> dict:
         "mean_elongation_last_frames": float(run.elongation[last].mean()),
         "wall_displacement": float(rate * duration),
         "shear_duration": float(duration),
-        "wall_seconds": float(run.info.get("wall_time_s", np.nan)),
+        "wall_seconds": wall_seconds(directory),
     }
 
 

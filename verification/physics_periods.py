@@ -29,9 +29,7 @@ and ``physics_periods.json``, figures ``physics_periods*.png``.
 from __future__ import annotations
 
 import argparse
-import json
 import math
-import time as wallclock
 
 import numpy as np
 
@@ -42,7 +40,6 @@ from verification.physics_common import (
 #: The paper's three rates (Fig. 2b, 3) and three more spread over [0.05, 0.5].
 RATES = (0.0778, 0.1083, 0.1487, 0.25, 0.3857, 0.5)
 PAPER_RATES = (0.0778, 0.1487, 0.3857)
-SPACINGS = (2.0, 1.0, 0.5)
 #: h = 0.5 costs ~5× h = 1 per step: only the fastest rates (shortest periods).
 FINE_RATES = (0.25, 0.3857, 0.5)
 TRANSIENT = 2.0  # geometric periods discarded
@@ -97,21 +94,7 @@ def simulate(h: float, rate: float, dt: float = 1.0) -> tuple:
     (directory, scene)."""
     scene = _scene(h, rate, TRANSIENT + MEASURED, dt)
     relaxed = ensure_relaxation(scene, RUNS / run_name(h))
-    started = wallclock.perf_counter()
-    directory = ensure_run(scene, RUNS / run_name(h, rate, dt), branch_from=relaxed)
-    _log_session(directory, wallclock.perf_counter() - started)
-    return directory, scene
-
-
-def _log_session(directory, seconds: float) -> None:
-    """Accumulate the wall time spent on a run over sessions (run.json keeps the last only)."""
-    import json
-
-    path = directory / "sessions.json"
-    sessions = json.loads(path.read_text()) if path.exists() else []
-    if seconds > 1.0:
-        sessions.append({"wall_s": seconds, "run_json_wall_s": wall_seconds(directory)})
-        path.write_text(json.dumps(sessions, indent=1))
+    return ensure_run(scene, RUNS / run_name(h, rate, dt), branch_from=relaxed), scene
 
 
 def _period(time, signal, discard: float) -> dict:
@@ -206,14 +189,9 @@ def analyse(directory, h: float, rate: float, dt: float) -> dict:
         },
         "lanes": lane_kinematics(run, rate, t_steady),
         "ode": ode_comparison(run, rate, t_from=t_steady),
-        "wall_seconds": _wall_total(directory),
+        "wall_seconds": wall_seconds(directory),
         "steps": int(run.info.get("steps", 0)),
     }
-
-
-def _wall_total(directory) -> float:
-    path = directory / "sessions.json"
-    return float(sum(s["wall_s"] for s in json.loads(path.read_text()))) if path.exists() else float("nan")
 
 
 def _best(per_h: dict) -> tuple[float | None, float | None, float | None]:

@@ -30,7 +30,7 @@ import argparse
 
 import numpy as np
 
-from verification.physics_common import RESULTS, RUNS, cached, ensure_run, example_scene
+from verification.physics_common import RESULTS, RUNS, cached, ensure_run, example_scene, wall_seconds
 
 #: (h, dt) of the runs: the grids at dt = 1, then the time steps at h = 1
 RUNS_PLAN = ((2.0, 1.0), (1.0, 1.0), (0.5, 1.0), (1.0, 0.5), (1.0, 0.25))
@@ -83,7 +83,7 @@ def analyse(directory, h: float, dt: float) -> dict:
         "final_theta": float(theta[-1]),
         "final_theta_degrees": float(np.degrees(theta[-1])),
         "late_theta_peak_to_peak": float(np.ptp(theta[t >= t[0] + 0.5 * (t[-1] - t[0])])),
-        "wall_seconds": float(run.info.get("wall_time_s", np.nan)),
+        "wall_seconds": wall_seconds(directory),
     }
 
 
