@@ -43,6 +43,28 @@ class P1Operators:
     element_area: np.ndarray
 
 
+def line_operators(n_nodes: int, h: float, periodic: bool) -> tuple[sp.csr_matrix, sp.csr_matrix]:
+    """Lumped mass (diagonal) and stiffness of P1 on a line of ``n_nodes`` nodes, spacing h:
+    periodic (node n_nodes is node 0), or bounded with natural (Neumann) ends.
+
+    On the structured channel mesh with one diagonal direction, the 2D lumped mass and
+    stiffness are the tensor products M_L = My⊗Mx and K = Ky⊗Mx + My⊗Kx of these (the
+    diagonal edges carry no stiffness in right-angled triangles): the basis of
+    :class:`femphase.solvers.TensorSolver`.
+    """
+    weights = np.full(n_nodes, h)
+    ends = np.zeros(n_nodes)
+    if not periodic:
+        weights[[0, -1]] *= 0.5
+        ends[[0, -1]] = 1.0  # a bounded end node has one neighbour, not two
+    off = np.ones(n_nodes - 1) / h
+    stiffness = sp.diags([-off, (2.0 - ends) / h, -off], [-1, 0, 1], format="lil")
+    if periodic:
+        stiffness[0, n_nodes - 1] -= 1.0 / h
+        stiffness[n_nodes - 1, 0] -= 1.0 / h
+    return sp.diags(weights, format="csr"), stiffness.tocsr()
+
+
 def fold_matrix(dof_map: np.ndarray, n_dofs: int) -> sp.csr_matrix:
     """P with P[node, dof_map[node]] = 1."""
     n_nodes = dof_map.size

@@ -27,15 +27,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from .advection import advect_row_flow, advect_semi_lagrangian
-from .discretisation import P1Operators, assemble_operators
+from .discretisation import P1Operators, assemble_operators, line_operators
 from .energy import explicit_derivative
 from .errors import BlowUpError, SceneError
 from .flows import Flow, no_flow
 from .mesh import ChannelGrid, grid_dof_map, structured_channel_mesh
 from .model import ModelParameters, stabilisation_for
-from .solvers import make_solver
+from .solvers import TensorSolver, make_solver
 from .state import State
-from .windows import Layout, WindowPolicy, transfer
+from .windows import Layout, Window, WindowPolicy, transfer
 
 MASS_TYPES = ("lumped", "consistent")
 
@@ -46,7 +46,10 @@ class Numerics:
 
     mass            "lumped" (default) or "consistent" mass matrix in the time derivative
     stabilisation   "auto" (the smallest energy-stable S for each dt) or a number ≥ 0
-    solver          "auto", "direct" (cached LU) or "amg" (pyamg-preconditioned CG)
+    solver          "auto", "direct" (cached LU), "amg" (pyamg-preconditioned CG) or "tensor"
+                    (exact tensor-product solve; structured mesh, one diagonal direction,
+                    lumped mass). "auto": tensor where it applies, else LU up to
+                    DIRECT_MAX_DOFS, else AMG
     tolerance       relative residual of the AMG-Krylov solves
     windows         False: every field on the whole mesh (full-mesh mode)
     threshold       φ above which a node belongs to a particle (window fitting)
@@ -136,6 +139,28 @@ def relaxation_system(
     return stabilisation, system, sp.csr_matrix(time_mass) if consistent else None
 
 
+#: ``solver = "auto"`` uses the tensor solver for windows up to this ny + nx (nodes):
+#: benchmarks/solver_crossover.py measured it faster than the LU up to the full channel at
+#: h = 0.5 (481 + 140); its dense 1D eigenvectors cost O(ny² + nx²) memory beyond that.
+TENSOR_MAX_SIDES = 700
+
+
+def tensor_solver(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: float, b: float) -> TensorSolver | None:
+    """A :class:`TensorSolver` for ``block`` = a M_L + b K on ``window``'s nodes, or None when
+    the block is not that tensor product (alternating diagonals, a file mesh, a consistent
+    mass), checked entry by entry against the assembled block."""
+    rows, columns = window.rows(), window.columns(grid)
+    factors = []
+    for n_nodes, periodic, keep in ((grid.ny, False, rows), (grid.nx, True, columns)):
+        mass, stiffness = line_operators(n_nodes, grid.h, periodic)
+        factors.append(tuple(m[keep][:, keep] for m in (mass, stiffness)))
+    (my, ky), (mx, kx) = factors
+    candidate = a * sp.kron(my, mx) + b * (sp.kron(ky, mx) + sp.kron(my, kx))
+    if abs(candidate - block).max() > 1e-12 * abs(block).max():
+        return None
+    return TensorSolver(a, b, (my.toarray(), ky.toarray()), (mx.toarray(), kx.toarray()))
+
+
 def check_fields(phi: np.ndarray, margin: float, step: int, time: float) -> None:
     """Raise BlowUpError when phi is not finite or leaves [−margin, 1 + margin]."""
     if not np.all(np.isfinite(phi)):
@@ -185,15 +210,19 @@ class SemiImplicitStepper:
             self._node_mass = self.disc.operators.lumped_mass[self._layout.node_index]
         return self._layout
 
-    def _solver(self, key: tuple, window) -> tuple:
+    def _solver(self, key: tuple, window: Window) -> tuple:
         """(solver, consistent-mass submatrix or None) for windows with this key."""
         if key not in self._solvers:
             nodes = window.node_indices(self.disc.grid)
             block = self.system[nodes][:, nodes]
             mass = self._time_mass[nodes][:, nodes] if self._time_mass is not None else None
-            self._solvers[key] = (
-                make_solver(block, self.numerics.solver, self.numerics.tolerance), mass,
-            )
+            method = self.numerics.solver
+            solver = None
+            if mass is None and (method == "tensor" or (method == "auto" and window.ny + window.nx <= TENSOR_MAX_SIDES)):
+                solver = tensor_solver(block, window, self.disc.grid,
+                                       1.0 / self.dt + self.params.mobility * self.stabilisation,
+                                       self.params.diffusivity)
+            self._solvers[key] = (solver or make_solver(block, method, self.numerics.tolerance), mass)
         return self._solvers[key]
 
     # -- one step -------------------------------------------------------------------------
@@ -245,20 +274,22 @@ class SemiImplicitStepper:
         g = explicit_derivative(
             phi, others, np.repeat(ratio, layout.sizes), np.repeat(radius, layout.sizes), params
         )
-        explicit = j0 * mass * (self.stabilisation * phi - g)
+        # M_L (φ/dt + J0 S φ − J0 g + s); the consistent time mass adds G φ/dt per group below
+        rhs_all = phi * ((0.0 if self._time_mass is not None else 1.0 / dt) + j0 * self.stabilisation)
+        g *= j0
+        rhs_all -= g
         if self.source is not None:
             x = (nodes % grid.nx) * grid.h
             y = (nodes // grid.nx) * grid.h
-            explicit += mass * self.source(x, y, new_time)
+            rhs_all += self.source(x, y, new_time)
+        rhs_all *= mass
         out = np.empty_like(phi)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, time_mass = self._solver(key, layout.representative(group))
             # (size, members) views in Fortran order, as SuperLU wants them: no copies
             current = phi[start:stop].reshape(len(members), size).T
-            if time_mass is None:
-                rhs = current * mass[start:stop].reshape(len(members), size).T / dt
-            else:
-                rhs = (time_mass @ current) / dt
-            rhs += explicit[start:stop].reshape(len(members), size).T
+            rhs = rhs_all[start:stop].reshape(len(members), size).T
+            if time_mass is not None:
+                rhs = rhs + (time_mass @ current) / dt
             out[start:stop].reshape(len(members), size).T[...] = solver.solve(rhs, current)
         return out

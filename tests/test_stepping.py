@@ -9,8 +9,10 @@ from femphase.energy import free_energy
 from femphase.flows import linear_shear, python_flow
 from femphase.mesh import channel_grid, load_mesh
 from femphase.model import ModelParameters
-from femphase.solvers import AMGSolver, DirectSolver
-from femphase.stepping import Discretisation
+from femphase.errors import SceneError
+from femphase.solvers import AMGSolver, DirectSolver, TensorSolver
+from femphase.stepping import Discretisation, Numerics, relaxation_system, tensor_solver
+from femphase.windows import Window
 
 from helpers import small_system, stepper
 
@@ -121,13 +123,46 @@ def test_amg_and_direct_solvers_agree():
 
 def test_the_stepper_gives_the_same_result_with_either_solver():
     outcomes = []
-    for solver in ("direct", "amg"):
+    for solver in ("direct", "amg", "tensor"):
         disc, state = small_system([[20, 20]], initial_radius=5.0)
         step = stepper(disc, state, solver=solver, tolerance=1e-12)
         for _ in range(20):
             step.step(state)
         outcomes.append(state.global_fields())
     assert np.abs(outcomes[0] - outcomes[1]).max() < 1e-9
+    assert np.abs(outcomes[0] - outcomes[2]).max() < 1e-12
+
+
+@pytest.mark.parametrize("window", [Window(5, 12, 5, 9), Window(0, 7, 27, 8), Window(13, 7, 0, 30),
+                                    Window(0, 20, 0, 30)],
+                         ids=["interior", "wall-and-seam", "wall-full-width", "whole-channel"])
+def test_the_tensor_solver_solves_every_kind_of_window_exactly(window):
+    grid = channel_grid(30, 19, 1.0)
+    disc = Discretisation.structured(grid)
+    params = ModelParameters()
+    stabilisation, system, _ = relaxation_system(disc.operators, params, Numerics(), 0.7, None)
+    nodes = window.node_indices(grid)
+    block = system[nodes][:, nodes]
+    a = 1 / 0.7 + params.mobility * stabilisation
+    solver = tensor_solver(block, window, grid, a, params.diffusivity)
+    assert isinstance(solver, TensorSolver)
+    rhs = np.random.default_rng(2).random((nodes.size, 4))
+    assert np.allclose(block @ solver.solve(rhs), rhs, atol=1e-12)
+    assert np.allclose(solver.solve(rhs[:, 0]), DirectSolver(block).solve(rhs[:, 0]), atol=1e-12)
+    # a wrong coefficient is detected, not silently solved
+    assert tensor_solver(block, window, grid, 1.01 * a, params.diffusivity) is None
+
+
+def test_the_tensor_solver_refuses_alternating_diagonals_and_the_consistent_mass():
+    grid = channel_grid(30, 20, 1.0)
+    disc = Discretisation.structured(grid, "alternating")
+    system = relaxation_system(disc.operators, ModelParameters(), Numerics(), 1.0, None)[1]
+    window = Window(3, 10, 4, 10)
+    nodes = window.node_indices(grid)
+    assert tensor_solver(system[nodes][:, nodes], window, grid, 1.0, ModelParameters().diffusivity) is None
+    disc, state = small_system([[20, 20]], initial_radius=5.0)
+    with pytest.raises(SceneError, match="tensor"):
+        stepper(disc, state, solver="tensor", mass="consistent").step(state)
 
 
 def test_the_default_mesh_file_gives_the_generated_operators():
