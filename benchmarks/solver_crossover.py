@@ -14,6 +14,9 @@ Per size, in one run (ratios are meaningful on the shared machine, absolute time
 
 * direct: femphase's DirectSolver (SuperLU, COLAMD), factorised once, k = 100 right-hand
   sides in one call (the full-mesh mode's N = 100 fields);
+* tensor: femphase's TensorSolver (exact; the 1D generalised eigenvectors of the window's
+  tensor-product factors, verified against the assembled matrix), k right-hand sides in one
+  call; what ``solver = "auto"`` uses on the structured mesh up to ny + nx = TENSOR_MAX_SIDES;
 * amg: femphase's AMGSolver (pyamg smoothed aggregation built once, CG to relative residual
   1e-10, the default numerics.tolerance), one right-hand side at a time, warm-started from
   the previous step's field (as the stepper does) and cold-started from zero.
@@ -39,7 +42,7 @@ from femphase.mesh import channel_grid
 from femphase.model import ModelParameters
 from femphase.solvers import DIRECT_MAX_DOFS, make_solver
 from femphase.state import disc_field
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper
+from femphase.stepping import TENSOR_MAX_SIDES, Discretisation, Numerics, SemiImplicitStepper, tensor_solver
 from femphase.windows import Window, full_window
 
 RESULTS = Path(__file__).parent / "results"
@@ -108,9 +111,22 @@ def best_time(function, repeats: int) -> float:
     return min(times)
 
 
-def measure(label: str, matrix, rhs: np.ndarray, guess: np.ndarray, amg_columns: int) -> dict:
+def tensor_for(stepper: SemiImplicitStepper, matrix, window: Window):
+    """The stepper's TensorSolver for ``window`` (asserting the matrix is a tensor product)."""
+    a = 1.0 / stepper.dt + stepper.params.mobility * stepper.stabilisation
+    solver = tensor_solver(matrix, window, stepper.disc.grid, a, stepper.params.diffusivity)
+    assert solver is not None, "the relaxation matrix is not a tensor product"
+    return solver
+
+
+def measure(label: str, matrix, rhs: np.ndarray, guess: np.ndarray, amg_columns: int, tensor) -> dict:
     n, k = rhs.shape
     repeats = 3 if n < 100_000 else 1
+    started = time.process_time()
+    tensor = tensor()
+    tensor_setup = time.process_time() - started
+    rhs = np.asfortranarray(rhs)  # the stepper's layout
+    tensor_solve = best_time(lambda: tensor.solve(rhs), repeats) / k
     started = time.process_time()
     direct = make_solver(matrix, "direct")
     direct_setup = time.process_time() - started
@@ -125,6 +141,7 @@ def measure(label: str, matrix, rhs: np.ndarray, guess: np.ndarray, amg_columns:
     jacobi = best_time(lambda: block_jacobi_cg(matrix, rhs, guess, tol), repeats) / k
     _, iterations = block_jacobi_cg(matrix, rhs, guess, tol)
     error = np.abs(amg.solve(rhs[:, :1], guess[:, :1])[:, 0] - direct.solve(rhs[:, 0])).max()
+    tensor_error = np.abs(tensor.solve(rhs[:, 0]) - direct.solve(rhs[:, 0])).max()
     fill = direct._lu.L.nnz + direct._lu.U.nnz
     del direct
     per_rhs_setup = STEPS * k
@@ -138,11 +155,15 @@ def measure(label: str, matrix, rhs: np.ndarray, guess: np.ndarray, amg_columns:
         "amg_cold_ms": 1e3 * (cold + amg_setup / per_rhs_setup),
         "max_difference": float(error),
         "jacobi_cg_ms": 1e3 * jacobi, "jacobi_cg_iterations": iterations,
+        "tensor_setup_s": tensor_setup, "tensor_solve_ms": 1e3 * tensor_solve,
+        "tensor_ms": 1e3 * (tensor_solve + tensor_setup / per_rhs_setup), "tensor_max_difference": float(tensor_error),
+        "sides": None,
     }
     row["amg_over_direct"] = row["amg_ms"] / row["direct_ms"]
+    row["direct_over_tensor"] = row["direct_ms"] / row["tensor_ms"]
     print(f"{label:<22} n={n:>7} LU {row['direct_ms']:8.3f} ms/rhs (setup {direct_setup:6.2f} s)  "
           f"AMG warm {row['amg_ms']:8.3f} cold {row['amg_cold_ms']:8.3f} ms/rhs (setup {amg_setup:6.2f} s)  "
-          f"ratio {row['amg_over_direct']:.2f}  block Jacobi-CG {row['jacobi_cg_ms']:8.3f} ({iterations} it)", flush=True)
+          f"ratio {row['amg_over_direct']:.2f}  tensor {row['tensor_ms']:8.3f} (LU/tensor {row['direct_over_tensor']:.2f})  block Jacobi-CG {row['jacobi_cg_ms']:8.3f} ({iterations} it)", flush=True)
     return row
 
 
@@ -152,13 +173,16 @@ def square_windows(sizes: list[int]) -> list[dict]:
     side = max(sizes) + 4
     grid = channel_grid(float(side), float(side), 1.0)
     disc = Discretisation.structured(grid)
-    system = SemiImplicitStepper(disc, PARAMS, Numerics(), DT).system
+    stepper = SemiImplicitStepper(disc, PARAMS, Numerics(), DT)
     rng = np.random.default_rng(0)
     rows = []
     for m in sizes:
         k = RHS
-        matrix, rhs, guess = window_problem(grid, system, disc.operators.lumped_mass, Window(2, m, 2, m), k, rng)
-        rows.append(measure(f"window {m}×{m}", matrix, rhs, guess, amg_columns=k if m * m < 40_000 else 10))
+        window = Window(2, m, 2, m)
+        matrix, rhs, guess = window_problem(grid, stepper.system, disc.operators.lumped_mass, window, k, rng)
+        rows.append(measure(f"window {m}×{m}", matrix, rhs, guess, amg_columns=k if m * m < 40_000 else 10,
+                            tensor=lambda: tensor_for(stepper, matrix, window)))
+        rows[-1]["sides"] = 2 * m
     return rows
 
 
@@ -168,12 +192,15 @@ def channels(spacings: list[float]) -> list[dict]:
     for h in spacings:
         scene = common.lattice_scene(h=h, windows=False)
         disc = scene.discretisation()
-        system = SemiImplicitStepper(disc, scene.model, scene.numerics, DT).system
+        stepper = SemiImplicitStepper(disc, scene.model, scene.numerics, DT)
         state = scene.initial_state()
         phi = state.global_fields().T.copy()
         rhs = relaxation_rhs(phi, disc.operators.lumped_mass)
-        assert state.windows[0] == full_window(disc.grid)
-        rows.append(measure(f"channel h = {h:g}", system, rhs, phi, amg_columns=10))
+        window = full_window(disc.grid)
+        assert state.windows[0] == window
+        rows.append(measure(f"channel h = {h:g}", stepper.system, rhs, phi, amg_columns=10,
+                            tensor=lambda: tensor_for(stepper, stepper.system, window)))
+        rows[-1]["sides"] = window.nx + window.ny
     return rows
 
 
@@ -197,12 +224,14 @@ def report(result: dict) -> str:
     rows = [[r["case"], f"{r['dofs']:,}", f"{r['lu_fill'] / r['dofs']:.0f}", f"{r['direct_setup_s']:.2f}",
              f"{r['direct_solve_ms']:.3g}", f"{r['amg_setup_s']:.2f}", f"{r['amg_warm_solve_ms']:.3g}",
              f"{r['amg_cold_solve_ms']:.3g}", f"{r['amg_over_direct']:.2f}",
-             f"{r['jacobi_cg_ms']:.3g} ({r['jacobi_cg_iterations']})"]
+             f"{r['jacobi_cg_ms']:.3g} ({r['jacobi_cg_iterations']})", f"{r['tensor_setup_s']:.2f}",
+             f"{r['tensor_solve_ms']:.3g}", f"{r['direct_over_tensor']:.2f}"]
             for r in result["windows"] + result["channels"]]
     table = markdown_table(
         ["case", "dofs", "LU fill / dof", "LU set-up s", "LU ms/rhs (k = 100)", "AMG set-up s",
          "AMG+CG warm ms/rhs", "AMG+CG cold ms/rhs", "AMG warm / LU (set-up / 1000 steps)",
-         "block Jacobi-CG ms/rhs (iterations), not in femphase"], rows)
+         "block Jacobi-CG ms/rhs (iterations), not in femphase", "tensor set-up s", "tensor ms/rhs",
+         "LU / tensor"], rows)
     cross = result["crossover_dofs"]
     verdict = (f"AMG (warm-started, set-up amortised over {STEPS} steps) becomes cheaper than the cached LU at "
                f"**≈ {cross:,.0f} dofs** (square windows); set `DIRECT_MAX_DOFS = {result['recommended']:_}` "
@@ -213,7 +242,17 @@ def report(result: dict) -> str:
                f"largest size measured. Beyond it the LU's memory, not its speed, is the limit: "
                f"{result['windows'][-1]['lu_fill'] / result['windows'][-1]['dofs']:.0f} stored factor entries per dof "
                f"(~{12 * result['windows'][-1]['lu_fill'] / 2**20:.0f} MB at {result['windows'][-1]['dofs']:,} dofs).")
-    return f"{table}\n\n{verdict}"
+    rows = result["windows"] + result["channels"]
+    faster = [r for r in rows if r["direct_over_tensor"] > 1]
+    tensor = (f"The tensor solver (exact, structured mesh with one diagonal direction and the lumped mass) beat the "
+              f"cached LU in {len(faster)} of {len(rows)} cases (LU/tensor {min(r['direct_over_tensor'] for r in rows):.2f}–"
+              f"{max(r['direct_over_tensor'] for r in rows):.2f}; largest difference from the LU "
+              f"{max(r['tensor_max_difference'] for r in rows):.1e}); `solver = \"auto\"` uses it up to "
+              f"ny + nx = {TENSOR_MAX_SIDES} nodes. LU/tensor where ny + nx ≤ {TENSOR_MAX_SIDES}: "
+              + ", ".join(f"{r['case']} {r['direct_over_tensor']:.1f}" for r in rows if r["sides"] <= TENSOR_MAX_SIDES))
+    beyond = [f"{r['case']} {r['direct_over_tensor']:.1f}" for r in rows if r["sides"] > TENSOR_MAX_SIDES]
+    tensor += ("; beyond (LU or AMG used): " + ", ".join(beyond) if beyond else "") + "."
+    return f"{table}\n\n{verdict}\n\n{tensor}"
 
 
 def main() -> None:
