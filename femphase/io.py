@@ -57,8 +57,9 @@ def to_toml(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def save_checkpoint(path: Path, state: State) -> None:
-    """Write the complete state atomically (a crash mid-write leaves the old file intact)."""
+def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] | None = None) -> None:
+    """Write the complete state atomically (a crash mid-write leaves the old file intact),
+    with the ``observers``' running state (the T1 counter's) under their own names."""
     tmp = path.with_suffix(".tmp.npz")
     np.savez(
         tmp,
@@ -69,8 +70,15 @@ def save_checkpoint(path: Path, state: State) -> None:
         radii=state.radii,
         clock=np.array([state.time]),
         counters=np.array([state.step, state.phase, state.phase_step]),
+        **(observers or {}),
     )
     os.replace(tmp, path)
+
+
+def load_observers(path: Path) -> dict[str, np.ndarray]:
+    """The observers' running state kept in a checkpoint (empty for older checkpoints)."""
+    with np.load(path) as data:
+        return {name: data[name].copy() for name in data.files if name.startswith("t1_")}
 
 
 def load_checkpoint(path: Path) -> State:

@@ -21,7 +21,7 @@ from .energy import FreeEnergy, free_energy
 from .errors import SceneError
 from .io import (
     GLOBAL_COLUMNS, ORDER_GLOBAL_COLUMNS, ORDER_PARTICLE_COLUMNS, PARTICLE_COLUMNS,
-    CsvWriter, FieldWriter, load_checkpoint, point_data, save_checkpoint, to_toml, write_json,
+    CsvWriter, FieldWriter, load_checkpoint, load_observers, point_data, save_checkpoint, to_toml, write_json,
 )
 from .scene import Phase, Scene
 from .state import State
@@ -59,12 +59,19 @@ class Simulation:
     """Runs a scene's phases with the finite-element (``method="fem"``) or the
     finite-difference reference (``method="fd"``) stepper."""
 
-    def __init__(self, scene: Scene, method: str = "fem") -> None:
+    def __init__(self, scene: Scene, method: str = "fem", observers: dict[str, np.ndarray] | None = None) -> None:
+        """``observers``: the running state of the frame observers from a checkpoint
+        (:func:`femphase.io.load_observers`), so a resumed run continues its T1 count."""
         if method not in METHODS:
             raise SceneError("--method", method, f"one of {METHODS}")
         self.scene, self.method = scene, method
         self.discretisation = scene.discretisation()
         self._order: OrderObserver | None = None
+        self._observers = observers or None
+
+    def observers(self) -> dict[str, np.ndarray]:
+        """The frame observers' running state, for a checkpoint."""
+        return self._order.snapshot() if self._order is not None else {}
 
     def stepper(self, phase: Phase, radii: np.ndarray):
         flow = self.scene.flow(phase)
@@ -125,7 +132,7 @@ class Simulation:
             frame.energy = free_energy(state.global_fields(), state.radii, self.scene.model, ops)
         if "order" in needs and "order" in self.scene.output.observables:
             if self._order is None:
-                self._order = OrderObserver(state.grid.length)
+                self._order = OrderObserver(state.grid.length, self._observers)
             frame.order = self._order(frame.shape)
         for tracker in trackers:
             tracker.frame(frame)
@@ -221,7 +228,7 @@ class RunDirectory(Tracker):
             output = self.simulation.scene.output
             self.fields.write(state.time, point_data(state, self.simulation.discretisation.dof_map, output.per_particle_fields))
         if self.simulation.scene.output.checkpoint:
-            save_checkpoint(self.directory / "checkpoint.npz", state)
+            save_checkpoint(self.directory / "checkpoint.npz", state, self.simulation.observers())
 
     def finish(self, state: State, error: Exception | None) -> None:
         for writer in (self.particles, self.globals, self.fields):
@@ -246,15 +253,16 @@ class RunDirectory(Tracker):
 def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, method: str = "fem",
               progress: bool | None = None) -> State:
     """Run a scene into a run directory (what ``femphase run`` does)."""
-    simulation = Simulation(scene, method)
     directory = Path(directory)
     checkpoint = directory / "checkpoint.npz"
     if resume:
         if not checkpoint.exists():
             raise SceneError("--resume", str(directory), "a run directory that holds checkpoint.npz")
         state = load_checkpoint(checkpoint)
+        simulation = Simulation(scene, method, load_observers(checkpoint))
     else:
         state = scene.initial_state()
+        simulation = Simulation(scene, method)
     trackers: list[Tracker] = [RunDirectory(directory, resume)]
     if progress is not False:
         trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))

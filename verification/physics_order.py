@@ -154,11 +154,14 @@ def table(summary: dict) -> str:
     return "\n".join(lines)
 
 
-def run(quick: bool = False, seeds: tuple[int, ...] | None = None, simulate_only: bool = False) -> dict:
-    """Run (resumably) and analyse the order-parameter runs; write the results (not in quick)."""
-    rates = QUICK["rates"] if quick else RATES
+def run(quick: bool = False, seeds: tuple[int, ...] | None = None, simulate_only: bool = False,
+        rates: tuple[float, ...] | None = None, shear_duration: float | None = None) -> dict:
+    """Run (resumably) and analyse the order-parameter runs; write the results (not in quick,
+    and only for the default rates and duration)."""
+    write = not quick and rates is None and shear_duration is None
+    rates = rates or (QUICK["rates"] if quick else RATES)
     seeds = seeds or (QUICK["seeds"] if quick else SEEDS)
-    shear_duration = QUICK["shear_duration"] if quick else SHEAR_DURATION
+    shear_duration = shear_duration or (QUICK["shear_duration"] if quick else SHEAR_DURATION)
     h = QUICK["h"] if quick else 1.0
     results = []
     for seed in seeds:
@@ -185,7 +188,7 @@ def run(quick: bool = False, seeds: tuple[int, ...] | None = None, simulate_only
                        "not 400): the averaging window is the last 4000 time units instead of 2e4",
         },
     }
-    if not quick:
+    if write:
         from femphase.io import write_json
 
         write_json(RESULTS / "physics_order.json", summary)
@@ -199,5 +202,10 @@ if __name__ == "__main__":
     parser.add_argument("--quick", action="store_true", help="h = 2, one seed, two rates, 4000 of shear")
     parser.add_argument("--seeds", type=int, nargs="+", default=None, help="run only these seeds")
     parser.add_argument("--simulate-only", action="store_true", help="run the simulations, skip the analysis")
+    parser.add_argument("--rates", type=float, nargs="+", default=None,
+                        help="run only these rates (results are then printed, not written)")
+    parser.add_argument("--shear-duration", type=float, default=None,
+                        help=f"time units of shear (default {SHEAR_DURATION:g}; results then printed, not written)")
     args = parser.parse_args()
-    run(args.quick, tuple(args.seeds) if args.seeds else None, args.simulate_only)
+    run(args.quick, tuple(args.seeds) if args.seeds else None, args.simulate_only,
+        tuple(args.rates) if args.rates else None, args.shear_duration)

@@ -380,6 +380,21 @@ class T1Counter:
         self.count += events
         return events
 
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """The counter's state as arrays (for a checkpoint): count and reference bonds."""
+        return {"t1_count": np.array([self.count]),
+                "t1_reference": np.array(sorted(self.reference), dtype=np.int64).reshape(-1, 2)}
+
+    @classmethod
+    def restore(cls, snapshot: dict[str, np.ndarray], period_x: float, *,
+                length_contrast: float = DEFAULT_LENGTH_CONTRAST) -> "T1Counter":
+        """The counter of :meth:`snapshot`, continuing where it stopped."""
+        counter = cls.__new__(cls)
+        counter.period_x, counter.length_contrast = period_x, length_contrast
+        counter.reference = {(int(a), int(b)) for a, b in snapshot["t1_reference"]}
+        counter.count = int(snapshot["t1_count"][0])
+        return counter
+
 
 def _edge_flips(
     lost: set[_Pair], gained: set[_Pair], kept: set[_Pair]

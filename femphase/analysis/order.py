@@ -19,9 +19,14 @@ from .shape import ShapeObservables
 class OrderObserver:
     """Computes the order observables frame after frame; keeps the T1 count of the run."""
 
-    def __init__(self, period_x: float) -> None:
+    def __init__(self, period_x: float, snapshot: dict[str, np.ndarray] | None = None) -> None:
         self.period_x = period_x
-        self.t1: T1Counter | None = None
+        # a resumed run continues the T1 count (and its pending flips) of the checkpoint
+        self.t1: T1Counter | None = T1Counter.restore(snapshot, period_x) if snapshot else None
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """What a checkpoint keeps to continue the T1 count (empty before the first frame)."""
+        return self.t1.snapshot() if self.t1 is not None else {}
 
     def __call__(self, shape: ShapeObservables) -> dict:
         centroids = np.stack([shape.x, shape.y], axis=1)

@@ -33,7 +33,7 @@ from ..analysis.order import OrderObserver
 from ..energy import free_energy
 from ..errors import SceneError
 from ..flows import flow_from_spec
-from ..io import to_toml
+from ..io import load_observers, to_toml
 from ..scene import MAX_AREA_FRACTION, Phase, Scene, hexagonal_centres, read_scene_data, scene_from_dict
 from ..simulation import Frame, ProgressBar, RunDirectory, Simulation, Tracker
 from .domain import PERIODIC_PAIR, MeshDomain, read_domain
@@ -210,7 +210,8 @@ class UnstructuredSimulation(Simulation):
     checkpoint switched off.
     """
 
-    def __init__(self, mesh_scene: MeshScene, method: str = "fem") -> None:
+    def __init__(self, mesh_scene: MeshScene, method: str = "fem",
+                 observers: dict[str, np.ndarray] | None = None) -> None:
         if method != "fem":
             raise SceneError("--method", method, '"fem" (the finite-difference reference needs the lattice)')
         self.mesh_scene, self.method = mesh_scene, method
@@ -218,6 +219,7 @@ class UnstructuredSimulation(Simulation):
         self.scene = replace(scene, output=replace(scene.output, checkpoint=False))
         self.discretisation = mesh_scene.domain
         self._order = None
+        self._observers = observers or None
 
     def stepper(self, phase: Phase, radii: np.ndarray) -> UnstructuredStepper:
         return UnstructuredStepper(self.discretisation, self.scene.model, self.scene.numerics, phase.dt,
@@ -232,7 +234,7 @@ class UnstructuredSimulation(Simulation):
                                        self.discretisation.operators)
         if "order" in needs and "order" in self.scene.output.observables:
             if self._order is None:
-                self._order = OrderObserver(self.discretisation.period)
+                self._order = OrderObserver(self.discretisation.period, self._observers)
             frame.order = self._order(frame.shape)
         for tracker in trackers:
             tracker.frame(frame)
@@ -246,25 +248,27 @@ class MeshCheckpoint(Tracker):
         self.directory, self.mesh_scene = Path(directory), mesh_scene
 
     def start(self, simulation: Simulation, state: MeshState) -> None:
+        self.simulation = simulation
         (self.directory / "scene.toml").write_text(to_toml(self.mesh_scene.to_dict()))
 
     def frame(self, frame: Frame) -> None:
         if self.mesh_scene.scene.output.checkpoint:
-            save_mesh_checkpoint(self.directory / "checkpoint.npz", frame.state)
+            save_mesh_checkpoint(self.directory / "checkpoint.npz", frame.state, self.simulation.observers())
 
 
 def run_mesh_scene(mesh_scene: MeshScene, directory: str | Path, *, resume: bool = False,
                    progress: bool | None = None) -> MeshState:
     """Run a mesh scene into a run directory (the layout of :mod:`femphase.io`)."""
-    simulation = UnstructuredSimulation(mesh_scene)
     directory = Path(directory)
     checkpoint = directory / "checkpoint.npz"
     if resume:
         if not checkpoint.exists():
             raise SceneError("--resume", str(directory), "a run directory that holds checkpoint.npz")
         state = load_mesh_checkpoint(checkpoint, mesh_scene.domain)
+        simulation = UnstructuredSimulation(mesh_scene, observers=load_observers(checkpoint))
     else:
         state = mesh_scene.initial_state()
+        simulation = UnstructuredSimulation(mesh_scene)
     trackers: list[Tracker] = [RunDirectory(directory, resume), MeshCheckpoint(directory, mesh_scene)]
     if progress is not False:
         trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))

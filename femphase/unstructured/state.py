@@ -81,8 +81,9 @@ def mesh_discs_state(
     return MeshState(domain, boxes, nodes, fields, np.asarray(radii, dtype=float).copy())
 
 
-def save_mesh_checkpoint(path: str | Path, state: MeshState) -> None:
-    """Write the state (not the domain: the scene names its mesh) atomically."""
+def save_mesh_checkpoint(path: str | Path, state: MeshState, observers: dict[str, np.ndarray] | None = None) -> None:
+    """Write the state (not the domain: the scene names its mesh) atomically, with the
+    observers' running state (see :func:`femphase.io.save_checkpoint`)."""
     path = Path(path)
     tmp = path.with_suffix(".tmp.npz")
     np.savez(
@@ -95,6 +96,7 @@ def save_mesh_checkpoint(path: str | Path, state: MeshState) -> None:
         clock=np.array([state.time]),
         counters=np.array([state.step, state.phase, state.phase_step]),
         n_dofs=np.array([state.domain.n_dofs]),
+        **(observers or {}),
     )
     tmp.replace(path)
 
