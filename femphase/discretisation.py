@@ -52,7 +52,7 @@ def line_operators(n_nodes: int, h: float, periodic: bool) -> tuple[sp.csr_matri
     diagonal edges carry no stiffness in right-angled triangles): the basis of
     :class:`femphase.solvers.TensorSolver`.
     """
-    weights = np.full(n_nodes, h)
+    weights = np.full(n_nodes, float(h))
     ends = np.zeros(n_nodes)
     if not periodic:
         weights[[0, -1]] *= 0.5

@@ -21,3 +21,7 @@ class BlowUpError(FemphaseError, RuntimeError):
     def __init__(self, step: int, time: float, reason: str) -> None:
         self.step, self.time, self.reason = step, time, reason
         super().__init__(f"the run blew up at step {step} (t = {time:g}): {reason}")
+
+
+class ResolutionWarning(UserWarning):
+    """A scene runs, but at a resolution known to bias its results (the message says how)."""

@@ -63,7 +63,7 @@ def channel_grid(length: float, width: float, spacing: float) -> ChannelGrid:
             raise SceneError(
                 key, extent, f"must be a whole multiple (≥ 2) of the spacing h = {spacing}"
             )
-    return ChannelGrid(nx=round(length / spacing), ny=round(width / spacing) + 1, h=spacing)
+    return ChannelGrid(nx=round(length / spacing), ny=round(width / spacing) + 1, h=float(spacing))
 
 
 def structured_channel_mesh(grid: ChannelGrid, diagonals: str = "right") -> MeshTri:

@@ -92,6 +92,15 @@ def test_too_few_cycles_raise(n_cycles):
         periods.oscillation_period(time, elongation(time, transient=0.0), discard_fraction=0.0)
 
 
+def test_a_settled_signal_with_a_tiny_periodic_wobble_has_no_period():
+    # a settled r(t) = 0.3 wobbling by 1e-6 (grid crossings): a perfect sinusoid, but no oscillation
+    time = uniform_times(12)
+    settled = 0.3 + 1e-6 * np.sin(2 * np.pi * time / PERIOD)
+    with pytest.raises(ValueError, match="no oscillation"):
+        periods.oscillation_period(time, settled)
+    assert periods.oscillation_period(time, settled, min_relative_amplitude=0.0).period == pytest.approx(PERIOD, rel=0.01)
+
+
 def test_noise_alone_raises():
     time = uniform_times(12)
     noise = np.random.default_rng(4).standard_normal(time.size)

@@ -1,6 +1,7 @@
 """Scenes, their errors, and the command line: run, resume, blow-up."""
 
 import json
+import warnings
 import subprocess
 import sys
 from pathlib import Path
@@ -154,3 +155,16 @@ def test_resume_continues_the_t1_count(tmp_path):
     straight, resumed = (read_csv(tmp_path / d / "global.csv") for d in ("straight", "cut"))
     assert before > 0 and straight["t1_count"][-1] > before  # events on both sides of the cut
     assert np.array_equal(straight["t1_count"], resumed["t1_count"])
+
+
+def test_h_equal_to_the_interface_width_warns_about_pinned_interfaces():
+    from femphase.errors import ResolutionWarning
+    from femphase.scene import scene_from_dict
+
+    table = {"domain": {"Lx": 40.0, "Ly": 40.0, "h": 2.0}, "particles": {"layout": "single"},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with pytest.warns(ResolutionWarning, match="h = 2 .*λ/h = 1"):
+        scene_from_dict(table)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene_from_dict({**table, "domain": {"Lx": 40.0, "Ly": 40.0, "h": 1.0}})

@@ -63,6 +63,7 @@ def oscillation_period(
     *,
     discard_fraction: float = 0.25,
     min_cycles: float = 3.0,
+    min_relative_amplitude: float = 1e-3,
 ) -> PeriodEstimate:
     """Period of a shape oscillation from a time series.
 
@@ -102,6 +103,10 @@ def oscillation_period(
         Fraction, in [0, 1), of the time span discarded at the start.
     min_cycles
         Fewest cycles the retained part must span for a period to be reported.
+    min_relative_amplitude
+        Smallest peak-to-peak of the retained signal, relative to its largest magnitude, that
+        counts as an oscillation: below it (a settled r(t) wobbling by round-off or by the
+        grid) no period is reported.
 
     Returns
     -------
@@ -114,6 +119,12 @@ def oscillation_period(
         `min_cycles` cycles (and at least three primary peaks) of one consistent period.
     """
     time, signal = _steady_part(time, signal, discard_fraction)
+    amplitude, scale = np.ptp(signal), np.max(np.abs(signal))
+    if amplitude <= min_relative_amplitude * scale:
+        raise ValueError(
+            f"no oscillation: the signal after the transient is (nearly) constant, varying by {amplitude:.3g}, at most "
+            f"{min_relative_amplitude:g} of its magnitude {scale:.3g} (min_relative_amplitude)"
+        )
     grid, values = _uniform_resampling(time, signal)
     step = grid[1] - grid[0]
 
