@@ -14,12 +14,12 @@ Quantified on r(t) of the shear phase:
 * the settling time: when r last enters ±1 % of its final value;
 * the relative change of r over the last half of the shear, (r_end − r_mid)/r_end;
 * the late signal's peak-to-peak over its mean (last half): 0 for a settled particle;
-* :func:`femphase.analysis.periods.oscillation_period` on the last half.  It normalises the
-  signal, so it also "finds" periodic noise of any amplitude: on h = 2 and 1 it finds a
-  period of two frames, the particle's centre crossing grid cells (u = 0.5 at mid-channel,
-  one cell per 2h time units, aliased by the frame interval of 10) at a relative amplitude
-  of 10⁻⁵–10⁻⁴.  A particle counts as settled when the late peak-to-peak is below
-  SETTLED_AMPLITUDE of the mean, whatever such a period.
+* :func:`femphase.analysis.periods.oscillation_period` on the last half.  The late signal
+  still wobbles periodically at a relative amplitude of 10⁻⁵–10⁻⁴ on h = 2 and 1 (the
+  particle's centre crossing grid cells: u = 0.5 at mid-channel, one cell per 2h time units,
+  aliased by the frame interval of 10); below its amplitude floor (10⁻³ of the signal) it
+  reports no oscillation.  A particle counts as settled when the late peak-to-peak is below
+  SETTLED_AMPLITUDE of the mean.
 
 Results: ``verification/results/physics_single.json`` and ``physics_single.png``.
 """
@@ -133,7 +133,7 @@ def run(quick: bool = False) -> dict:
             f"phases.1.flow.rate={RATE}", f"phases.1.duration={duration}", f"phases.1.frame_interval={FRAME_INTERVAL}",
         ])
         directory = ensure_run(scene, RUNS / f"single_h{h:g}_dt{dt:g}_T{duration:g}")
-        key = {"h": h, "dt": dt, "rate": RATE, "shear": duration, "version": 2}
+        key = {"h": h, "dt": dt, "rate": RATE, "shear": duration, "version": 3}
         result = cached(directory / "result.json", lambda: analyse(directory, h, dt), key)
         results.append({**result, "directory": str(directory)})
     summary = {
