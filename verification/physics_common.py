@@ -30,7 +30,7 @@ import numpy as np
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-from femphase.io import load_checkpoint, write_json  # noqa: E402
+from femphase.io import load_checkpoint, load_observers, write_json  # noqa: E402
 from femphase.scene import Scene, load_scene  # noqa: E402
 from femphase.simulation import RunDirectory, Simulation  # noqa: E402
 
@@ -64,14 +64,15 @@ def _position(scene: Scene, step: int) -> tuple[int, int]:
     return len(scene.phases), 0
 
 
-def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None, log=print) -> Path:
+def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None, log=print,
+               method: str = "fem") -> Path:
     """Run `scene` into `directory` unless it is already complete; returns `directory`.
 
     An interrupted run resumes from its checkpoint; a complete run whose scene has since
     grown longer (a longer last phase) continues to the new end.  With `branch_from`, a new
     run starts from the relaxed state in that directory (which must hold the run of the
     scene's first phase alone, see :func:`ensure_relaxation`): its checkpoint and CSV files
-    are copied over and the remaining phases run from there.  The wall time of every session
+    are copied over and the remaining phases run from there, with ``method`` ("fem" or "fd").  The wall time of every session
     is appended to ``sessions.json`` (run.json keeps the last session's only).
     """
     directory = Path(directory)
@@ -87,10 +88,10 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
         state = load_checkpoint(checkpoint)
         state.phase, state.phase_step = _position(scene, state.step)
         log(f"  {directory.name}: continuing from t = {state.time:g}")
-        Simulation(scene).run(state, [RunDirectory(directory, resume=True)])
+        Simulation(scene, method, load_observers(checkpoint)).run(state, [RunDirectory(directory, resume=True)])
     else:
         log(f"  {directory.name}: starting")
-        Simulation(scene).run(scene.initial_state(), [RunDirectory(directory)])
+        Simulation(scene, method).run(scene.initial_state(), [RunDirectory(directory)])
     sessions = directory / "sessions.json"
     previous = json.loads(sessions.read_text()) if sessions.exists() else []
     sessions.write_text(json.dumps(previous + [{"wall_s": wallclock.perf_counter() - started}], indent=1))

@@ -46,10 +46,17 @@ TRANSIENT = 2.0  # geometric periods discarded
 MEASURED = 4.5  # geometric periods measured after the transient
 FRAMES_PER_PERIOD = 40
 QUICK_RATES = (0.1487, 0.3857)
-#: (h, rate, dt) runs that check the time step: dt sets how far the particles relax between
-#: T1s (the splitting and the stabilisation slow the relaxation at dt = 1), so the shape of
-#: the cycle, not its kinematic period, may depend on it
-DT_CHECKS = ((1.0, 0.3857, 0.5),)
+#: (h, rate, dt, method) runs that check the time step and the scheme: dt sets how far the
+#: particles relax between T1s (the splitting and the stabilisation slow the relaxation at
+#: dt = 1), so the shape of the cycle, not its kinematic period, may depend on it; "fd" runs
+#: the shear phase with the paper's finite-difference scheme at its dt = 0.1 (from the same
+#: FEM relaxation), to see whether the paper's discretisation moves the regimes
+SCHEME_CHECKS = ((1.0, 0.3857, 0.5, "fem"), (1.0, 0.3857, 0.1, "fem"), (1.0, 0.3857, 0.1, "fd"))
+
+
+def is_main(result: dict) -> bool:
+    """A run of the main sweep (FEM, dt = 1), not one of the SCHEME_CHECKS."""
+    return result["dt"] == 1.0 and result.get("method", "fem") == "fem"
 
 LX, LY, PER_ROW, N = 70.0, 240.0, 5, 100
 LANE_SPACING = LY / (N // PER_ROW)  # Δy = 12
@@ -75,26 +82,27 @@ def _scene(h: float, rate: float | None, periods: float, dt: float = 1.0):
     return example_scene("hexagonal", assignments)
 
 
-def run_name(h: float, rate: float | None = None, dt: float = 1.0) -> str:
+def run_name(h: float, rate: float | None = None, dt: float = 1.0, method: str = "fem") -> str:
     name = f"periods_h{h:g}_" + ("relax" if rate is None else f"rate{rate:g}")
-    return name if dt == 1.0 else f"{name}_dt{dt:g}"
+    name = name if dt == 1.0 else f"{name}_dt{dt:g}"
+    return name if method == "fem" else f"{name}_{method}"
 
 
-def plan(quick: bool, spacings: tuple[float, ...] | None) -> list[tuple[float, float, float]]:
-    """The (h, rate, dt) runs: all rates on h = 2 and 1, the fastest ones on h = 0.5, all
-    with dt = 1; then the time-step checks DT_CHECKS."""
+def plan(quick: bool, spacings: tuple[float, ...] | None) -> list[tuple[float, float, float, str]]:
+    """The (h, rate, dt, method) runs: all rates on h = 2 and 1, the fastest ones on h = 0.5,
+    all FEM with dt = 1; then the SCHEME_CHECKS."""
     if quick:
-        return [(2.0, rate, 1.0) for rate in QUICK_RATES]
-    runs = [(h, rate, 1.0) for h in (2.0, 1.0) for rate in RATES] + [(0.5, rate, 1.0) for rate in FINE_RATES]
-    return [run for run in runs + list(DT_CHECKS) if spacings is None or run[0] in spacings]
+        return [(2.0, rate, 1.0, "fem") for rate in QUICK_RATES]
+    runs = [(h, rate, 1.0, "fem") for h in (2.0, 1.0) for rate in RATES] + [(0.5, rate, 1.0, "fem") for rate in FINE_RATES]
+    return [run for run in runs + list(SCHEME_CHECKS) if spacings is None or run[0] in spacings]
 
 
-def simulate(h: float, rate: float, dt: float = 1.0) -> tuple:
-    """Run (or reuse) one shear run (the relaxation at dt = 1 is shared); returns
+def simulate(h: float, rate: float, dt: float = 1.0, method: str = "fem") -> tuple:
+    """Run (or reuse) one shear run (the FEM relaxation at dt = 1 is shared); returns
     (directory, scene)."""
     scene = _scene(h, rate, TRANSIENT + MEASURED, dt)
     relaxed = ensure_relaxation(scene, RUNS / run_name(h))
-    return ensure_run(scene, RUNS / run_name(h, rate, dt), branch_from=relaxed), scene
+    return ensure_run(scene, RUNS / run_name(h, rate, dt, method), branch_from=relaxed, method=method), scene
 
 
 def _period(time, signal, discard: float) -> dict:
@@ -252,12 +260,13 @@ def _k_estimate(rates, periods, sigmas) -> dict:
 
 
 def dt_checks(results: list[dict]) -> list[dict]:
-    """Each run at dt ≠ 1 beside the same (h, rate) at dt = 1: period and cycle shape."""
+    """Each SCHEME_CHECKS run beside the same (h, rate) of the main sweep: period and cycle
+    shape."""
     rows = []
-    for check in (r for r in results if r["dt"] != 1.0):
-        for r in (r for r in results if r["dt"] == 1.0 and (r["h"], r["rate"]) == (check["h"], check["rate"])):
+    for check in (r for r in results if not is_main(r)):
+        for r in (r for r in results if is_main(r) and (r["h"], r["rate"]) == (check["h"], check["rate"])):
             rows.append({"h": check["h"], "rate": check["rate"], "runs": [
-                {"dt": x["dt"], "period": x["mean_elongation"]["period"],
+                {"dt": x["dt"], "method": x.get("method", "fem"), "period": x["mean_elongation"]["period"],
                  "uncertainty": x["mean_elongation"]["uncertainty"], **x["steady"]} for x in (r, check)]})
     return rows
 
@@ -267,7 +276,7 @@ def summarise(results: list[dict]) -> dict:
     estimate; over the rates: slope of log T against log γ̇ and k, for r̄ and for φ (runs at
     dt = 1); the time-step checks beside."""
     checks = dt_checks(results)
-    results = [r for r in results if r["dt"] == 1.0]
+    results = [r for r in results if is_main(r)]
     rates = sorted({r["rate"] for r in results})
     entries = []
     for rate in rates:
@@ -445,7 +454,8 @@ def table(summary: dict) -> str:
     lines.append(f"- paper k = {K_PAPER}, geometric k = π Δy/(a Ly) = {K_GEOMETRIC:.5f}")
     for check in periods["dt_checks"]:
         for x in check["runs"]:
-            lines.append(f"- time step, h = {check['h']:g}, γ̇ = {check['rate']:g}, dt = {x['dt']:g}: "
+            lines.append(f"- scheme check, h = {check['h']:g}, γ̇ = {check['rate']:g}, {x['method'].upper()} "
+                         f"dt = {x['dt']:g}: "
                          f"T = {fmt(x['period'], x['uncertainty'], 4)}, r̄ {x['mean_r_min']:.3f}–{x['mean_r_max']:.3f}, "
                          f"θ {np.degrees(x['theta_min']):.0f}°…{np.degrees(x['theta_max']):.0f}°, "
                          f"θ < 0 {100 * x['fraction_theta_negative']:.0f} % of the time")
@@ -459,31 +469,34 @@ def run(quick: bool = False, spacings: tuple[float, ...] | None = None, simulate
     `simulate_only` skips the analysis; `analyse_only` runs nothing and analyses the runs that
     are complete (e.g. while others are still under way in another process)."""
     done = []
-    for h, rate, dt in plan(quick, spacings):
-        label = f"h = {h:g}, γ̇ = {rate:g}, dt = {dt:g}"
+    for h, rate, dt, method in plan(quick, spacings):
+        label = f"h = {h:g}, γ̇ = {rate:g}, dt = {dt:g}, {method}"
         if analyse_only:
             scene = _scene(h, rate, TRANSIENT + MEASURED, dt)
-            directory = RUNS / run_name(h, rate, dt)
+            directory = RUNS / run_name(h, rate, dt, method)
             if is_complete(directory, scene):
-                done.append((h, rate, dt, directory, scene))
+                done.append((h, rate, dt, method, directory, scene))
             else:
                 print(f"{label}: not complete, left out", flush=True)
             continue
         print(f"{label}: geometric period {geometric_period(rate):.0f}", flush=True)
-        done.append((h, rate, dt, *simulate(h, rate, dt)))
+        done.append((h, rate, dt, method, *simulate(h, rate, dt, method)))
     if simulate_only:
         return {}
     results = []
-    for h, rate, dt, directory, scene in done:
+    for h, rate, dt, method, directory, scene in done:
         key = {"h": h, "rate": rate, "dt": dt, "steps": sum(p.n_steps for p in scene.phases), "version": 4}
-        results.append(cached(directory / "result.json", lambda: analyse(directory, h, rate, dt), key))
+        if method != "fem":
+            key["method"] = method
+        results.append(cached(directory / "result.json",
+                              lambda: {**analyse(directory, h, rate, dt), "method": method}, key))
     summary = summarise(results)
     if not quick:
         from femphase.io import write_json
 
         write_json(RESULTS / "periods.json", summary["periods"])
         write_json(RESULTS / "physics_periods.json", {**summary, "runs": results})
-        figures(summary, [r for r in results if r["dt"] == 1.0])
+        figures(summary, [r for r in results if is_main(r)])
     print(table(summary))
     return summary
 
