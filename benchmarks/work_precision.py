@@ -14,7 +14,8 @@ Two problems, each against a converged reference computed in the same run:
     ~1100 after the onset and the next one period (≈ 1880) later, so the window holds one
     full oscillation period. Errors: ``elongation`` max_t |r̄(t) − r̄_ref(t)| / max_t r̄_ref
     over frames every 10 time units; ``period`` |T − T_ref| / T_ref with T the time between
-    the first two primary peaks of r̄(t) (:func:`first_period`). Reference: FEM h = 0.5,
+    the first two primary peaks of r̄(t) in the shear phase
+    (:func:`femphase.analysis.periods.first_period`). Reference: FEM h = 0.5,
     dt = 0.2 (the finest run affordable, ~10 CPU-min; no Richardson: only one finer h is).
 
 Times are CPU seconds of this process from the stepper's construction to the end of the
@@ -40,6 +41,7 @@ from pathlib import Path
 import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 
+from femphase.analysis.periods import first_period
 from femphase.analysis.shape import shape_observables
 from femphase.errors import BlowUpError
 from femphase.scene import scene_from_dict
@@ -181,32 +183,12 @@ def particle_errors(point: Point, reference: dict) -> dict:
             "field": float(np.max(np.abs(np.array(point.result["field"]) - np.array(reference["field"]))))}
 
 
-def first_period(times: np.ndarray, values: np.ndarray) -> float:
-    """Time between the first two primary peaks of r̄(t) after the shear onset (RELAX).
-
-    Primary peaks: local maxima with a prominence of at least a third of r̄'s range over the
-    shear phase (the secondary peak after each T1 is lower), each refined by the vertex of
-    the parabola through it and its neighbouring frames. NaN with fewer than two peaks."""
-    from scipy.signal import find_peaks
-
-    shear = times >= RELAX
-    t, r = times[shear], values[shear]
-    peaks, _ = find_peaks(r, prominence=np.ptp(r) / 3.0)
-    if len(peaks) < 2:
-        return float("nan")
-    vertices = []
-    for i in peaks[:2]:
-        left, middle, right = r[i - 1:i + 2]
-        curvature = left - 2 * middle + right
-        vertices.append(t[i] + 0.5 * (left - right) / curvature * (t[i + 1] - t[i]))
-    return float(vertices[1] - vertices[0])
-
-
 def lattice_errors(point: Point, reference: dict) -> dict:
     r, r_ref = np.array(point.result["mean_elongation"]), np.array(reference["mean_elongation"])
     times = np.array(reference["times"])
     assert np.allclose(point.result["times"], times)
-    period, period_ref = first_period(times, r), first_period(times, r_ref)
+    shear = times >= RELAX
+    period, period_ref = first_period(times[shear], r[shear]), first_period(times[shear], r_ref[shear])
     return {"elongation": float(np.max(np.abs(r - r_ref)) / np.max(np.abs(r_ref))),
             # a run without two peaks has not oscillated: its period error is total
             "period": float(abs(period - period_ref) / period_ref) if np.isfinite(period) else 1.0}

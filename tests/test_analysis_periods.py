@@ -131,3 +131,13 @@ def test_limit_cycle_is_the_polar_plane_of_r_and_2theta():
         np.column_stack(periods.limit_cycle([1.5], [0.3 + np.pi])),
         np.column_stack(periods.limit_cycle([1.5], [0.3])),
     )
+
+
+def test_first_period_of_a_short_record_skips_secondary_peaks():
+    # 1.8 cycles starting a quarter period in: two primary peaks (at T and 2T... minus the
+    # offset) with a secondary peak after each; too short for oscillation_period
+    time = np.linspace(0.25 * PERIOD, 2.05 * PERIOD, 600)
+    signal = elongation(time, transient=0.0)
+    assert periods.first_period(time, signal) == pytest.approx(PERIOD, rel=2e-3)
+    # one primary peak only: no period, said explicitly
+    assert np.isnan(periods.first_period(time[time < 1.5 * PERIOD], signal[time < 1.5 * PERIOD]))

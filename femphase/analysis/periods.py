@@ -166,6 +166,26 @@ def oscillation_period(
     )
 
 
+def first_period(time: ArrayLike, signal: ArrayLike) -> float:
+    """Time between the first two primary peaks of a short record (one to two cycles, too
+    short for :func:`oscillation_period`), e.g. r̄(t) over one period of shear.
+
+    Primary peaks: local maxima with a prominence of at least a quarter of the signal's range
+    that reach at least 70 % of the way from its minimum to its maximum (a secondary peak
+    is lower), each refined by the vertex of the parabola through it and its neighbours. The samples must be equally spaced. NaN with fewer than two peaks (the
+    record did not oscillate), so comparisons stay explicit.
+    """
+    time, signal = np.asarray(time, dtype=float), np.asarray(signal, dtype=float)
+    span = np.ptp(signal)
+    peaks, _ = find_peaks(signal, prominence=span / 4.0, height=signal.min() + 0.7 * span)
+    peaks = peaks[(peaks > 0) & (peaks < len(signal) - 1)]
+    if len(peaks) < 2:
+        return float("nan")
+    step = time[1] - time[0]
+    first, second = (time[i] + step * _parabolic_vertex_offset(signal[i - 1:i + 2]) for i in peaks[:2])
+    return float(second - first)
+
+
 def limit_cycle(
     elongation: ArrayLike, orientation: ArrayLike
 ) -> tuple[np.ndarray, np.ndarray]:
