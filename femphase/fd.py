@@ -28,7 +28,9 @@ comparing the two methods is a real cross-check.
   (h²/3) u ∂x³φ, against the third-order scheme's dissipative (h³/12) |u| ∂x⁴φ; the
   interface (width ~2λ = 4 at h = 1) is only a few nodes wide, so the order matters.
   Row flows (u(y), 0) and general flows share the code: each velocity component is
-  differenced along its own direction.
+  differenced along its own direction. ``numerics.fd_advection = "upwind1"`` selects
+  first-order upwind instead (numerical diffusion |u| h/2), to test how much a cruder
+  advection, which the paper does not exclude, changes the physics.
 * Time: explicit predictor–corrector (Heun, second order), the paper's dt = 0.1 by default:
 
       k1 = f(φⁿ, tⁿ),  φ* = φⁿ + dt k1,  k2 = f(φ*, tⁿ⁺¹),  φⁿ⁺¹ = φⁿ + dt (k1 + k2)/2,
@@ -142,12 +144,16 @@ def five_point_laplacian(padded: np.ndarray, h: float) -> np.ndarray:
     return out
 
 
-def upwind_advection(padded: np.ndarray, velocity: np.ndarray, axis: int, h: float) -> np.ndarray:
-    """w ∂φ by third-order upwind-biased differences along ``axis`` (1: y, 2: x): the
-    fourth-order central difference plus |w| h³/12 times the fourth difference (see the
-    module docstring); ``velocity`` w has the shape of the unpadded block."""
+def upwind_advection(padded: np.ndarray, velocity: np.ndarray, axis: int, h: float, order: int = 3) -> np.ndarray:
+    """w ∂φ by upwind-biased differences along ``axis`` (1: y, 2: x); ``velocity`` w has the
+    shape of the unpadded block. order 3: the fourth-order central difference plus |w| h³/12
+    times the fourth difference (see the module docstring); order 1: the central difference
+    plus |w| h/2 times the second difference, i.e. the one-sided w (φ_i − φ_{i−1})/h for
+    w > 0, whose error is a numerical diffusion |w| h/2."""
     m2, m1, p1, p2 = _neighbours(padded, axis)
     centre = padded[:, 2:-2, 2:-2]
+    if order == 1:
+        return (velocity * (p1 - m1) - np.abs(velocity) * (p1 - 2.0 * centre + m1)) / (2.0 * h)
     central = (m2 - p2) + 8.0 * (p1 - m1)
     fourth = (m2 + p2) - 4.0 * (m1 + p1) + 6.0 * centre
     return (velocity * central + np.abs(velocity) * fourth) / (12.0 * h)
@@ -169,7 +175,7 @@ class FiniteDifferenceStepper:
 
     Same constructor and :meth:`step` as :class:`femphase.stepping.SemiImplicitStepper`;
     ``numerics.mass``, ``stabilisation``, ``solver``, ``tolerance`` and ``diagonals`` do not
-    apply and are ignored. Raises SceneError when dt exceeds
+    apply and are ignored; ``numerics.fd_advection`` picks the advection differences. Raises SceneError when dt exceeds
     :func:`explicit_stability_limit`.
     """
 
@@ -192,6 +198,7 @@ class FiniteDifferenceStepper:
         self.policy = WindowPolicy.for_spacing(
             grid.h, threshold=numerics.threshold, margin=numerics.margin, enabled=numerics.windows
         )
+        self._advection_order = {"upwind3": 3, "upwind1": 1}[numerics.fd_advection]
         self._u, self._v = _flow_on_grid(self.flow, grid)
         self._advects = (bool(np.any(self._u)), bool(np.any(self._v)))
         speed = float(np.max(np.abs(self._u)) + np.max(np.abs(self._v)))
@@ -265,7 +272,8 @@ class FiniteDifferenceStepper:
             block = rate[start:stop].reshape(padded.shape[0], padded.shape[1] - 4, padded.shape[2] - 4)
             block += params.diffusivity * five_point_laplacian(padded, grid.h)
             for axis, velocity in self._velocity:
-                block -= upwind_advection(padded, velocity[start:stop].reshape(block.shape), axis, grid.h)
+                block -= upwind_advection(padded, velocity[start:stop].reshape(block.shape), axis, grid.h,
+                                          self._advection_order)
         if self.source is not None:
             rate += self.source((nodes % grid.nx) * grid.h, (nodes // grid.nx) * grid.h, time)
         return rate

@@ -38,6 +38,7 @@ from .state import State
 from .windows import Layout, Window, WindowPolicy, transfer
 
 MASS_TYPES = ("lumped", "consistent")
+FD_ADVECTION = ("upwind3", "upwind1")
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,8 @@ class Numerics:
     threshold       φ above which a node belongs to a particle (window fitting)
     margin          lattice units kept between a particle and its window's edge
     diagonals       "right", "left" or "alternating" (structured mesh pattern)
+    fd_advection    the finite-difference reference's advection differences (``--method fd``
+                    only): "upwind3" (default, third order) or "upwind1" (first order)
     blowup_margin   a step fails when φ leaves [−blowup_margin, 1 + blowup_margin]. Discs
                     started at R/2 overshoot physically to φ ≈ 1.4 while the area constraint
                     inflates them (2.1 with μ × 10), so the default, 2, flags only runaways
@@ -69,6 +72,7 @@ class Numerics:
     margin: float = 4.0
     diagonals: str = "right"
     blowup_margin: float = 2.0
+    fd_advection: str = "upwind3"
 
     def __post_init__(self) -> None:
         if self.mass not in MASS_TYPES:
@@ -83,6 +87,8 @@ class Numerics:
             raise SceneError("numerics.margin", self.margin, "a length > 0 (lattice units)")
         if not self.tolerance > 0:
             raise SceneError("numerics.tolerance", self.tolerance, "a number > 0")
+        if self.fd_advection not in FD_ADVECTION:
+            raise SceneError("numerics.fd_advection", self.fd_advection, f"one of {FD_ADVECTION}")
         if not self.blowup_margin > 0:
             raise SceneError("numerics.blowup_margin", self.blowup_margin, "a number > 0")
 

@@ -73,6 +73,16 @@ def test_stencils_have_the_documented_symbols():
     assert np.all(np.abs(adv - 1j * theta / h)[small] <= 0.1 * np.abs(theta[small]) ** 4 / h + 1e-15)
 
 
+def test_first_order_upwind_has_the_symbol_of_a_one_sided_difference():
+    """order=1 on e^{iθj}: (1 − e^{−iθ})/h for w > 0, (e^{iθ} − 1)/h for w < 0."""
+    h = 0.5
+    theta = np.linspace(-np.pi, np.pi, 41)
+    mode = np.exp(1j * theta[:, None, None] * np.arange(-2, 3)[None, None, :]) * np.ones((1, 5, 1))
+    for w, expected in ((1.0, (1 - np.exp(-1j * theta)) / h), (-1.0, -(np.exp(1j * theta) - 1) / h)):
+        adv = upwind_advection(mode, np.full((theta.size, 1, 1), w), 2, h, order=1)[:, 0, 0]
+        np.testing.assert_allclose(adv, expected, atol=1e-12)
+
+
 def _heun(z: np.ndarray) -> np.ndarray:
     return np.abs(1 + z + z**2 / 2)
 
