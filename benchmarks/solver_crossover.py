@@ -16,7 +16,8 @@ Per size, in one run (ratios are meaningful on the shared machine, absolute time
   sides in one call (the full-mesh mode's N = 100 fields);
 * tensor: femphase's TensorSolver (exact; the 1D generalised eigenvectors of the window's
   tensor-product factors, verified against the assembled matrix), k right-hand sides in one
-  call; what ``solver = "auto"`` uses on the structured mesh up to ny + nx = TENSOR_MAX_SIDES;
+  call; what ``solver = "auto"`` uses on the structured mesh up to ny + nx = TENSOR_MAX_SIDES
+  (set from this measurement: the largest size at which it was still faster than the LU);
 * amg: femphase's AMGSolver (pyamg smoothed aggregation built once, CG to relative residual
   1e-10, the default numerics.tolerance), one right-hand side at a time, warm-started from
   the previous step's field (as the stepper does) and cold-started from zero.

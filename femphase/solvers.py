@@ -12,9 +12,10 @@ On the structured mesh with one diagonal direction and the lumped mass, a window
 a tensor product, A = a My⊗Mx + b (Ky⊗Mx + My⊗Kx), of 1D P1 lumped masses M and stiffnesses
 K (see :func:`femphase.discretisation.line_operators`). :class:`TensorSolver` then solves
 exactly with the 1D generalised eigenvectors: four dense matrix products per batch of
-right-hand sides, 2–4× faster than the LU's triangular solves at every window and channel
-size measured (``benchmarks/solver_crossover.py``). The stepper uses it when it has
-verified the tensor form against the assembled matrix.
+right-hand sides, 1.5–3.7× faster than the LU's triangular solves up to 256 × 256 nodes and
+no faster beyond (``benchmarks/solver_crossover.py``). The stepper uses it there
+(``femphase.stepping.TENSOR_MAX_SIDES``) when it has verified the tensor form against the
+assembled matrix.
 """
 
 from __future__ import annotations

@@ -146,9 +146,10 @@ def relaxation_system(
 
 
 #: ``solver = "auto"`` uses the tensor solver for windows up to this ny + nx (nodes):
-#: benchmarks/solver_crossover.py measured it faster than the LU up to the full channel at
-#: h = 0.5 (481 + 140); its dense 1D eigenvectors cost O(ny² + nx²) memory beyond that.
-TENSOR_MAX_SIDES = 700
+#: benchmarks/solver_crossover.py measured it 1.5–3.7× faster than the cached LU up to
+#: 256 × 256 nodes (ny + nx = 512) and 0.8–1.0× from ny + nx = 621 on (its dense products
+#: grow as (ny + nx)·ny·nx, the LU's triangular solves slower).
+TENSOR_MAX_SIDES = 512
 
 
 def tensor_solver(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: float, b: float) -> TensorSolver | None:
