@@ -104,7 +104,7 @@ def profile_parts(steps: int = PROFILE_STEPS) -> dict:
     solve = cumulative("solve", "solvers.py")
     parts = {
         "advection (exact row shift, FFT)": cumulative("advect_row_flow", "advection.py"),
-        "linear solves (cached LU, multi-RHS)": solve,
+        "linear solves (tensor-product solver, multi-RHS)": solve,
         "explicit forces (g, areas, overlaps) and right-hand sides": cumulative("_relax", "stepping.py") - solve,
         "blow-up check": cumulative("check_fields", "stepping.py"),
         "window refit (misfits, fit, transfer)": cumulative("misfits", "windows.py", caller="step")
