@@ -222,11 +222,11 @@ def lattice_points(quick: bool) -> list[Point]:
     return points
 
 
-def pareto_front(points: list[Point], key: str) -> set[int]:
-    """Indices of the points no other point beats in both time and error."""
+def pareto_front(points: list[Point], keys: list[str]) -> set[int]:
+    """Indices of the points no other point beats in time and in every error of ``keys``."""
     front = set()
     for i, p in enumerate(points):
-        beaten = any(q.seconds < p.seconds and q.errors[key] < p.errors[key] for q in points)
+        beaten = any(q.seconds < p.seconds and all(q.errors[k] < p.errors[k] for k in keys) for q in points)
         if not beaten:
             front.add(i)
     return front
@@ -288,7 +288,7 @@ def plot(panels: list[tuple[str, list[Point], str]], path: Path) -> None:
 
 
 def table(points: list[Point], keys: list[str]) -> str:
-    front = {key: pareto_front(points, key) for key in keys}
+    front = {key: pareto_front(points, [key]) for key in keys}
     rows = []
     for i, p in sorted(enumerate(points), key=lambda item: item[1].seconds):
         marks = "".join("F" if i in front[k] else "·" for k in keys)
@@ -311,7 +311,10 @@ def report(result: dict) -> str:
             s = result[problem]["speedup"][group]
             equal = s["equal_error_fem"]
             errors = lambda values: ", ".join(f"{k} {v:.2e}" for k, v in values.items())  # noqa: E731
-            fronts = ", ".join(f"{k}: {'yes' if result[problem]['default_on_front'][k] else '**no**'}" for k in s["errors"])
+            on_front = result[problem]["default_on_front"]
+            fronts = ", ".join(f"{k}: {'yes' if on_front[k] else '**no**'}" for k in s["errors"]) + (
+                f"; jointly, no point faster with every error smaller: {'yes' if on_front[group] else '**no**'}"
+                if group in on_front else "")
             text.append(
                 f"\n- {group}: FEM default {s['default_seconds']:.3g} s (errors {errors(s['default_errors'])}) vs "
                 f"FD h = 1, dt = 0.1 {s['fd_seconds']:.3g} s (errors {errors(s['fd_errors'])}): time ratio "
@@ -340,7 +343,11 @@ def main() -> None:
             stored[f"_{problem}_points"] = [
                 Point(problem, d["method"], d["h"], d["dt"], d["options"], d["seconds"], errors=d["errors"])
                 for d in stored[problem]["points"]]
+            points, keys = stored[f"_{problem}_points"], list(stored[problem]["speedup"]["all errors"]["errors"])
+            default = next(i for i, p in enumerate(points) if p.is_default)
+            stored[problem]["default_on_front"]["all errors"] = default in pareto_front(points, keys)
         update_readme("work_precision", report(stored))
+        out.write_text(json.dumps({k: v for k, v in stored.items() if not k.startswith("_")}, indent=1) + "\n")
         return
     previous = json.loads(out.read_text()) if args.reuse_reference and out.exists() else None
     result: dict = {}
@@ -366,7 +373,7 @@ def main() -> None:
             points = [p for p in points if not p.failure]
         for p in points:
             p.errors = error(p, reference)
-        fronts = {key: pareto_front(points, key) for key in keys}
+        fronts = {key: pareto_front(points, [key]) for key in keys} | {"all errors": pareto_front(points, keys)}
         default_index = next(i for i, p in enumerate(points) if p.is_default)
         result[problem] = {
             "reference": reference, "reference_seconds": reference["seconds"],
@@ -375,7 +382,7 @@ def main() -> None:
                         "on_front": {k: i in fronts[k] for k in keys}} for i, p in enumerate(points)],
             "failed": [{"label": p.label, "h": p.h, "dt": p.dt, "options": p.options, "message": p.failure,
                         "command": p.command()} for p in failed],
-            "default_on_front": {k: default_index in fronts[k] for k in keys},
+            "default_on_front": {k: default_index in front for k, front in fronts.items()},
             "speedup": ({"all errors": speedup_vs_fd(points, keys)} | {k: speedup_vs_fd(points, [k]) for k in keys}
                         if not args.quick else {}),
         }
