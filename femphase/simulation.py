@@ -123,16 +123,24 @@ class Simulation:
                 tracker.finish(state, error)
         return state
 
+    def shape(self, state: State) -> ShapeObservables:
+        """The shape observables of a state (the meshed path overrides this)."""
+        return shape_observables(state, self.discretisation.operators)
+
+    def period_x(self) -> float:
+        """The channel's period in x (lattice units)."""
+        return self.discretisation.grid.length
+
     def _frame(self, state: State, phase: Phase, trackers: list[Tracker], needs: frozenset) -> None:
-        ops = self.discretisation.operators
         frame = Frame(state, phase)
         if "shape" in needs:
-            frame.shape = shape_observables(state, ops)
+            frame.shape = self.shape(state)
         if "energy" in needs:
-            frame.energy = free_energy(state.global_fields(), state.radii, self.scene.model, ops)
+            frame.energy = free_energy(state.global_fields(), state.radii, self.scene.model,
+                                       self.discretisation.operators)
         if "order" in needs and "order" in self.scene.output.observables:
             if self._order is None:
-                self._order = OrderObserver(state.grid.length, self._observers)
+                self._order = OrderObserver(self.period_x(), self._observers)
             frame.order = self._order(frame.shape)
         for tracker in trackers:
             tracker.frame(frame)

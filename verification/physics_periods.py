@@ -370,7 +370,6 @@ def figures(summary: dict, results: list[dict]) -> None:
     plt = _pyplot()
     periods = summary["periods"]
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
-    rates = np.array([e["rate"] for e in periods["rates"]])
     dense = np.geomspace(0.04, 0.6, 50)
     for k, h in enumerate(sorted({r["h"] for r in results}, reverse=True)):
         chosen = [r for r in results if r["h"] == h and r["mean_elongation"]["period"]]

@@ -29,8 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..analysis.order import OrderObserver
-from ..energy import free_energy
+from ..analysis.shape import ShapeObservables
 from ..errors import SceneError
 from ..flows import flow_from_spec
 from ..io import load_observers, to_toml
@@ -225,19 +224,11 @@ class UnstructuredSimulation(Simulation):
         return UnstructuredStepper(self.discretisation, self.scene.model, self.scene.numerics, phase.dt,
                                    self.mesh_scene.flow(phase), radii)
 
-    def _frame(self, state: MeshState, phase: Phase, trackers: list[Tracker], needs: frozenset) -> None:
-        frame = Frame(state, phase)
-        if "shape" in needs:
-            frame.shape = mesh_shape_observables(state)
-        if "energy" in needs:
-            frame.energy = free_energy(state.global_fields(), state.radii, self.scene.model,
-                                       self.discretisation.operators)
-        if "order" in needs and "order" in self.scene.output.observables:
-            if self._order is None:
-                self._order = OrderObserver(self.discretisation.period, self._observers)
-            frame.order = self._order(frame.shape)
-        for tracker in trackers:
-            tracker.frame(frame)
+    def shape(self, state: MeshState) -> ShapeObservables:
+        return mesh_shape_observables(state)
+
+    def period_x(self) -> float:
+        return self.discretisation.period
 
 
 class MeshCheckpoint(Tracker):

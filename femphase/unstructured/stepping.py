@@ -48,7 +48,6 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from ..discretisation import P1Operators
 from ..energy import explicit_derivative
 from ..errors import SceneError
 from ..flows import Flow
