@@ -134,8 +134,8 @@ def test_limit_cycle_is_the_polar_plane_of_r_and_2theta():
 
 
 def test_first_period_of_a_short_record_skips_secondary_peaks():
-    # 1.8 cycles starting a quarter period in: two primary peaks (at T and 2T... minus the
-    # offset) with a secondary peak after each; too short for oscillation_period
+    # 1.8 cycles from t = T/4: primary peaks at T and 2T, each followed by a secondary peak
+    # 0.2 T later; too short for oscillation_period
     time = np.linspace(0.25 * PERIOD, 2.05 * PERIOD, 600)
     signal = elongation(time, transient=0.0)
     assert periods.first_period(time, signal) == pytest.approx(PERIOD, rel=2e-3)
