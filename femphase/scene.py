@@ -325,14 +325,20 @@ def hexagonal_centres(n: int, length: float, width: float, per_row: int | None =
     return np.stack([x.ravel(), y.ravel()], axis=1)
 
 
+def clear_of_discs(centres: np.ndarray, candidate: np.ndarray, period: float, radius: float) -> bool:
+    """Whether a disc of ``radius`` at ``candidate`` overlaps none of the discs at ``centres``
+    (the same radius; distances by the minimum image over the period in x)."""
+    dx = (centres[:, 0] - candidate[0] + 0.5 * period) % period - 0.5 * period
+    return bool(np.all(dx**2 + (centres[:, 1] - candidate[1]) ** 2 >= (2 * radius) ** 2))
+
+
 def random_centres(n: int, length: float, width: float, radius: float, seed: int, attempts: int = 200_000) -> np.ndarray:
     """Uniformly random centres of non-overlapping discs of ``radius`` inside the channel."""
     rng = np.random.default_rng(seed)
     centres = np.empty((0, 2))
     for _ in range(attempts):
         candidate = np.array([rng.uniform(0, length), rng.uniform(radius, width - radius)])
-        dx = (centres[:, 0] - candidate[0] + 0.5 * length) % length - 0.5 * length
-        if np.all(dx**2 + (centres[:, 1] - candidate[1]) ** 2 >= (2 * radius) ** 2):
+        if clear_of_discs(centres, candidate, length, radius):
             centres = np.vstack([centres, candidate])
             if len(centres) == n:
                 return centres

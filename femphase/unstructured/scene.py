@@ -33,7 +33,9 @@ from ..analysis.shape import ShapeObservables
 from ..errors import SceneError
 from ..flows import flow_from_spec
 from ..io import load_observers, to_toml
-from ..scene import MAX_AREA_FRACTION, Phase, Scene, hexagonal_centres, read_scene_data, scene_from_dict
+from ..scene import (
+    MAX_AREA_FRACTION, Phase, Scene, clear_of_discs, hexagonal_centres, read_scene_data, scene_from_dict,
+)
 from ..simulation import Frame, ProgressBar, RunDirectory, Simulation, Tracker
 from .domain import PERIODIC_PAIR, MeshDomain, read_domain
 from .shape import mesh_shape_observables
@@ -125,8 +127,7 @@ def random_mesh_centres(domain: MeshDomain, n: int, radius: float, seed: int,
         clear = np.hypot(dx, walls[1][None] - candidates[:, 1:]).min(axis=1) >= radius
         candidates = candidates[clear & domain.inside(candidates[:, 0], candidates[:, 1])]
         for candidate in candidates:
-            dx = np.mod(centres[:, 0] - candidate[0] + 0.5 * domain.period, domain.period) - 0.5 * domain.period
-            if np.all(dx**2 + (centres[:, 1] - candidate[1]) ** 2 >= (2 * radius) ** 2):
+            if clear_of_discs(centres, candidate, domain.period, radius):
                 centres = np.vstack([centres, candidate])
                 if len(centres) == n:
                     return centres
