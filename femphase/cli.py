@@ -20,25 +20,13 @@ from .errors import BlowUpError, FemphaseError
 def _run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from .scene import is_mesh_scene, read_scene_data, scene_from_dict
+    from .scene import read_scene_data, scene_from_dict
     from .simulation import run_scene
 
-    data = read_scene_data(args.scene, args.set)
+    scene = scene_from_dict(read_scene_data(args.scene, args.set), Path(args.scene).parent)
     progress = False if args.quiet else None
-    if is_mesh_scene(data):
-        from .errors import SceneError
-        from .unstructured.scene import mesh_scene_from_dict, run_mesh_scene
-
-        if args.method != "fem":
-            raise SceneError("--method", args.method, '"fem": meshed geometries have no finite-difference path')
-        mesh_scene = mesh_scene_from_dict(data, Path(args.scene).parent)
-        name = mesh_scene.scene.name
-        state = run_mesh_scene(mesh_scene, args.output, resume=args.resume, progress=progress)
-    else:
-        scene = scene_from_dict(data, Path(args.scene).parent)
-        name = scene.name
-        state = run_scene(scene, args.output, resume=args.resume, method=args.method, progress=progress)
-    print(f"femphase: {name}: reached t = {state.time:g} after {state.step} steps; output in {args.output}")
+    state = run_scene(scene, args.output, resume=args.resume, method=args.method, progress=progress)
+    print(f"femphase: {scene.name}: reached t = {state.time:g} after {state.step} steps; output in {args.output}")
     return 0
 
 
@@ -51,17 +39,16 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("-o", "--output", required=True, help="run directory to write")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a scene value, e.g. --set model.mu=10 --set phases.1.flow.rate=0.3")
-    run.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.npz")
+    run.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.h5")
     run.add_argument("--method", default="fem", choices=["fem", "fd"],
-                     help="fem: the finite-element solver; fd: the paper's finite-difference scheme")
+                     help="fem: the finite-element solver with the scene's numerics.scheme; fd: the paper's "
+                          "finite-difference scheme (numerics.scheme = \"fd-heun\")")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_run)
-    for module in ("ode", "compare", "plot"):
-        try:
-            register = __import__(f"femphase.{module}", fromlist=["register_cli"]).register_cli
-        except (ImportError, AttributeError):
-            continue
-        register(commands)
+    from . import compare, ode, plot
+
+    for module in (ode, compare, plot):
+        module.register_cli(commands)
     return parser
 
 

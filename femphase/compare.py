@@ -2,7 +2,8 @@
 
     femphase compare DIR_A DIR_B [-o OUT] [--fields]
 
-Each input is a run directory (see :mod:`femphase.io`) or a file of **external grid data**,
+Each input is a run directory (see :mod:`femphase.io`) of a structured-grid or a meshed
+run, or a file of **external grid data**,
 NumPy ``.npz`` or HDF5 (``.h5``/``.hdf5``) holding four arrays:
 
     time  (F,)             frame times (time units)
@@ -11,7 +12,13 @@ NumPy ``.npz`` or HDF5 (``.h5``/``.hdf5``) holding four arrays:
     phi   (F, N, ny, nx)   nodal values of every particle's field, phi[f, i, iy, ix]
 
 i.e. the nodes of the run's grid (:mod:`femphase.mesh`), the particles in the run's order.
-:func:`grid_data_from_run` and :func:`save_grid_data` write a run in this layout.
+:func:`grid_data_from_run` and :func:`save_grid_data` write a grid run in this layout.
+
+Which inputs can be compared: two grid inputs only on the same grid (same nx, ny, h). Two
+meshed runs, or a meshed and a grid run, always by their observables and energies (their
+periods must agree); their fields only when both are on the same domain (the same
+:meth:`~femphase.domain.Domain.describe`: kind, dofs, period, mesh checksum), else a clear
+error. Grid data is compared only with grid runs.
 
 What is compared, at the frame times both inputs have (matched to 1e-6 time units):
 
@@ -46,10 +53,10 @@ from pathlib import Path
 import numpy as np
 
 from .analysis.shape import shape_observables
+from .domain import Domain
 from .io import read_csv
 from .mesh import ChannelGrid
 from .state import State
-from .windows import full_window
 
 #: Frame times closer than this (time units) are the same frame.
 TIME_TOLERANCE = 1e-6
@@ -146,11 +153,10 @@ def load_grid_data(path: str | Path) -> GridData:
 # -- the inputs, behind one interface ---------------------------------------------------------
 @dataclass
 class Source:
-    """One side of a comparison: a run directory or grid data."""
+    """One side of a comparison: a run directory (on any domain) or grid data."""
 
     label: str
-    grid: ChannelGrid
-    lumped_mass: np.ndarray
+    domain: Domain
     is_run: bool
     particle_times: np.ndarray = field(default_factory=lambda: np.empty(0))
     observables: dict = field(default_factory=dict)  # name → (F, N)
@@ -162,21 +168,37 @@ class Source:
     _grid_data: GridData | None = None
     _dof_map: np.ndarray | None = None
 
+    @property
+    def grid(self) -> ChannelGrid | None:
+        """The channel grid of a structured domain, None for a meshed one."""
+        return getattr(self.domain, "grid", None)
+
+    @property
+    def lumped_mass(self) -> np.ndarray:
+        return self.domain.operators.lumped_mass
+
+    def describe(self) -> str:
+        if self.grid is not None:
+            return f"{self.grid.nx} × {self.grid.ny} nodes at h = {self.grid.h:g}"
+        d = self.domain.describe()
+        return f"a {d['kind']} domain of {d['n_dofs']} dofs, period {self.domain.period:g}"
+
     def fields(self, k: int) -> tuple[np.ndarray, np.ndarray | None]:
-        """Frame k of the fields: Σ_i φ_i (n_nodes,) and φ (N, n_nodes) or None, grid order."""
+        """Frame k of the fields: Σ_i φ_i (n_dofs,) and φ (N, n_dofs) or None, in dof order
+        (grid order on the structured channel)."""
         if self._grid_data is not None:
             phi = self._grid_data.phi[k].reshape(self._grid_data.phi.shape[1], -1)
             return phi.sum(axis=0), phi
         _, data, _ = self._reader.read_data(k)
         names = sorted(n for n in data if n.startswith("phi_") and n[4:].isdigit())
 
-        def on_grid(values):  # mesh nodes → grid order (the seam's copy lands on its partner)
-            out = np.empty(self.grid.n_nodes)
+        def on_dofs(values):  # mesh nodes → dofs (the seam's copy lands on its partner)
+            out = np.empty(self.domain.n_dofs)
             out[self._dof_map] = np.asarray(values).ravel()
             return out
 
-        phi = np.stack([on_grid(data[n]) for n in names]) if names else None
-        return on_grid(data["phi_sum"]), phi
+        phi = np.stack([on_dofs(data[n]) for n in names]) if names else None
+        return on_dofs(data["phi_sum"]), phi
 
     def close(self) -> None:
         if self._reader is not None:
@@ -220,8 +242,8 @@ def _open_run(path: Path, need_fields: bool) -> Source:
         if not (path / name).is_file():
             raise ValueError(f"'{path}' is not a run directory: it has no {name}")
     scene = load_scene(path / "scene.toml")
-    disc = scene.discretisation()
-    source = Source(str(path), disc.grid, disc.operators.lumped_mass, True)
+    domain = scene.domain
+    source = Source(str(path), domain, True)
     source.particle_times, source.observables = _per_frame(read_csv(path / "particles.csv"), OBSERVABLES)
     energies = read_csv(path / "global.csv")
     source.energy_times = energies["time"]
@@ -240,27 +262,38 @@ def _open_run(path: Path, need_fields: bool) -> Source:
         points, cells = reader.read_points_cells()
         triangles = np.vstack([c.data for c in cells if c.type == "triangle"])
         source._reader = reader
-        source._dof_map = grid_dof_map(MeshTri(points[:, :2].T.copy(), triangles.T.copy()), disc.grid)
+        if source.grid is not None:
+            source._dof_map = grid_dof_map(MeshTri(points[:, :2].T.copy(), triangles.T.copy()), source.grid)
+        else:  # written on the domain's own mesh (femphase.io.point_data)
+            mesh = domain.mesh
+            if points.shape[0] != mesh.p.shape[1] or not np.allclose(points[:, :2].T, mesh.p,
+                                                                    atol=1e-9 * domain.spacing):
+                reader.__exit__(None, None, None)
+                raise ValueError(
+                    f"run '{path}': fields.xdmf is not on the mesh of its scene ({points.shape[0]} nodes, "
+                    f"the mesh {mesh.p.shape[1]}); was the mesh file changed after the run?"
+                )
+            source._dof_map = domain.dof_map
         source.field_times = np.array([float(e.find("Time").get("Value")) for e in reader.collection])
         source.per_particle = bool(scene.output.per_particle_fields)
     return source
 
 
 def _open_grid_data(path: Path) -> Source:
-    from .stepping import Discretisation
+    from .channel import ChannelDomain
 
     data = load_grid_data(path)
-    grid = data.grid()
-    ops = Discretisation.structured(grid).operators
-    source = Source(str(path), grid, ops.lumped_mass, False, _grid_data=data)
+    domain = ChannelDomain(data.grid())
+    source = Source(str(path), domain, False, _grid_data=data)
     source.field_times = data.time
     source.per_particle = True
     # observables from the fields, as a run computes them
-    window = full_window(grid)
+    window = domain.full_window()
+    n = data.phi.shape[1]
     shapes = []
     for k in range(data.time.size):
-        state = State(grid, [window] * data.phi.shape[1], list(data.phi[k]), np.ones(data.phi.shape[1]))
-        shapes.append(shape_observables(state, ops))
+        state = State(domain, [window] * n, [phi.ravel() for phi in data.phi[k]], np.ones(n))
+        shapes.append(shape_observables(state))
     source.particle_times = data.time
     source.observables = {name: np.array([getattr(s, name) for s in shapes]) for name in OBSERVABLES}
     return source
@@ -273,6 +306,9 @@ def grid_data_from_run(directory: str | Path) -> GridData:
         if not source.is_run or not source.per_particle:
             raise ValueError(f"'{directory}' has no per-particle fields; run it with output.per_particle_fields = true")
         grid = source.grid
+        if grid is None:
+            raise ValueError(f"'{directory}' is a run on a {source.domain.kind} domain; grid data holds the "
+                             "fields of structured-grid runs only")
         phi = np.stack([source.fields(k)[1] for k in range(source.field_times.size)])
         x, y = grid.coordinates()
         return GridData(source.field_times, x, y, phi.reshape(phi.shape[0], phi.shape[1], grid.ny, grid.nx))
@@ -316,10 +352,12 @@ def _difference(name: str, a: np.ndarray, b: np.ndarray, length: float) -> np.nd
 def compare_runs(a: str | Path, b: str | Path, fields: bool = False) -> dict:
     """Differences between two runs, or a run and grid data (see the module docstring).
 
-    Returns {"a", "b", "grid", "time" (common frame times), "series" {quantity: per-frame
-    values}, "summary" {quantity: {"max", "at_time", "final"}}, "per_particle"
-    {"phi_l2": (F, N) list when available}, "field_mode"}. Raises ValueError with the reason
-    when an input cannot be read, the grids differ or there is no common frame time.
+    Returns {"a", "b", "grid" (nx, ny, h; None for a meshed domain), "domain" (A's
+    :meth:`~femphase.domain.Domain.describe`), "time" (common frame times), "series"
+    {quantity: per-frame values}, "summary" {quantity: {"max", "at_time", "final"}},
+    "per_particle" {"phi_l2": (F, N) list when available}, "field_mode"}. Raises ValueError
+    with the reason when an input cannot be read, the grids (or, for fields, the domains)
+    differ or there is no common frame time.
     """
     # grid data holds nothing but fields, so they are compared whenever an input is grid data
     fields = fields or not (Path(a).is_dir() and Path(b).is_dir())
@@ -336,12 +374,40 @@ def compare_runs(a: str | Path, b: str | Path, fields: bool = False) -> dict:
         sb.close()
 
 
-def _compare(a: Source, b: Source, with_fields: bool) -> dict:
-    if a.grid != b.grid:
+def _check_domains(a: Source, b: Source, with_fields: bool) -> None:
+    """Two grids must be the same grid; other domains must share the period, and the whole
+    discretisation when their fields are compared."""
+    if a.grid is not None and b.grid is not None:
+        if a.grid != b.grid:
+            raise ValueError(
+                f"the grids differ: '{a.label}' has {a.grid.nx} × {a.grid.ny} nodes at h = {a.grid.h:g}, "
+                f"'{b.label}' has {b.grid.nx} × {b.grid.ny} at h = {b.grid.h:g}; compare runs on the same grid"
+            )
+        return
+    if not np.isclose(a.domain.period, b.domain.period, rtol=1e-9, atol=0.0):
         raise ValueError(
-            f"the grids differ: '{a.label}' has {a.grid.nx} × {a.grid.ny} nodes at h = {a.grid.h:g}, "
-            f"'{b.label}' has {b.grid.nx} × {b.grid.ny} at h = {b.grid.h:g}; compare runs on the same grid"
+            f"the domains differ in period: '{a.label}' has {a.domain.period:g}, '{b.label}' has "
+            f"{b.domain.period:g}; compare runs on domains of the same period"
         )
+    if not (a.is_run and b.is_run):
+        run = a if a.is_run else b
+        raise ValueError(
+            f"grid data is compared only with runs on the structured grid; '{run.label}' is a run on "
+            f"{run.describe()}"
+        )
+    if with_fields:
+        da, db = a.domain.describe(), b.domain.describe()
+        if da != db:
+            differing = sorted(k for k in set(da) | set(db) if da.get(k) != db.get(k))
+            raise ValueError(
+                f"the fields of '{a.label}' ({a.describe()}) and '{b.label}' ({b.describe()}) lie on "
+                f"different domains (they differ in {', '.join(differing)}); fields are compared only "
+                "between runs on the same domain: compare these without --fields (observables and energies)"
+            )
+
+
+def _compare(a: Source, b: Source, with_fields: bool) -> dict:
+    _check_domains(a, b, with_fields)
     ia, ib = match_times(a.particle_times, b.particle_times)
     if ia.size == 0:
         raise ValueError(
@@ -356,7 +422,7 @@ def _compare(a: Source, b: Source, with_fields: bool) -> dict:
     # an orientation is defined only for particles that are elongated in both inputs
     elongated = np.minimum(a.observables["elongation"][ia], b.observables["elongation"][ib]) >= ORIENTATION_MIN_ELONGATION
     for name in OBSERVABLES:
-        diff = _difference(name, a.observables[name][ia], b.observables[name][ib], a.grid.length)
+        diff = _difference(name, a.observables[name][ia], b.observables[name][ib], a.domain.period)
         if name == "orientation":
             diff = np.where(elongated, diff, -np.inf)
         largest = diff.max(axis=1)
@@ -410,7 +476,8 @@ def _compare(a: Source, b: Source, with_fields: bool) -> dict:
     return {
         "a": a.label,
         "b": b.label,
-        "grid": {"nx": a.grid.nx, "ny": a.grid.ny, "h": a.grid.h},
+        "grid": {"nx": a.grid.nx, "ny": a.grid.ny, "h": a.grid.h} if a.grid is not None else None,
+        "domain": a.domain.describe(),
         "n_particles": int(n_a),
         "time": times,
         "series": series,

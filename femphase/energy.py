@@ -1,91 +1,246 @@
-"""The discrete free energy and its variational derivative.
+"""The discrete free energy as a list of terms, and its variational derivative.
 
-Potential terms are integrated with the nodal (lumped-mass) quadrature, the gradient term
-exactly:
+Each term is an object with its energy, the derivative of its explicitly treated part, the
+coefficient of its implicitly treated gradient part, and a bound on the curvature of its
+explicit part (for the stabilisation of the time scheme). :class:`FreeEnergy` is the list;
+δF/δφ, the stability bound and the output columns (``free_energy`` and one column per term)
+are derived from it. A new term is one subclass of :class:`EnergyTerm` (``docs/architecture.md``).
 
-    F_h = Σ_i (γ/λ) [Σ_k m_k W(φ_ik) + λ² φ_iᵀ K φ_i]
-        + Σ_i μ (1 − a_i)²,                   a_i = Σ_k m_k φ_ik² / (π R_i²)
-        + (κ/λ) Σ_k m_k [(Σ_i φ_ik²)² − Σ_i φ_ik⁴]     (ordered pairs i ≠ j)
+The paper's functional (:meth:`FreeEnergy.paper`) discretised with P1 elements: potential
+terms use the nodal (lumped-mass) quadrature, the gradient term is exact,
 
-with m the lumped mass and W(φ) = 4φ²(1 − φ)². Its variational derivative in the lumped
-metric, δF/δφ_ik = (∂F_h/∂φ_ik) / m_k, is
+    F_h = Σ_i (γ/λ) [Σ_k m_k W(φ_ik) + λ² φ_iᵀ K φ_i]                interface
+        + Σ_i μ (1 − a_i)²,      a_i = Σ_k m_k φ_ik² / (π R_i²)         area (squared)
+        + (κ/λ) Σ_k m_k Σ_i Σ_{j≠i} φ_ik² φ_jk²                         repulsion
 
-    δF/δφ_i = g_i + 2γλ M_L⁻¹ K φ_i,
+with m the lumped mass and W(φ) = 4φ²(1 − φ)². The repulsion sums over ordered pairs i ≠ j
+as printed, so every unordered pair counts twice (DEVELOPERS.md). The variational derivative
+in the lumped metric, δF/δφ_ik = (∂F_h/∂φ_ik) / m_k, is
+
+    δF/δφ_i = g_i + D M_L⁻¹ K φ_i,   D = 2γλ,
     g_i     = (γ/λ) W'(φ_i) − (4μ/(πR_i²)) (1 − a_i) φ_i + (4κ/λ) φ_i Σ_{j≠i} φ_j²,
 
-where g (:func:`explicit_derivative`) is the part the time stepper treats explicitly.
+where g (:meth:`FreeEnergy.explicit_derivative`) is what time schemes treat explicitly.
+
+Every quantity is computed window by window (:class:`WindowedFields`): cost and memory are
+linear in the number of particles.
 """
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
+from typing import Callable, ClassVar, Iterator
 
 import numpy as np
 
-from .discretisation import P1Operators
 from .model import ModelParameters, double_well, double_well_derivative
+from .windows import Layout
+
+#: Largest particle area ∫φ² / (πR²) for which the area term's curvature bound holds.
+AREA_RATIO_MAX = 1.25
+
+
+class WindowedFields:
+    """All fields on their windows (the flat vector ``phi`` in layout order) and the
+    quantities several terms share, each computed once.
+
+    radii           target radius R_i of every particle (particle order)
+    stiffness_apply K φ window by window (the principal submatrices), needed for energies only
+    """
+
+    def __init__(self, phi: np.ndarray, layout: Layout, radii: np.ndarray,
+                 stiffness_apply: Callable[[np.ndarray], np.ndarray] | None = None) -> None:
+        self.phi, self.layout = phi, layout
+        self.radius = layout.per_slot(np.asarray(radii, dtype=float))
+        self._stiffness_apply = stiffness_apply
+
+    @cached_property
+    def squares(self) -> np.ndarray:
+        return self.phi**2
+
+    @cached_property
+    def others_squared(self) -> np.ndarray:
+        """Σ_{j≠i} φ_j² at every position (exactly zero where no other window overlaps)."""
+        return self.layout.others_squared(self.squares)
+
+    @cached_property
+    def area_ratio(self) -> np.ndarray:
+        """a_i = ∫φ_i² / (πR_i²) per window (layout order)."""
+        return self.layout.reduce(np.add, self.layout.mass * self.squares) / (np.pi * self.radius**2)
+
+    def on_positions(self, per_window: np.ndarray) -> np.ndarray:
+        """Per-window values (layout order) repeated onto every position of the window."""
+        return np.repeat(per_window, self.layout.sizes)
+
+    @cached_property
+    def stiffness_product(self) -> np.ndarray:
+        """K φ_i on every window."""
+        if self._stiffness_apply is None:
+            raise ValueError("this WindowedFields has no stiffness operator (energies need one)")
+        return self._stiffness_apply(self.phi)
+
+    def integral(self, values: np.ndarray) -> float:
+        """Σ_k m_k values_k over all positions: the nodal quadrature."""
+        return float(self.layout.mass @ values)
+
+
+class EnergyTerm(ABC):
+    """One term of the free energy.
+
+    name             its output column (global.csv) and its key in :class:`EnergyParts`
+    diffusivity      D of the implicitly treated part D M_L⁻¹ K φ of δF/δφ (0: none)
+    """
+
+    name: ClassVar[str]
+    diffusivity: float = 0.0
+
+    @abstractmethod
+    def energy(self, fields: WindowedFields) -> float:
+        """The term's energy (energy units)."""
+
+    @abstractmethod
+    def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
+        """δ/δφ (lumped metric) of the explicitly treated part, at every position."""
+
+    @abstractmethod
+    def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
+        """An upper bound on the Hessian of the explicit part per unit lumped mass, for fields
+        in [0, 1] with areas ∫φ² ≤ AREA_RATIO_MAX πR²; ``pairs`` False: one particle."""
 
 
 @dataclass(frozen=True)
-class FreeEnergy:
-    """The three parts of the discrete free energy (energy units)."""
+class InterfaceTerm(EnergyTerm):
+    """(γ/λ) ∫ [4φ²(1 − φ)² + λ²|∇φ|²]: double well explicit, gradient implicit (D = 2γλ)."""
 
-    interface: float
-    area: float
+    tension: float
+    interface_width: float
+    name: ClassVar[str] = "interface"
+
+    @property
+    def diffusivity(self) -> float:  # type: ignore[override]
+        return 2.0 * self.tension * self.interface_width
+
+    def energy(self, fields: WindowedFields) -> float:
+        lam = self.interface_width
+        return self.tension / lam * (fields.integral(double_well(fields.phi))
+                                     + lam**2 * float(fields.phi @ fields.stiffness_product))
+
+    def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
+        return self.tension / self.interface_width * double_well_derivative(fields.phi)
+
+    def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
+        # (γ/λ) W'' = (γ/λ) 8(1 − 6φ + 6φ²) ≤ 8γ/λ on [0, 1]
+        return 8.0 * self.tension / self.interface_width
+
+
+@dataclass(frozen=True)
+class AreaTerm(EnergyTerm):
+    """μ (1 − ∫φ²/πR²)² per particle: the soft area constraint (squared; DEVELOPERS.md)."""
+
+    area_stiffness: float
+    name: ClassVar[str] = "area"
+
+    def energy(self, fields: WindowedFields) -> float:
+        return self.area_stiffness * float(np.sum((1.0 - fields.area_ratio) ** 2))
+
+    def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
+        force = 4.0 * self.area_stiffness / (np.pi * fields.radius**2) * (1.0 - fields.area_ratio)
+        return -fields.on_positions(force) * fields.phi
+
+    def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
+        # the rank-one part 8μ a/(πR²) plus −4μ(1 − a)/(πR²), with a ≤ AREA_RATIO_MAX
+        return 4.0 * self.area_stiffness / (np.pi * smallest_radius**2) * (3.0 * AREA_RATIO_MAX - 1.0)
+
+
+@dataclass(frozen=True)
+class RepulsionTerm(EnergyTerm):
+    """Σ_i Σ_{j≠i} (κ/λ) ∫φ_i²φ_j² over ordered pairs (each unordered pair twice), so
+    δF/δφ_i ∋ (4κ/λ) φ_i Σ_{j≠i} φ_j²."""
+
     repulsion: float
+    interface_width: float
+    name: ClassVar[str] = "repulsion"
+
+    def energy(self, fields: WindowedFields) -> float:
+        return self.repulsion / self.interface_width * fields.integral(fields.squares * fields.others_squared)
+
+    def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
+        return 4.0 * self.repulsion / self.interface_width * fields.phi * fields.others_squared
+
+    def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
+        # one pair at a node: (2κ/λ)[[2φ_j², 4φ_iφ_j], [4φ_iφ_j, 2φ_i²]] ≤ 12κ/λ
+        return 12.0 * self.repulsion / self.interface_width if pairs else 0.0
+
+
+class EnergyParts(Mapping):
+    """The free energy's parts by term name (energy units); ``total`` is their sum, and each
+    part is also an attribute (``parts.interface``)."""
+
+    def __init__(self, parts: dict[str, float]) -> None:
+        self._parts = dict(parts)
 
     @property
     def total(self) -> float:
-        return self.interface + self.area + self.repulsion
+        return float(sum(self._parts.values()))
+
+    def __getitem__(self, name: str) -> float:
+        return self._parts[name]
+
+    def __getattr__(self, name: str) -> float:
+        try:
+            return self.__dict__["_parts"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._parts)
+
+    def __len__(self) -> int:
+        return len(self._parts)
+
+    def __repr__(self) -> str:
+        return f"EnergyParts(total={self.total!r}, {self._parts!r})"
 
 
-def explicit_derivative(
-    phi: np.ndarray,
-    others_squared: np.ndarray,
-    area_ratio: np.ndarray,
-    radius: np.ndarray,
-    params: ModelParameters,
-) -> np.ndarray:
-    """g = (γ/λ) W'(φ) − (4μ/(πR²))(1 − a) φ + (4κ/λ) φ Σ_{j≠i} φ_j², node by node.
+class FreeEnergy:
+    """The free energy F = Σ terms, and what follows from the list of terms."""
 
-    ``others_squared`` is Σ_{j≠i} φ_j² at the same nodes; ``area_ratio`` a = ∫φ²/(πR²) and
-    ``radius`` R are the owning particle's values, broadcast to its nodes.
-    """
-    lam = params.interface_width
-    area_force = 4.0 * params.area_stiffness / (np.pi * radius**2) * (1.0 - area_ratio)
-    return (
-        params.tension / lam * double_well_derivative(phi)
-        - area_force * phi
-        + 4.0 * params.repulsion / lam * phi * others_squared
-    )
+    def __init__(self, terms: list[EnergyTerm] | tuple[EnergyTerm, ...]) -> None:
+        self.terms = tuple(terms)
+        names = [t.name for t in self.terms]
+        if len(set(names)) != len(names):
+            raise ValueError(f"energy terms need distinct names, got {names}")
 
+    @classmethod
+    def paper(cls, params: ModelParameters) -> "FreeEnergy":
+        """Interface, area and repulsion terms with the scene's parameters."""
+        lam = params.interface_width
+        return cls([InterfaceTerm(params.tension, lam), AreaTerm(params.area_stiffness),
+                    RepulsionTerm(params.repulsion, lam)])
 
-def area_ratios(phis: np.ndarray, radii: np.ndarray, lumped_mass: np.ndarray) -> np.ndarray:
-    """a_i = ∫φ_i² / (π R_i²) for fields on the whole mesh, phis (N, n_dofs)."""
-    return (phis**2 @ lumped_mass) / (np.pi * np.asarray(radii) ** 2)
+    @property
+    def columns(self) -> tuple[str, ...]:
+        """Output columns: the total, then one per term."""
+        return ("free_energy",) + tuple(t.name for t in self.terms)
 
+    @property
+    def diffusivity(self) -> float:
+        """D of the implicit part D M_L⁻¹ K φ of δF/δφ (length² per time per mobility)."""
+        return float(sum(t.diffusivity for t in self.terms))
 
-def free_energy(
-    phis: np.ndarray, radii: np.ndarray, params: ModelParameters, ops: P1Operators
-) -> FreeEnergy:
-    """F_h and its parts for fields on the whole mesh, phis (N, n_dofs)."""
-    lam, m = params.interface_width, ops.lumped_mass
-    gradient_energy = np.einsum("ij,ij->", phis, (ops.stiffness @ phis.T).T)
-    interface = params.tension / lam * (double_well(phis).sum(axis=0) @ m + lam**2 * gradient_energy)
-    area = params.area_stiffness * np.sum((1.0 - area_ratios(phis, radii, m)) ** 2)
-    squares = phis**2
-    overlap = squares.sum(axis=0) ** 2 - (squares**2).sum(axis=0)
-    repulsion = params.repulsion / lam * (overlap @ m)
-    return FreeEnergy(float(interface), float(area), float(repulsion))
+    def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
+        """g: the explicitly treated part of δF/δφ at every position."""
+        g = self.terms[0].explicit_derivative(fields)
+        for term in self.terms[1:]:
+            g += term.explicit_derivative(fields)
+        return g
 
+    def curvature_bound(self, smallest_radius: float, pairs: bool = True) -> float:
+        """L: bound on the Hessian of the explicit energy per unit lumped mass."""
+        return float(sum(t.curvature_bound(smallest_radius, pairs) for t in self.terms))
 
-def free_energy_gradient(
-    phis: np.ndarray, radii: np.ndarray, params: ModelParameters, ops: P1Operators
-) -> np.ndarray:
-    """δF/δφ_i in the lumped metric, (N, n_dofs): ∂F_h/∂φ_ik = m_k · (δF/δφ_i)_k."""
-    squares = phis**2
-    others = squares.sum(axis=0)[None, :] - squares
-    ratios = area_ratios(phis, radii, ops.lumped_mass)[:, None]
-    g = explicit_derivative(phis, others, ratios, np.asarray(radii, dtype=float)[:, None], params)
-    diffusion = 2.0 * params.tension * params.interface_width * (ops.stiffness @ phis.T).T
-    return g + diffusion / ops.lumped_mass[None, :]
+    def parts(self, fields: WindowedFields) -> EnergyParts:
+        return EnergyParts({t.name: t.energy(fields) for t in self.terms})

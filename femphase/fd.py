@@ -2,15 +2,15 @@
 
 Space: the square lattice of the mesh nodes (spacing h), every particle's field on its own
 window (the same :class:`~femphase.windows.WindowPolicy` as the finite-element stepper,
-refitted after every step, data moved with :func:`~femphase.windows.transfer`). Derivatives
+refitted before every step, data moved with :func:`~femphase.windows.transfer`). Derivatives
 are array stencils on the window arrays, padded by :func:`~femphase.windows.pad_window`:
 mirrored at the walls (∂yφ = 0), periodic across the seam of a full-width window, zero
 beyond a window's artificial edge. They never touch the finite-element matrices, so
 comparing the two methods is a real cross-check.
 
 * Laplacian: the 5-point stencil (φ_E + φ_W + φ_N + φ_S − 4φ)/h².
-* Potential terms: :func:`femphase.energy.explicit_derivative` at the nodes (shared model
-  code); ∫φ² by the nodal quadrature (the trapezoid rule: weight h², h²/2 on the walls,
+* Potential terms: :meth:`femphase.energy.FreeEnergy.explicit_derivative` at the nodes (shared
+  model code); ∫φ² by the nodal quadrature (the trapezoid rule: weight h², h²/2 on the walls,
   which is the lumped mass of the structured mesh); Σ_{j≠i} φ_j² summed over the nodes
   where windows overlap (elsewhere it is zero).
 * Advection v·∇φ: third-order upwind-biased differences in each direction,
@@ -42,7 +42,7 @@ numbers up to ≈ 0.87 (von Neumann; ``tests/test_fd.py`` checks the combined sy
 The region is convex, so a step is stable when twice each part's spectrum lies inside it:
 
     dt (8 J0 2γλ/h² + J0 L) ≤ 1        (diffusion + the explicit curvature bound L of
-                                         :func:`femphase.model.explicit_curvature_bound`)
+                                         :meth:`femphase.energy.FreeEnergy.curvature_bound`)
     dt (max|u| + max|v|)/h  ≤ 0.4      (advection Courant number)
 
 At the paper's parameters and h = 1 the first gives dt ≤ 0.32 (so dt = 0.1 is safe); at
@@ -51,18 +51,20 @@ h = 0.5, dt ≤ 0.17; at h = 0.25, dt ≤ 0.057: the diffusion limit ∝ h² tak
 
 from __future__ import annotations
 
-from typing import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .energy import explicit_derivative
+from .channel import ChannelDomain
+from .energy import FreeEnergy, WindowedFields
 from .errors import SceneError
-from .flows import Flow, no_flow
-from .mesh import ChannelGrid
-from .model import ModelParameters, explicit_curvature_bound
-from .state import State
-from .stepping import Discretisation, Numerics, check_fields
-from .windows import Layout, Window, WindowPolicy, pad_window, transfer
+from .model import ModelParameters
+from .schemes import TimeScheme
+from .stepping import SCHEMES
+from .windows import Layout, pad_window
+
+if TYPE_CHECKING:
+    from .stepping import Stepper
 
 #: Largest dt·(diffusion + reaction spectral radius): half of Heun's real-axis limit 2.
 DIFFUSION_NUMBER = 1.0
@@ -74,37 +76,25 @@ _PAD = 2
 
 
 def explicit_stability_limit(
-    params: ModelParameters, h: float, speed: float = 0.0, smallest_radius: float | None = None
+    params: ModelParameters, h: float, speed: float = 0.0, smallest_radius: float | None = None,
+    energy: FreeEnergy | None = None,
 ) -> float:
-    """The largest dt (time units) the finite-difference stepper accepts.
+    """The largest dt (time units) the finite-difference scheme accepts.
 
     ``speed`` is max|u| + max|v| of the flow over the nodes (lattice units per time unit),
-    ``smallest_radius`` the smallest target radius (default: the model's R). See the
-    module docstring for the derivation.
+    ``smallest_radius`` the smallest target radius (default: the model's R), ``energy`` the
+    free energy (default: the paper's terms with ``params``). See the module docstring.
     """
+    energy = energy or FreeEnergy.paper(params)
     radius = params.radius if smallest_radius is None else smallest_radius
-    rate = 8.0 * params.diffusivity / h**2 + params.mobility * explicit_curvature_bound(params, radius)
+    rate = params.mobility * (8.0 * energy.diffusivity / h**2 + energy.curvature_bound(radius))
     limit = DIFFUSION_NUMBER / rate
     if speed > 0:
         limit = min(limit, COURANT_NUMBER * h / speed)
     return limit
 
 
-def _flow_on_grid(flow: Flow, grid: ChannelGrid) -> tuple[np.ndarray, np.ndarray]:
-    """(u, v) at every node in grid order; zeros for a still flow."""
-    x, y = grid.coordinates()
-    if flow.is_still:
-        return np.zeros(grid.n_nodes), np.zeros(grid.n_nodes)
-    if flow.row_velocity is not None:
-        u = np.broadcast_to(np.asarray(flow.row_velocity(y), dtype=float)[:, None], (grid.ny, grid.nx))
-        return u.ravel().copy(), np.zeros(grid.n_nodes)
-    xx, yy = np.meshgrid(x, y)
-    u, v = flow.velocity(xx, yy)
-    return (np.broadcast_to(u, xx.shape).ravel().astype(float),
-            np.broadcast_to(v, xx.shape).ravel().astype(float))
-
-
-def padded_index(layout: Layout, grid: ChannelGrid, width: int = _PAD) -> list[np.ndarray]:
+def padded_index(layout: Layout, lattice: tuple[int, int], width: int = _PAD) -> list[np.ndarray]:
     """For each group of ``layout``, an index (n_members, ny + 2·width, nx + 2·width) into the
     flat window vector extended by one zero at its end, that pads every field as
     :func:`~femphase.windows.pad_window` does (mirror at walls, periodic across the seam of a
@@ -118,7 +108,7 @@ def padded_index(layout: Layout, grid: ChannelGrid, width: int = _PAD) -> list[n
     for group, (_key, members, start, _stop, size) in enumerate(layout.groups):
         window = layout.representative(group)
         positions = np.arange(1, size + 1).reshape(window.ny, window.nx)  # 0 stands for "zero"
-        padded = pad_window(positions, window, grid, width)
+        padded = pad_window(positions, window, lattice, width)
         first = start + size * np.arange(members.size)[:, None, None]
         out.append(np.where(padded > 0, first + padded - 1, zero))
     return out
@@ -159,121 +149,86 @@ def upwind_advection(padded: np.ndarray, velocity: np.ndarray, axis: int, h: flo
     return (velocity * central + np.abs(velocity) * fourth) / (12.0 * h)
 
 
-def laplacian(fields: list[np.ndarray], windows: list[Window], grid: ChannelGrid) -> list[np.ndarray]:
-    """The 5-point Laplacian Δ_h φ_i of every field on its window (zero beyond the window's
-    edge, mirrored at the walls, periodic across the seam of full-width windows)."""
-    layout = Layout(windows, grid, False)
+def laplacian(fields: list[np.ndarray], windows: list, domain: ChannelDomain) -> list[np.ndarray]:
+    """The 5-point Laplacian Δ_h φ_i of every field (flat, on its window; zero beyond the
+    window's edge, mirrored at the walls, periodic across the seam of full-width windows)."""
+    layout = domain.layout(windows)
     extended = np.append(layout.gather(fields), 0.0)
     flat = np.empty(layout.offsets[-1])
-    for (_, _, start, stop, _), index in zip(layout.groups, padded_index(layout, grid)):
-        flat[start:stop] = five_point_laplacian(extended[index], grid.h).ravel()
-    return layout.scatter(flat)
+    for (_, _, start, stop, _), index in zip(layout.groups, padded_index(layout, domain.lattice)):
+        flat[start:stop] = five_point_laplacian(extended[index], domain.grid.h).ravel()
+    return [f.copy() for f in layout.scatter(flat)]
 
 
-class FiniteDifferenceStepper:
-    """Advances a :class:`State` by explicit Heun steps of fixed dt under a fixed flow.
+@SCHEMES.register("fd-heun")
+class FiniteDifferenceHeun(TimeScheme):
+    """The paper's finite-difference reference: explicit Heun (second order) with the
+    5-point Laplacian and upwind-biased advection differences (`numerics.fd_advection`),
+    unsplit. Structured channel only; dt must satisfy the explicit stability limit."""
 
-    Same constructor and :meth:`step` as :class:`femphase.stepping.SemiImplicitStepper`;
-    ``numerics.mass``, ``stabilisation``, ``solver``, ``tolerance`` and ``diagonals`` do not
-    apply and are ignored; ``numerics.fd_advection`` picks the advection differences. Raises SceneError when dt exceeds
-    :func:`explicit_stability_limit`.
-    """
+    name = "fd-heun"
+    order = 2
 
-    def __init__(
-        self,
-        discretisation: Discretisation,
-        params: ModelParameters,
-        numerics: Numerics,
-        dt: float,
-        flow: Flow | None = None,
-        radii: np.ndarray | None = None,
-        source: Callable[[np.ndarray, np.ndarray, float], np.ndarray] | None = None,
-    ) -> None:
-        if not (dt > 0 and np.isfinite(dt)):
-            raise SceneError("phases.dt", dt, "a time step > 0")
-        grid = discretisation.grid
-        self.disc, self.params, self.numerics, self.dt = discretisation, params, numerics, dt
-        self.flow = flow or no_flow()
-        self.source = source
-        self.policy = WindowPolicy.for_spacing(
-            grid.h, threshold=numerics.threshold, margin=numerics.margin, enabled=numerics.windows
-        )
-        self._advection_order = {"upwind3": 3, "upwind1": 1}[numerics.fd_advection]
-        self._u, self._v = _flow_on_grid(self.flow, grid)
-        self._advects = (bool(np.any(self._u)), bool(np.any(self._v)))
-        speed = float(np.max(np.abs(self._u)) + np.max(np.abs(self._v)))
-        smallest_radius = float(np.min(radii)) if radii is not None and len(radii) else params.radius
-        self.dt_max = explicit_stability_limit(params, grid.h, speed, smallest_radius)
-        if dt > self.dt_max * (1 + 1e-12):
+    def __init__(self, stepper: "Stepper") -> None:
+        super().__init__(stepper)
+        domain = stepper.domain
+        if not isinstance(domain, ChannelDomain):
+            raise SceneError("numerics.scheme", self.name, '"euler": the finite-difference reference needs the '
+                             'structured channel ([domain] kind = "grid")')
+        self.domain = domain
+        self._advection_order = {"upwind3": 3, "upwind1": 1}[stepper.numerics.fd_advection]
+        u, v = self._nodal_flow(0.0)
+        speed = float(np.max(np.abs(u)) + np.max(np.abs(v)))
+        self.dt_max = explicit_stability_limit(stepper.params, domain.grid.h, speed, stepper.smallest_radius,
+                                               stepper.energy)
+        if stepper.dt > self.dt_max * (1 + 1e-12):
             raise SceneError(
-                "phases.dt", dt,
+                "phases.dt", stepper.dt,
                 f"a time step ≤ {self.dt_max:.4g} for the explicit finite-difference scheme at "
-                f"h = {grid.h:g} (diffusion+reaction: dt·(8·J0·2γλ/h² + J0·L) ≤ {DIFFUSION_NUMBER:g}; "
+                f"h = {domain.grid.h:g} (diffusion+reaction: dt·J0·(8·D/h² + L) ≤ {DIFFUSION_NUMBER:g}; "
                 f"advection: dt·(max|u| + max|v|)/h ≤ {COURANT_NUMBER:g} with max|u| + max|v| = "
                 f"{speed:.4g}); use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids",
             )
+        self._steady = None if not stepper.flow.steady else (u, v)
         self._layout: Layout | None = None
 
-    def layout(self, windows) -> Layout:
-        if self._layout is None or self._layout.windows != tuple(windows):
-            layout = Layout(windows, self.disc.grid, False)
-            nodes = layout.node_index
-            self._layout = layout
-            self._index = padded_index(layout, self.disc.grid)
-            self._mass = self.disc.operators.lumped_mass[nodes]
-            self._velocity = [
-                (axis, velocity[nodes]) for axis, velocity, on in ((2, self._u, self._advects[0]),
-                                                                   (1, self._v, self._advects[1])) if on
-            ]
-        return self._layout
+    def _nodal_flow(self, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v) at every node in grid order; zeros for a still flow."""
+        flow = self.stepper.flow
+        if flow.is_still:
+            return np.zeros(self.domain.n_dofs), np.zeros(self.domain.n_dofs)
+        x, y = self.domain.coordinates
+        u, v = flow.velocity(x, y, time)
+        return (np.broadcast_to(u, x.shape).astype(float), np.broadcast_to(v, x.shape).astype(float))
 
-    # -- one step -------------------------------------------------------------------------
-    def step(self, state: State) -> None:
-        """Advance ``state`` by dt in place; raises BlowUpError (state unchanged) on failure."""
-        grid, dt = state.grid, self.dt
-        layout = self.layout(state.windows)
-        phi = layout.gather(state.fields)
-        k1 = self._rate(phi, layout, state.radii, state.time)
-        k2 = self._rate(phi + dt * k1, layout, state.radii, state.time + dt)
-        phi_new = phi + 0.5 * dt * (k1 + k2)
-        check_fields(phi_new, self.numerics.blowup_margin, state.step + 1, state.time + dt)
-        new_fields = layout.scatter(phi_new)
-        new_windows = list(state.windows)
-        for group, (_, members, *_) in enumerate(layout.groups):
-            block = layout.group_block(phi_new, group)
-            for i in members[self.policy.misfits(block, [state.windows[i] for i in members], grid)]:
-                fitted = self.policy.fit(new_fields[i], state.windows[i], grid)
-                if fitted != state.windows[i]:
-                    new_fields[i] = transfer(new_fields[i], state.windows[i], fitted, grid)
-                    new_windows[i] = fitted
-        state.fields, state.windows = new_fields, new_windows
-        state.time += dt
-        state.step += 1
+    def _index(self, layout: Layout) -> list[np.ndarray]:
+        if self._layout is not layout:
+            self._layout, self._padded = layout, padded_index(layout, self.domain.lattice)
+        return self._padded
 
-    def _rate(self, phi: np.ndarray, layout: Layout, radii: np.ndarray, time: float) -> np.ndarray:
-        """f(φ, t) = −v·∇_h φ − J0 g(φ) + J0 2γλ Δ_h φ + s for the flat window vector φ."""
-        params, grid = self.params, self.disc.grid
-        nodes = layout.node_index
-        squares = phi**2
-        sizes = np.diff(layout.offsets)
-        radius = np.asarray(radii, dtype=float)[layout.order]
-        ratio = np.add.reduceat(self._mass * squares, layout.offsets[:-1]) / (np.pi * radius**2)
-        # repulsion only where windows overlap: elsewhere Σ_{j≠i} φ_j² is exactly zero
-        others = np.zeros_like(phi)
-        shared = layout.overlap_positions
-        if shared.size:
-            total = np.bincount(nodes[shared], weights=squares[shared], minlength=grid.n_nodes)
-            others[shared] = total[nodes[shared]] - squares[shared]
-        rate = explicit_derivative(phi, others, np.repeat(ratio, sizes), np.repeat(radius, sizes), params)
-        rate *= -params.mobility
+    def advance(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> tuple[np.ndarray, Layout]:
+        dt = self.stepper.dt
+        k1 = self.rate(phi, layout, radii, time)
+        k2 = self.rate(phi + dt * k1, layout, radii, time + dt)
+        return phi + 0.5 * dt * (k1 + k2), layout
+
+    def rate(self, phi: np.ndarray, layout: Layout, radii: np.ndarray, time: float) -> np.ndarray:
+        """f(φ, t) = −v·∇_h φ − J0 g(φ) + J0 D Δ_h φ + s for the flat window vector φ."""
+        stepper, h = self.stepper, self.domain.grid.h
+        j0 = stepper.mobility
+        rate = stepper.energy.explicit_derivative(WindowedFields(phi, layout, radii))
+        rate *= -j0
+        u, v = self._steady if self._steady is not None else self._nodal_flow(time)
+        velocities = [(axis, c[layout.node_index]) for axis, c in ((2, u), (1, v)) if np.any(c)]
         extended = np.append(phi, 0.0)
-        for (_, members, start, stop, _), index in zip(layout.groups, self._index):
+        for (_, _, start, stop, _), index in zip(layout.groups, self._index(layout)):
             padded = extended[index]
             block = rate[start:stop].reshape(padded.shape[0], padded.shape[1] - 4, padded.shape[2] - 4)
-            block += params.diffusivity * five_point_laplacian(padded, grid.h)
-            for axis, velocity in self._velocity:
-                block -= upwind_advection(padded, velocity[start:stop].reshape(block.shape), axis, grid.h,
+            block += j0 * stepper.energy.diffusivity * five_point_laplacian(padded, h)
+            for axis, velocity in velocities:
+                block -= upwind_advection(padded, velocity[start:stop].reshape(block.shape), axis, h,
                                           self._advection_order)
-        if self.source is not None:
-            rate += self.source((nodes % grid.nx) * grid.h, (nodes // grid.nx) * grid.h, time)
+        source = stepper.source_term(layout, time)
+        if source is not None:
+            rate += source
         return rate

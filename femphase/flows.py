@@ -1,93 +1,185 @@
-"""Imposed velocity fields v(x, y) (lattice units per time unit).
+"""Imposed velocity fields v(x, y, t) (lattice units per time unit), by name.
 
 Conventions (see DEVELOPERS.md): γ̇ ("rate") is a velocity scale, not a rate in lattice
 units. Linear shear is u = γ̇ y/Ly with the bottom wall at rest and the top wall moving at
-γ̇; ``scale="shear_rate"`` gives the plain u = γ̇ y (γ̇ is then ∂u/∂y). Poiseuille is
-u = 4 γ̇ y (Ly − y)/Ly², so γ̇ is the centre-line velocity.
+γ̇; ``scale = "shear_rate"`` gives the plain u = γ̇ y (γ̇ is then ∂u/∂y). Poiseuille is
+u = 4 γ̇ y (Ly − y)/Ly², so γ̇ is the centre-line velocity. y is measured from the lower
+wall of the domain.
 
-A flow whose velocity is (u(y), 0) is a *row flow*: its advection is an exact shift of
-every row of nodes (:mod:`femphase.advection`). Any other flow is advected semi-Lagrangian.
+A flow whose velocity is (u(y, t), 0) is a *row flow*: on the structured channel its
+advection is an exact shift of every row of nodes (:mod:`femphase.advection`). A scene
+names a flow by ``type``; :data:`FLOWS` maps the name to a builder ``(spec, domain) → Flow``,
+so a new flow is one registered function (``docs/architecture.md``).
 """
 
 from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
 from .errors import SceneError
+from .registry import Registry
 
-FLOW_TYPES = ("none", "shear", "poiseuille", "python")
+if TYPE_CHECKING:
+    from .domain import Domain
+
 SHEAR_SCALES = ("wall_velocity", "shear_rate")
+
+Velocity = Callable[[np.ndarray, np.ndarray, float], tuple[np.ndarray, np.ndarray]]
 
 
 @dataclass(frozen=True)
 class Flow:
-    """A steady velocity field. ``row_velocity`` is set for flows (u(y), 0)."""
+    """A velocity field v(x, y, t) → (u, v).
+
+    row_velocity  u(y, t) for flows (u(y, t), 0), else None
+    steady        v does not depend on t (advection operators are then built once)
+    stokes        the :class:`femphase.stokes.StokesFlow` behind a ``stokes`` flow, whose P2
+                  field the meshed domain's advection integrates exactly
+    """
 
     name: str
-    velocity: Callable[[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]] | None
-    row_velocity: Callable[[np.ndarray], np.ndarray] | None = None
+    velocity: Velocity | None
+    row_velocity: Callable[[np.ndarray, float], np.ndarray] | None = None
+    steady: bool = True
+    stokes: object = None
 
     @property
     def is_still(self) -> bool:
         return self.velocity is None
 
 
+FLOWS: Registry[Callable[[dict, "Domain"], Flow]] = Registry("Flows", "flow.type")
+
+
 def no_flow() -> Flow:
     return Flow("none", None)
 
 
-def _row_flow(name: str, u: Callable[[np.ndarray], np.ndarray]) -> Flow:
-    return Flow(name, lambda x, y: (u(np.asarray(y) + 0 * np.asarray(x)), 0 * np.asarray(x) * np.asarray(y)), u)
+def row_flow(name: str, u: Callable[[np.ndarray, float], np.ndarray], steady: bool = True) -> Flow:
+    """The flow (u(y, t), 0)."""
+    def velocity(x, y, t):
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        return np.asarray(u(y, t), dtype=float) + 0.0 * x, np.zeros_like(x)
+    return Flow(name, velocity, u, steady)
 
 
-def linear_shear(rate: float, width: float, scale: str = "wall_velocity") -> Flow:
-    """u = γ̇ y/Ly (scale="wall_velocity", default) or u = γ̇ y (scale="shear_rate")."""
+def linear_shear(rate: float, width: float, scale: str = "wall_velocity", y0: float = 0.0) -> Flow:
+    """u = γ̇ (y − y0)/Ly (scale="wall_velocity", default) or u = γ̇ (y − y0) (scale="shear_rate")."""
     if scale not in SHEAR_SCALES:
         raise SceneError("flow.scale", scale, f"one of {SHEAR_SCALES}")
     gradient = rate / width if scale == "wall_velocity" else rate
-    return _row_flow("shear", lambda y: gradient * y)
+    return row_flow("shear", lambda y, t: gradient * (y - y0))
 
 
-def poiseuille(rate: float, width: float) -> Flow:
-    """u = 4 γ̇ y (Ly − y)/Ly²: γ̇ is the centre-line velocity; the walls are at rest."""
-    return _row_flow("poiseuille", lambda y: 4.0 * rate * y * (width - y) / width**2)
+def poiseuille(rate: float, width: float, y0: float = 0.0) -> Flow:
+    """u = 4 γ̇ (y − y0)(Ly − y + y0)/Ly²: γ̇ is the centre-line velocity; the walls are at rest."""
+    return row_flow("poiseuille", lambda y, t: 4.0 * rate * (y - y0) * (width - y + y0) / width**2)
 
 
-def python_flow(function: Callable, row_flow: bool = False) -> Flow:
-    """Any callable. With row_flow=True, ``function(y)`` is u(y) and v = 0; otherwise
-    ``function(x, y)`` returns (u, v) for arrays x, y of the same shape."""
-    if row_flow:
-        return _row_flow("python", function)
-    return Flow("python", function)
+def python_flow(function: Callable, row: bool = False, steady: bool = True) -> Flow:
+    """Any callable. With row=True, ``function(y)`` is u(y) (``function(y, t)`` when not
+    steady) and v = 0; otherwise ``function(x, y)`` (or ``function(x, y, t)``) returns
+    (u, v) for arrays x, y of the same shape."""
+    if row:
+        return row_flow("python", function if not steady else (lambda y, t: function(y)), steady)
+    if steady:
+        return Flow("python", lambda x, y, t: function(x, y))
+    return Flow("python", function, steady=False)
 
 
-def flow_from_spec(spec: dict, width: float) -> Flow:
-    """The flow a scene's ``flow`` table describes, e.g. {type = "shear", rate = 0.1487}."""
-    kind = spec.get("type", "none")
-    if kind not in FLOW_TYPES:
-        raise SceneError("flow.type", kind, f"one of {FLOW_TYPES}")
-    allowed = {"none": {"type"}, "shear": {"type", "rate", "scale"},
-               "poiseuille": {"type", "rate"}, "python": {"type", "function", "row_flow"}}[kind]
+def check_keys(spec: dict, allowed: set[str]) -> None:
+    """SceneError naming the first key of a flow table that its type does not take."""
     for key in spec:
         if key not in allowed:
-            raise SceneError(f"flow.{key}", spec[key], f"a {kind} flow takes only {sorted(allowed)}")
-    if kind == "none":
-        return no_flow()
-    if kind == "python":
-        target = spec.get("function", "")
-        module, _, attribute = str(target).partition(":")
-        try:
-            function = getattr(importlib.import_module(module), attribute)
-        except (ImportError, AttributeError, ValueError):
-            raise SceneError("flow.function", target, "an importable 'module:function'") from None
-        return python_flow(function, bool(spec.get("row_flow", False)))
-    rate = spec.get("rate")
-    if not isinstance(rate, (int, float)) or not np.isfinite(rate):
-        raise SceneError("flow.rate", rate, "a finite number (the velocity scale γ̇)")
-    if kind == "shear":
-        return linear_shear(float(rate), width, spec.get("scale", "wall_velocity"))
-    return poiseuille(float(rate), width)
+            raise SceneError(f"flow.{key}", spec[key], f"a {spec.get('type')} flow takes only {sorted(allowed)}")
+
+
+def number(spec: dict, key: str, meaning: str, default: float | None = None, positive: bool = False) -> float:
+    """The finite number spec[key] (or ``default``); SceneError naming the key otherwise."""
+    value = spec.get(key, default)
+    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value)
+    if not ok or (positive and value <= 0):
+        raise SceneError(f"flow.{key}", value, f"a finite number{' > 0' if positive else ''} ({meaning})")
+    return float(value)
+
+
+def _walls(domain: "Domain") -> tuple[float, float]:
+    low, high = domain.y_range
+    return low, high - low
+
+
+@FLOWS.register("none")
+def _none(spec: dict, domain: "Domain") -> Flow:
+    """No flow: relaxation only."""
+    check_keys(spec, {"type"})
+    return no_flow()
+
+
+@FLOWS.register("shear")
+def _shear(spec: dict, domain: "Domain") -> Flow:
+    """Linear shear u = γ̇ y/Ly, bottom wall at rest (keys: `rate` = γ̇, a velocity; `scale` =
+    "wall_velocity" (default) or "shear_rate" for the plain u = γ̇ y)."""
+    check_keys(spec, {"type", "rate", "scale"})
+    y0, width = _walls(domain)
+    return linear_shear(number(spec, "rate", "the velocity scale γ̇"), width,
+                        spec.get("scale", "wall_velocity"), y0)
+
+
+@FLOWS.register("poiseuille")
+def _poiseuille(spec: dict, domain: "Domain") -> Flow:
+    """Poiseuille flow u = 4γ̇ y(Ly − y)/Ly² (key: `rate` = γ̇, the centre-line velocity)."""
+    check_keys(spec, {"type", "rate"})
+    y0, width = _walls(domain)
+    return poiseuille(number(spec, "rate", "the centre-line velocity γ̇"), width, y0)
+
+
+@FLOWS.register("oscillating_shear")
+def _oscillating_shear(spec: dict, domain: "Domain") -> Flow:
+    """Oscillatory linear shear u = γ̇ sin(ωt + φ0) y/Ly (keys: `rate` = γ̇, `frequency` = ω in
+    radians per time unit, `phase` = φ0 in radians, default 0)."""
+    check_keys(spec, {"type", "rate", "frequency", "phase"})
+    y0, width = _walls(domain)
+    rate = number(spec, "rate", "the velocity amplitude γ̇")
+    omega = number(spec, "frequency", "ω, radians per time unit")
+    phase = number(spec, "phase", "radians", default=0.0)
+    return row_flow("oscillating_shear", lambda y, t: rate * np.sin(omega * t + phase) * (y - y0) / width,
+                    steady=False)
+
+
+@FLOWS.register("python")
+def _python(spec: dict, domain: "Domain") -> Flow:
+    """Any importable callable (keys: `function` = "module:name"; `row_flow` = true for u(y);
+    `steady` = false to pass the time t as the last argument)."""
+    check_keys(spec, {"type", "function", "row_flow", "steady"})
+    target = spec.get("function", "")
+    module, _, attribute = str(target).partition(":")
+    try:
+        function = getattr(importlib.import_module(module), attribute)
+    except (ImportError, AttributeError, ValueError):
+        raise SceneError("flow.function", target, "an importable 'module:function'") from None
+    return python_flow(function, bool(spec.get("row_flow", False)), bool(spec.get("steady", True)))
+
+
+@FLOWS.register("stokes")
+def _stokes(spec: dict, domain: "Domain") -> Flow:
+    """Stokes flow solved on the domain's mesh, no-slip on every wall (keys: exactly one of
+    `max_velocity`, `flux`, `pressure_drop`; `viscosity`, default 1). Meshed domains only."""
+    from .stokes import stokes_drive
+
+    stokes_drive(spec)
+    if not hasattr(domain, "stokes_flow"):
+        raise SceneError("flow.type", "stokes", f"a flow of {FLOWS.names()} without 'stokes': a stokes flow "
+                         f"needs a meshed domain ([domain] kind = \"mesh\")")
+    stokes = domain.stokes_flow(spec)
+    return Flow("stokes", lambda x, y, t: stokes(x, y), stokes=stokes)
+
+
+def flow_from_spec(spec: dict, domain: "Domain") -> Flow:
+    """The flow a scene's ``flow`` table describes, e.g. {type = "shear", rate = 0.1487}."""
+    if not isinstance(spec, dict):
+        raise SceneError("flow", spec, 'a table such as {type = "shear", rate = 0.1}')
+    return FLOWS.get(spec.get("type", "none"))(spec, domain)

@@ -7,10 +7,13 @@ DIR/
                   exceeds 1/2 else −1, and phi_000 … when output.per_particle_fields
   particles.csv   one row per particle per frame: time, id, x, y, area, elongation,
                   orientation (+ psi6_abs, psi2_abs with output.observables = ["order"])
-  global.csv      one row per frame: time, step, free_energy, interface, area, repulsion
-                  (+ Psi6, Psi2, lattice_angle, t1_count with "order")
-  checkpoint.npz  the last frame's complete state; ``femphase run --resume`` continues from it
+  global.csv      one row per frame: time, step, free_energy and one column per energy term
+                  (interface, area, repulsion) (+ Psi6, Psi2, lattice_angle, t1_count with "order")
+  checkpoint.h5   the last frame's complete state (HDF5, :func:`save_checkpoint`);
+                  ``femphase run --resume`` continues from it
   run.json        version, method, settings, steps, wall time, status and message
+
+The columns of the CSVs are the observables' (:mod:`femphase.observables`).
 """
 
 from __future__ import annotations
@@ -23,14 +26,13 @@ from pathlib import Path
 import meshio
 import numpy as np
 
-from .mesh import ChannelGrid
+from .domain import Domain
+from .errors import SceneError
 from .state import State
-from .windows import Window
 
-PARTICLE_COLUMNS = ["time", "id", "x", "y", "area", "elongation", "orientation"]
-GLOBAL_COLUMNS = ["time", "step", "free_energy", "interface", "area", "repulsion"]
-ORDER_PARTICLE_COLUMNS = ["psi6_abs", "psi2_abs"]
-ORDER_GLOBAL_COLUMNS = ["Psi6", "Psi2", "lattice_angle", "t1_count"]
+#: The checkpoint file's ``format`` attribute and the ``version`` this code writes and reads.
+CHECKPOINT_FORMAT = "femphase-checkpoint"
+CHECKPOINT_VERSION = 1
 
 
 def to_toml(data: dict) -> str:
@@ -58,53 +60,81 @@ def to_toml(data: dict) -> str:
 
 
 def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] | None = None) -> None:
-    """Write the complete state atomically (a crash mid-write leaves the old file intact),
-    with the ``observers``' running state (the T1 counter's) under their own names."""
-    tmp = path.with_suffix(".tmp.npz")
-    np.savez(
-        tmp,
-        grid=np.array([state.grid.nx, state.grid.ny]),
-        spacing=state.grid.h,
-        windows=np.array([[w.iy0, w.ny, w.ix0, w.nx] for w in state.windows], dtype=np.int64),
-        values=np.concatenate([f.ravel() for f in state.fields]),
-        radii=state.radii,
-        clock=np.array([state.time]),
-        counters=np.array([state.step, state.phase, state.phase_step]),
-        **(observers or {}),
-    )
+    """Write the complete state to an HDF5 file, atomically (written beside it, then renamed
+    over it: a crash mid-write leaves the old file intact).
+
+    Attributes: ``format`` = "femphase-checkpoint", ``version``, ``domain`` (JSON of
+    :meth:`Domain.describe`, checked on resume), ``time``, ``step``, ``phase``, ``phase_step``.
+    Datasets: ``windows`` (N, 4, the domain's encoding), ``sizes`` (N,), ``values`` (all
+    fields concatenated in particle order), ``radii`` (N,); group ``observers``: the
+    observables' running state (the T1 counter's)."""
+    import h5py
+
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    with h5py.File(tmp, "w") as handle:
+        handle.attrs.update({
+            "format": CHECKPOINT_FORMAT, "version": CHECKPOINT_VERSION,
+            "domain": json.dumps(state.domain.describe(), sort_keys=True),
+            "time": state.time, "step": state.step, "phase": state.phase, "phase_step": state.phase_step,
+        })
+        handle["windows"] = state.domain.windows_to_array(state.windows)
+        handle["sizes"] = np.array([f.size for f in state.fields], dtype=np.int64)
+        handle["values"] = np.concatenate(state.fields) if state.fields else np.zeros(0)
+        handle["radii"] = state.radii
+        group = handle.create_group("observers")
+        for name, values in (observers or {}).items():
+            group[name] = values
     os.replace(tmp, path)
 
 
-def load_observers(path: Path) -> dict[str, np.ndarray]:
-    """The observers' running state kept in a checkpoint (empty for older checkpoints)."""
-    with np.load(path) as data:
-        return {name: data[name].copy() for name in data.files if name.startswith("t1_")}
+def load_checkpoint(path: Path, domain: Domain) -> tuple[State, dict[str, np.ndarray]]:
+    """The state saved by :func:`save_checkpoint` on ``domain``, and the observers' running
+    state. SceneError (key ``--resume``) when the file is no checkpoint of this code, or was
+    written on another domain."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as handle:
+            if handle.attrs.get("format") != CHECKPOINT_FORMAT or int(handle.attrs.get("version", -1)) != CHECKPOINT_VERSION:
+                raise SceneError("--resume", str(path), f"a {CHECKPOINT_FORMAT} file of version {CHECKPOINT_VERSION}")
+            saved = json.loads(handle.attrs["domain"])
+            expected = json.loads(json.dumps(domain.describe(), sort_keys=True))
+            if saved != expected:
+                differing = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
+                raise SceneError("--resume", str(path), "a checkpoint of the scene's domain; it differs in "
+                                 + ", ".join(f"{k} (checkpoint {saved.get(k)!r}, scene {expected.get(k)!r})"
+                                             for k in differing))
+            windows = domain.windows_from_array(handle["windows"][()])
+            sizes = handle["sizes"][()]
+            fields = [f.copy() for f in np.split(handle["values"][()], np.cumsum(sizes)[:-1])] if len(sizes) else []
+            attrs = handle.attrs
+            state = State(domain, windows, fields, handle["radii"][()].copy(), float(attrs["time"]),
+                          int(attrs["step"]), int(attrs["phase"]), int(attrs["phase_step"]))
+            observers = {name: handle["observers"][name][()] for name in handle["observers"]}
+    except (OSError, KeyError) as exc:
+        raise SceneError("--resume", str(path), f"a readable checkpoint ({exc})") from None
+    return state, observers
 
 
-def load_checkpoint(path: Path) -> State:
-    with np.load(path) as data:
-        grid = ChannelGrid(int(data["grid"][0]), int(data["grid"][1]), float(data["spacing"]))
-        windows = [Window(*map(int, row)) for row in data["windows"]]
-        sizes = [w.ny * w.nx for w in windows]
-        chunks = np.split(data["values"], np.cumsum(sizes)[:-1])
-        fields = [c.reshape(w.ny, w.nx).copy() for c, w in zip(chunks, windows)]
-        step, phase, phase_step = map(int, data["counters"])
-        return State(grid, windows, fields, data["radii"].copy(), float(data["clock"][0]), step, phase, phase_step)
-
-
-def point_data(state: State, dof_map: np.ndarray, per_particle: bool) -> dict[str, np.ndarray]:
-    """Frame data on the nodes of the non-periodic mesh (see the module docstring)."""
-    phis = state.global_fields()
-    best = np.argmax(phis, axis=0)
-    top = phis[best, np.arange(phis.shape[1])]
-    data = {
-        "phi_sum": phis.sum(axis=0),
-        "phi_max": top,
-        "label": np.where(top > 0.5, best, -1).astype(float),
-    }
+def point_data(state: State, per_particle: bool) -> dict[str, np.ndarray]:
+    """Frame data on the nodes of the domain's non-periodic mesh (see the module
+    docstring), computed window by window."""
+    domain = state.domain
+    layout, phi = state.flat()
+    phi_sum = np.bincount(layout.node_index, weights=phi, minlength=domain.n_dofs)
+    # the largest φ at every dof: the last of each dof's positions sorted by (dof, φ)
+    order = np.lexsort((phi, layout.node_index))
+    nodes = layout.node_index[order]
+    last = np.append(nodes[1:] != nodes[:-1], True)
+    top = np.zeros(domain.n_dofs)
+    best = np.zeros(domain.n_dofs)
+    top[nodes[last]] = phi[order][last]
+    best[nodes[last]] = layout.owner[order][last]
+    data = {"phi_sum": phi_sum, "phi_max": top, "label": np.where(top > 0.5, best, -1.0)}
     if per_particle:
-        data.update({f"phi_{i:03d}": phi for i, phi in enumerate(phis)})
-    return {name: values[dof_map] for name, values in data.items()}
+        data.update({f"phi_{i:03d}": state.global_field(i) for i in range(state.n_particles)})
+    return {name: values[domain.dof_map] for name, values in data.items()}
 
 
 class FieldWriter:

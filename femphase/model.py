@@ -16,8 +16,8 @@ Conventions (decisions on defects of the printed paper, see DEVELOPERS.md):
   twice and δF/δφ_i contains 4κ/λ · φ_i Σ_{j≠i} φ_j²;
 * lengths are in lattice units (the paper's Δx = 1), times in the paper's time units.
 
-The discrete free energy and its gradient live in :mod:`femphase.energy`; this module holds
-only parameters and pointwise functions of φ.
+The discrete free energy, its terms and its gradient live in :mod:`femphase.energy`; this
+module holds only parameters and pointwise functions of φ.
 """
 
 from __future__ import annotations
@@ -85,44 +85,3 @@ def double_well_derivative(phi: np.ndarray) -> np.ndarray:
 def interface_profile(signed_distance: np.ndarray, interface_width: float) -> np.ndarray:
     """The flat-interface equilibrium (1 + tanh(d/λ))/2, d > 0 inside the particle."""
     return 0.5 * (1.0 + np.tanh(signed_distance / interface_width))
-
-
-def explicit_curvature_bound(params: ModelParameters, smallest_radius: float, pairs: bool = True) -> float:
-    """Upper bound L on the Hessian of the explicitly treated energy, per unit (lumped) mass.
-
-    The semi-implicit step treats the gradient term implicitly and everything else
-    explicitly; it decreases the discrete energy whenever the stabilisation S satisfies
-    S ≥ L/2 − c/(J0 dt) (see :func:`stabilisation_for`). The bound holds for fields in
-    [0, 1] and particle areas ∫φ² ≤ 1.25 πR²:
-
-    * double well: (γ/λ) · 8 (1 − 6φ + 6φ²) ≤ 8γ/λ;
-    * area: the rank-one term 8μ a/(πR²) plus −4μ(1 − a)/(πR²), with a = ∫φ²/πR² ≤ 1.25;
-    * repulsion, one pair at a node: (2κ/λ)[[2φ_j², 4φ_iφ_j], [4φ_iφ_j, 2φ_i²]] ≤ 12κ/λ
-      (absent when ``pairs`` is False: a single particle).
-    """
-    lam = params.interface_width
-    area_ratio_max = 1.25
-    area_scale = 4.0 * params.area_stiffness / (np.pi * smallest_radius**2)
-    return (
-        8.0 * params.tension / lam
-        + area_scale * (3.0 * area_ratio_max - 1.0)
-        + (12.0 * params.repulsion / lam if pairs else 0.0)
-    )
-
-
-def stabilisation_for(
-    params: ModelParameters, dt: float, smallest_radius: float, mass_lower_bound: float, pairs: bool = True
-) -> float:
-    """The smallest stabilisation S that makes the no-flow step energy-decreasing.
-
-    With the scheme (G/dt + J0 S M_L + J0 A) φ¹ = (G/dt + J0 S M_L) φ⁰ − J0 M_L g(φ⁰)
-    and G ≥ c M_L (c = 1 for lumped mass, 1/4 for the consistent P1 mass matrix), one has
-    F(φ¹) − F(φ⁰) ≤ −(c/(J0 dt) + S − L/2) |φ¹ − φ⁰|²_{M_L}, so S = max(0, L/2 − c/(J0 dt)).
-    The time derivative itself carries the stabilisation at small dt: at the paper's
-    parameters S = 0 for dt ≤ dt* = 2c/(J0 L) ≈ 0.92 (lumped mass, several particles).
-    Above dt*, G/dt + J0 S M_L = (J0 L/2) M_L no longer depends on dt: the explicit forces
-    advance by dt* per step however large dt is (advection and diffusion by the full dt).
-    Large steps are therefore stable but slow the relaxation by dt/dt*.
-    """
-    half_bound = 0.5 * explicit_curvature_bound(params, smallest_radius, pairs)
-    return max(0.0, half_bound - mass_lower_bound / (params.mobility * dt))

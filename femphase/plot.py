@@ -4,7 +4,9 @@ Four figures, written to OUT (default DIR/figures) as PNG unless ``--format`` sa
 
 ``snapshot``     the last frame: Σφ_i in grey, each particle (label = argmax_i φ_i > 1/2)
                  tinted, and a red segment through each centroid along its elongation axis,
-                 of length R·r (the paper's Fig. 1b style)
+                 of length R·r (the paper's Fig. 1b style); from checkpoint.h5, else from
+                 the last frame of fields.xdmf; node values on a mesh are interpolated to
+                 an image, blank outside the mesh (obstacles)
 ``elongation``   r(t): the mean over the bulk particles (those farther than 2R from the
                  walls at shear onset), three individual particles, and the minimal ODE
                  model (:mod:`femphase.ode`) at the run's shear rate (or ``--ode-rate``)
@@ -20,6 +22,9 @@ short a run) the ODE starts at shear onset, or at the first frame of a run witho
 (plotted with ``--ode-rate``).  The alignment is exact at the first T1 only: when
 the ODE's period π/(kγ̇) differs from the simulation's, the phases drift apart, which is
 why the comparison also offers k matched to the measured period (:func:`ode_comparison`).
+
+Runs on the structured grid and on meshes (``[domain] kind = "mesh"``) are drawn alike; a
+meshed channel's extent (its x0 and the walls' y range) comes from its domain.
 
 Everything is also usable from Python: :func:`load_run`, the ``plot_*`` functions (each
 takes a :class:`RunData` and an output path), the ``draw_*`` functions (the same on a given
@@ -105,6 +110,44 @@ class RunData:
     def width(self) -> float:
         return float(self.scene["domain"]["Ly"])
 
+    @property
+    def kind(self) -> str:
+        return str(self.scene["domain"].get("kind", "grid"))
+
+    @cached_property
+    def domain(self):
+        """The run's Domain, rebuilt from scene.toml (a meshed run's mesh file must still exist)."""
+        import warnings
+
+        from .errors import ResolutionWarning
+        from .scene import scene_from_dict
+
+        with warnings.catch_warnings():  # the run itself warned about its resolution
+            warnings.simplefilter("ignore", ResolutionWarning)
+            return scene_from_dict(self.scene, self.directory).domain
+
+    @cached_property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the channel: [0, Lx] × [0, Ly] on the grid; a
+        meshed channel's x0 and wall range from its domain (from fields.xdmf's nodes when the
+        mesh file is gone)."""
+        if self.kind == "grid":
+            return 0.0, self.length, 0.0, self.width
+        try:
+            domain = self.domain
+            low, high = domain.y_range
+            return domain.x0, domain.x0 + domain.period, low, high
+        except (OSError, ValueError):  # SceneError is a ValueError
+            xdmf = self.directory / "fields.xdmf"
+            if not xdmf.exists():
+                raise
+            import meshio
+
+            with meshio.xdmf.TimeSeriesReader(str(xdmf.resolve())) as reader:
+                points, _ = reader.read_points_cells()
+            return (float(points[:, 0].min()), float(points[:, 0].max()),
+                    float(points[:, 1].min()), float(points[:, 1].max()))
+
     def bulk_particles(self) -> np.ndarray:
         """Mask of the particles farther than 2R from both walls at shear onset (all of them
         if none is): the rows at the walls are stretched across the wall layer and oscillate
@@ -112,7 +155,8 @@ class RunData:
         frame = min(np.searchsorted(self.time, self.shear_start - 1e-9), len(self.time) - 1)
         y = self.y[frame]
         margin = 2 * self.radius
-        bulk = (y > margin) & (y < self.width - margin)
+        _, _, low, high = self.extent
+        bulk = (y > low + margin) & (y < high - margin)
         return bulk if bulk.any() else np.ones_like(bulk)
 
     @cached_property
@@ -247,51 +291,106 @@ def _pyplot():
     return plt
 
 
-def _last_fields(run: RunData) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, float]:
-    """(x, y, phi_sum, label, time) of the last frame: from checkpoint.npz on the structured
-    grid, else from the last step of fields.xdmf (node arrays on its mesh)."""
-    checkpoint = run.directory / "checkpoint.npz"
-    if checkpoint.exists():
-        from .io import load_checkpoint
+@dataclass
+class Snapshot:
+    """The last frame's fields: on the grid (ny, nx) images with the node coordinates
+    (``triangles`` None), on a mesh node values with its triangles (3, n_triangles)."""
 
-        state = load_checkpoint(checkpoint)
-        phis = state.global_fields()
-        best = np.argmax(phis, axis=0)
-        top = phis[best, np.arange(phis.shape[1])]
-        shape = (state.grid.ny, state.grid.nx)
-        x, y = state.grid.coordinates()
-        gx, gy = np.meshgrid(x, y)
-        label = np.where(top > 0.5, best, -1).reshape(shape)
-        return gx, gy, phis.sum(axis=0).reshape(shape), label, state.time
+    x: np.ndarray
+    y: np.ndarray
+    phi_sum: np.ndarray
+    label: np.ndarray
+    time: float
+    triangles: np.ndarray | None = None
+
+
+def _last_fields(run: RunData) -> Snapshot:
+    """The last frame: from checkpoint.h5 (on the run's domain, rebuilt from scene.toml),
+    else from the last step of fields.xdmf (node arrays on its mesh)."""
+    from .simulation import CHECKPOINT
+
+    checkpoint = run.directory / CHECKPOINT
     xdmf = run.directory / "fields.xdmf"
+    if checkpoint.exists():
+        try:
+            domain = run.domain
+        except (OSError, ValueError):  # SceneError is a ValueError
+            if not xdmf.exists():  # no other source of the fields: say why
+                raise
+            domain = None  # e.g. a meshed run whose mesh file moved: fields.xdmf has it all
+        if domain is not None:
+            return _checkpoint_fields(checkpoint, domain)
     if not xdmf.exists():
-        raise FileNotFoundError(f"{str(run.directory)!r} has neither checkpoint.npz nor fields.xdmf to draw a snapshot from")
+        raise FileNotFoundError(f"{str(run.directory)!r} has neither {CHECKPOINT} nor fields.xdmf to draw a snapshot from")
     import meshio
 
     with meshio.xdmf.TimeSeriesReader(str(xdmf.resolve())) as reader:
-        points, _ = reader.read_points_cells()
+        points, cells = reader.read_points_cells()
         t, data, _ = reader.read_data(reader.num_steps - 1)
-    return points[:, 0], points[:, 1], np.asarray(data["phi_sum"]), np.asarray(data["label"]), float(t)
+    triangles = np.vstack([c.data for c in cells if c.type == "triangle"]).T
+    return Snapshot(points[:, 0], points[:, 1], np.asarray(data["phi_sum"]).ravel(),
+                    np.asarray(data["label"]).ravel(), float(t), triangles)
+
+
+def _checkpoint_fields(path: Path, domain) -> Snapshot:
+    from .io import load_checkpoint, point_data
+
+    state, _ = load_checkpoint(path, domain)
+    grid = getattr(domain, "grid", None)
+    if grid is not None:  # images in grid order (dof = iy·nx + ix)
+        phis = state.global_fields()
+        best = np.argmax(phis, axis=0)
+        top = phis[best, np.arange(phis.shape[1])]
+        shape = (grid.ny, grid.nx)
+        x, y = grid.coordinates()
+        gx, gy = np.meshgrid(x, y)
+        label = np.where(top > 0.5, best, -1).reshape(shape)
+        return Snapshot(gx, gy, phis.sum(axis=0).reshape(shape), label, state.time)
+    data = point_data(state, per_particle=False)  # on the nodes of the non-periodic mesh
+    return Snapshot(domain.mesh.p[0], domain.mesh.p[1], data["phi_sum"], data["label"], state.time, domain.mesh.t)
+
+
+#: Pixels along the longer side of a meshed snapshot's image.
+SNAPSHOT_PIXELS = 600
+
+
+def _rasterise(snap: Snapshot, extent: tuple[float, float, float, float]) -> tuple[np.ma.MaskedArray, np.ma.MaskedArray]:
+    """Node values on a mesh as images on a pixel grid over ``extent`` (drawn like the grid's,
+    with no seams between triangles): Σφ interpolated linearly in its triangle, the label of
+    the nearest node; masked outside the mesh (obstacles)."""
+    from matplotlib.tri import LinearTriInterpolator, Triangulation
+    from scipy.spatial import cKDTree
+
+    x0, x1, y0, y1 = extent
+    step = max(x1 - x0, y1 - y0) / SNAPSHOT_PIXELS
+    xs = x0 + step * (np.arange(max(1, round((x1 - x0) / step))) + 0.5)
+    ys = y0 + step * (np.arange(max(1, round((y1 - y0) / step))) + 0.5)
+    gx, gy = np.meshgrid(xs, ys)
+    mesh = Triangulation(snap.x, snap.y, snap.triangles.T)
+    outside = mesh.get_trifinder()(gx, gy) < 0
+    phi_sum = np.ma.masked_array(np.ma.filled(LinearTriInterpolator(mesh, snap.phi_sum)(gx, gy), 0.0), outside)
+    _, nearest = cKDTree(np.column_stack([snap.x, snap.y])).query(np.column_stack([gx.ravel(), gy.ravel()]))
+    label = np.ma.masked_array(np.asarray(snap.label)[nearest].reshape(gx.shape), outside)
+    return phi_sum, label
 
 
 def draw_snapshot(ax, run: RunData) -> None:
     """Draw the last frame with each particle's elongation axis on `ax` (module docstring)."""
-    x, y, phi_sum, label, time = _last_fields(run)
-    if np.ndim(phi_sum) == 2:
-        extent = (0, run.length, 0, run.width)
-        ax.imshow(phi_sum, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=2.5)
-        ax.imshow(np.ma.masked_where(label < 0, label % 20), origin="lower", extent=extent,
-                  cmap="tab20", alpha=0.45, vmin=0, vmax=19)
-    else:  # node values on the unstructured mesh of fields.xdmf
-        ax.tricontourf(x, y, phi_sum, levels=12, cmap="Greys")
-        ax.tricontour(x, y, phi_sum, levels=[0.5], colors="k", linewidths=0.3)
+    snap = _last_fields(run)
+    x0, x1, y0, y1 = run.extent
+    phi_sum, label = (snap.phi_sum, snap.label) if snap.triangles is None else _rasterise(snap, run.extent)
+    extent = (x0, x1, y0, y1)
+    ax.imshow(phi_sum, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=2.5)
+    ax.imshow(np.ma.masked_where(np.ma.getdata(label) < 0, label % 20), origin="lower", extent=extent,
+              cmap="tab20", alpha=0.45, vmin=0, vmax=19)
+    time = snap.time
     frame = int(np.argmin(np.abs(run.time - time)))
     half = 0.5 * run.radius * run.elongation[frame]
     dx, dy = half * np.cos(run.orientation[frame]), half * np.sin(run.orientation[frame])
     cx, cy = run.x[frame], run.y[frame]
     ax.plot(np.stack([cx - dx, cx + dx]), np.stack([cy - dy, cy + dy]), color="red", lw=1.2)
-    ax.set_xlim(0, run.length)
-    ax.set_ylim(0, run.width)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
@@ -301,7 +400,8 @@ def draw_snapshot(ax, run: RunData) -> None:
 def plot_snapshot(run: RunData, path: Path) -> Path:
     """The last frame with each particle's elongation axis (see the module docstring)."""
     plt = _pyplot()
-    aspect = run.width / run.length
+    x0, x1, y0, y1 = run.extent
+    aspect = (y1 - y0) / (x1 - x0)
     fig, ax = plt.subplots(figsize=(3.0, min(2.2 * aspect, 12) + 0.6))
     draw_snapshot(ax, run)
     ax.set_title(ax.get_title() + "\nred: elongation axis, length R·r", fontsize=8)
@@ -383,18 +483,15 @@ def plot_limit_cycle(run: RunData, path: Path, ode_rate: float | None = None, od
 
 def order_series(run: RunData) -> dict[str, np.ndarray]:
     """Ψ6, Ψ2^L and the lattice angle per frame: global.csv's columns when the run wrote them
-    (output.observables = ["order"]), else computed from particles.csv with
-    :class:`femphase.analysis.order.OrderObserver`; NaN for fewer than 3 particles."""
+    (output.observables = ["order"]), else computed from particles.csv with the observable
+    :class:`femphase.observables.Order`; NaN for fewer than 3 particles."""
     if "Psi6" in run.globals and len(run.globals["Psi6"]) == len(run.time):
         return {name: run.globals[name] for name in ("Psi6", "Psi2", "lattice_angle")}
-    from .analysis.order import OrderObserver
-    from .analysis.shape import ShapeObservables
+    from .analysis.lattice import frame_order
 
-    observer = OrderObserver(run.length)
     rows = []
     for k in range(len(run.time)):
-        shape = ShapeObservables(run.x[k], run.y[k], np.zeros(run.n_particles), run.elongation[k], run.orientation[k])
-        order = observer(shape)
+        order = frame_order(np.stack([run.x[k], run.y[k]], axis=1), run.orientation[k], run.length)
         rows.append([order["Psi6"], order["Psi2"], order["lattice_angle"]])
     rows = np.asarray(rows, dtype=float).reshape(-1, 3)
     return {"Psi6": rows[:, 0], "Psi2": rows[:, 1], "lattice_angle": rows[:, 2]}

@@ -12,17 +12,18 @@ import math
 import sys
 import warnings
 from dataclasses import asdict, dataclass, field, fields
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 
+from .domain import Domain, domain_from_table
 from .errors import ResolutionWarning, SceneError
-from .flows import flow_from_spec
-from .mesh import ChannelGrid, channel_grid, load_mesh
+from .flows import FLOWS, Flow, flow_from_spec
 from .model import PAPER_SYMBOLS, ModelParameters
+from .placement import hexagonal_centres
 from .state import State, discs_state
-from .stepping import Discretisation, Numerics
-from .windows import WindowPolicy
+from .stepping import Numerics
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -30,22 +31,9 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 LAYOUTS = ("single", "hexagonal", "random", "list")
-#: "grid": the structured channel (this module); "mesh": any triangular mesh (femphase.unstructured)
-DOMAIN_KINDS = ("grid", "mesh")
-#: Largest total target area Σ πR_i² over channel area that a scene may ask for (the
+#: Largest total target area Σ πR_i² over the domain's area that a scene may ask for (the
 #: paper's scene is at 1.20: the particles are compressed and deformed).
 MAX_AREA_FRACTION = 1.5
-
-
-@dataclass(frozen=True)
-class Domain:
-    """The channel [0, Lx) × [0, Ly] (lattice units) and its mesh spacing h."""
-
-    Lx: float = 70.0
-    Ly: float = 240.0
-    h: float = 1.0
-    mesh: str = ""  # optional meshio file of the structured channel, relative to the scene
-    kind: str = "grid"  # "mesh" scenes are read by femphase.unstructured
 
 
 @dataclass(frozen=True)
@@ -72,12 +60,13 @@ class Particles:
 @dataclass(frozen=True)
 class Output:
     """What a run writes. fields: fields.xdmf every frame; per_particle_fields: one φ_i
-    per particle in it too (large); observables: "shape" (always) plus "order" (Ψ6, Ψ2^L,
-    lattice angle, T1 count); checkpoint: checkpoint.npz every frame."""
+    per particle in it too (large); observables: names in
+    :data:`femphase.observables.OBSERVABLES` ("shape" and "energy" always, e.g. "order"
+    for Ψ6, Ψ2^L, lattice angle, T1 count); checkpoint: checkpoint.h5 every frame."""
 
     fields: bool = True
     per_particle_fields: bool = False
-    observables: tuple = ("shape",)
+    observables: tuple = ("shape", "energy")
     checkpoint: bool = True
 
 
@@ -102,36 +91,45 @@ class Phase:
 
 @dataclass(frozen=True)
 class Scene:
+    """A validated scene. ``domain_table`` is the scene's ``[domain]`` table (with ``kind``);
+    :attr:`domain` is the Domain it describes, built once."""
+
     name: str
     model: ModelParameters
-    domain: Domain
+    domain_table: dict
     particles: Particles
     numerics: Numerics
     output: Output
     phases: tuple[Phase, ...]
     base_dir: str = "."
 
+    @cached_property
+    def domain(self) -> Domain:
+        return domain_from_table(self.domain_table, self.base_dir, self.numerics)
+
     def to_dict(self) -> dict:
-        """The resolved scene as plain data (what ``scene.toml`` of a run directory holds)."""
-        data = {
+        """The resolved scene as plain data (what ``scene.toml`` of a run directory holds):
+        the domain table gains its measured Lx, Ly and h, a mesh file its absolute path."""
+        domain = self.domain
+        table = {"kind": domain.kind, **self.domain_table, "Lx": domain.period, "Ly": domain.width,
+                 "h": float(self.domain_table.get("h", domain.spacing))}
+        if table.get("mesh"):
+            table["mesh"] = str((Path(self.base_dir) / table["mesh"]).resolve())
+        return {
             "name": self.name,
             "model": asdict(self.model),
-            "domain": asdict(self.domain),
+            "domain": table,
             "particles": {k: v for k, v in asdict(self.particles).items() if v is not None},
             "numerics": asdict(self.numerics),
             "output": {**asdict(self.output), "observables": list(self.output.observables)},
             "phases": [asdict(p) for p in self.phases],
         }
-        if self.domain.mesh:
-            data["domain"]["mesh"] = str((Path(self.base_dir) / self.domain.mesh).resolve())
-        return data
 
     @property
     def radii(self) -> np.ndarray:
-        n = self.n_particles
         if self.particles.radii is not None:
             return np.asarray(self.particles.radii, dtype=float)
-        return np.full(n, self.model.radius)
+        return np.full(self.n_particles, self.model.radius)
 
     @property
     def n_particles(self) -> int:
@@ -142,27 +140,20 @@ class Scene:
             return len(p.centres or [])
         return p.N
 
-    @property
-    def grid(self) -> ChannelGrid:
-        return channel_grid(self.domain.Lx, self.domain.Ly, self.domain.h)
+    def flow(self, phase: Phase) -> Flow:
+        return flow_from_spec(phase.flow, self.domain)
 
-    def discretisation(self) -> Discretisation:
-        mesh = load_mesh(Path(self.base_dir) / self.domain.mesh) if self.domain.mesh else None
-        return Discretisation.structured(self.grid, self.numerics.diagonals, mesh)
+    def window_policy(self):
+        return self.domain.window_policy(self.numerics)
 
-    def flow(self, phase: Phase):
-        return flow_from_spec(phase.flow, self.domain.Ly)
-
-    def window_policy(self) -> WindowPolicy:
-        n = self.numerics
-        return WindowPolicy.for_spacing(self.domain.h, threshold=n.threshold, margin=n.margin, enabled=n.windows)
+    def initial_radii(self) -> np.ndarray:
+        r0 = self.particles.initial_radius
+        return np.full(self.n_particles, r0) if r0 is not None else 0.5 * self.radii
 
     def initial_state(self) -> State:
         """Discs of radius initial_radius at the layout's centres."""
-        centres = initial_centres(self)
-        r0 = self.particles.initial_radius
-        initial = np.full(len(centres), r0) if r0 is not None else 0.5 * self.radii
-        return discs_state(self.grid, centres, self.radii, initial, self.model.interface_width, self.window_policy())
+        return discs_state(self.domain, initial_centres(self), self.radii, self.initial_radii(),
+                           self.model.interface_width, self.window_policy())
 
 
 def _from_table(cls, table: dict, prefix: str, aliases: dict | None = None):
@@ -191,55 +182,86 @@ def _check_number(key: str, value, minimum: float = 0.0, strict: bool = True) ->
 
 def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     """Validate a scene given as nested dicts (the parsed TOML)."""
+    if not isinstance(data, dict):
+        raise SceneError("scene", data, "a TOML document of tables")
     known = {"name", "model", "domain", "particles", "numerics", "output", "phases"}
     for key in data:
         if key not in known:
             raise SceneError(key, data[key], f"not a known table; valid: {', '.join(sorted(known))}")
-    model_table = dict(data.get("model", {}))
+    model_table = dict(_table(data, "model"))
     for key, value in model_table.items():
         _check_number(f"model.{key}", value, 0.0, strict=False)
     model = _from_table(ModelParameters, model_table, "model", PAPER_SYMBOLS)
-    domain = _from_table(Domain, data.get("domain", {}), "domain")
-    for key in ("Lx", "Ly", "h"):
-        _check_number(f"domain.{key}", getattr(domain, key))
-    grid = channel_grid(domain.Lx, domain.Ly, domain.h)
-    if model.interface_width / domain.h < 1.0:
-        raise SceneError(
-            "domain.h", domain.h,
-            f"the interface (width ~2λ, λ = {model.interface_width:g}) needs h ≤ λ; use h ≤ {model.interface_width:g}",
-        )
-    if model.interface_width / domain.h < 2.0:
-        warnings.warn(
-            f"domain.h = {domain.h:g} puts only λ/h = {model.interface_width / domain.h:g} nodes across the "
-            f"interface width λ = {model.interface_width:g}: interfaces pin to the grid (in the sheared lattice at "
-            f"h = λ the lanes lock and oscillation periods come out 1–4% short, verification/README.md); use "
-            f"h ≤ {model.interface_width / 2:g} for results converged in h",
-            ResolutionWarning, stacklevel=2,
-        )
-    particles = _from_table(Particles, data.get("particles", {}), "particles")
-    numerics = _from_table(Numerics, data.get("numerics", {}), "numerics")
-    output_table = dict(data.get("output", {}))
+    particles = _from_table(Particles, _table(data, "particles"), "particles")
+    numerics = _from_table(Numerics, _table(data, "numerics"), "numerics")
+    output_table = dict(_table(data, "output"))
     if "observables" in output_table:
-        observables = tuple(output_table["observables"])
-        for item in observables:
-            if item not in ("shape", "order"):
-                raise SceneError("output.observables", item, 'a list of "shape" and "order"')
-        output_table["observables"] = tuple(dict.fromkeys(("shape",) + observables))
+        from .observables import OBSERVABLES
+
+        requested = output_table["observables"]
+        if not isinstance(requested, (list, tuple)):
+            raise SceneError("output.observables", requested, f"a list of names from {OBSERVABLES.names()}")
+        for item in requested:
+            OBSERVABLES.get(item, "output.observables")
+        output_table["observables"] = tuple(dict.fromkeys(("shape", "energy") + tuple(requested)))
     output = _from_table(Output, output_table, "output")
-    phases = tuple(_phase(i, table) for i, table in enumerate(data.get("phases", [])))
+    phase_tables = data.get("phases", [])
+    if not isinstance(phase_tables, list):
+        raise SceneError("phases", phase_tables, "a list of [[phases]] tables")
+    phases = tuple(_phase(i, table) for i, table in enumerate(phase_tables))
     if not phases:
         raise SceneError("phases", [], "at least one [[phases]] table with duration, dt, frame_interval")
+    domain_table = dict(_table(data, "domain"))
+    domain_table.setdefault("kind", "grid")
     scene = Scene(
-        name=str(data.get("name", "scene")), model=model, domain=domain, particles=particles,
+        name=str(data.get("name", "scene")), model=model, domain_table=domain_table, particles=particles,
         numerics=numerics, output=output, phases=phases, base_dir=str(base_dir),
     )
-    _check_particles(scene, grid)
+    _check_resolution(scene)
+    _check_particles(scene)
     for i, phase in enumerate(phases):
         try:
-            scene.flow(phase)
+            check_flow(phase.flow, scene.domain)
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
     return scene
+
+
+def _table(data: dict, name: str) -> dict:
+    table = data.get(name, {})
+    if not isinstance(table, dict):
+        raise SceneError(name, table, f"a table [{name}] of keys")
+    return table
+
+
+def check_flow(spec: dict, domain: Domain) -> None:
+    """Validate a phase's flow table without solving anything (a stokes flow is solved
+    when its phase starts)."""
+    if isinstance(spec, dict) and spec.get("type") == "stokes" and "stokes" in FLOWS:
+        from .stokes import stokes_drive
+
+        stokes_drive(spec)
+        if domain.kind != "mesh":
+            raise SceneError("flow.type", "stokes", 'a flow without "stokes": a stokes flow needs a meshed domain')
+        return
+    flow_from_spec(spec, domain)
+
+
+def _check_resolution(scene: Scene) -> None:
+    h, lam = scene.domain.spacing, scene.model.interface_width
+    if lam / h < 1.0:
+        raise SceneError(
+            "domain.h", h,
+            f"the interface (width ~2λ, λ = {lam:g}) needs h ≤ λ; use h ≤ {lam:g}",
+        )
+    if lam / h < 2.0:
+        warnings.warn(
+            f"domain.h = {h:g} puts only λ/h = {lam / h:g} nodes across the interface width λ = {lam:g}: "
+            f"interfaces pin to the grid (in the sheared lattice at h = λ the lanes lock and oscillation "
+            f"periods come out 1–4% short, verification/README.md); use h ≤ {lam / 2:g} for results "
+            f"converged in h",
+            ResolutionWarning, stacklevel=3,
+        )
 
 
 def _phase(index: int, table: dict) -> Phase:
@@ -260,21 +282,21 @@ def _phase(index: int, table: dict) -> Phase:
     return phase
 
 
-def _check_particles(scene: Scene, grid: ChannelGrid) -> None:
-    p = scene.particles
+def _check_particles(scene: Scene) -> None:
+    p, domain = scene.particles, scene.domain
     if p.layout not in LAYOUTS:
         raise SceneError("particles.layout", p.layout, f"one of {LAYOUTS}")
-    if p.layout in ("hexagonal", "random") and (not isinstance(p.N, int) or p.N < 1):
+    if p.layout in ("hexagonal", "random") and (not isinstance(p.N, int) or isinstance(p.N, bool) or p.N < 1):
         raise SceneError("particles.N", p.N, "a whole number ≥ 1")
     if p.layout == "list" and not p.centres:
         raise SceneError("particles.centres", p.centres, "a non-empty list of [x, y] pairs for layout = 'list'")
     if p.centres is not None:
-        centres = np.asarray(p.centres, dtype=float)
+        try:
+            centres = np.asarray(p.centres, dtype=float)
+        except (TypeError, ValueError):
+            centres = np.zeros(0)
         if centres.ndim != 2 or centres.shape[1] != 2:
             raise SceneError("particles.centres", p.centres, "a list of [x, y] pairs")
-        inside = (centres[:, 1] >= 0) & (centres[:, 1] <= grid.width)
-        if not inside.all():
-            raise SceneError("particles.centres", p.centres, f"y between the walls, 0 ≤ y ≤ {grid.width:g}")
     n = scene.n_particles
     if p.radii is not None:
         radii = np.asarray(p.radii, dtype=float)
@@ -282,71 +304,36 @@ def _check_particles(scene: Scene, grid: ChannelGrid) -> None:
             raise SceneError("particles.radii", p.radii, f"{n} radii, all > 0")
     if p.initial_radius is not None:
         _check_number("particles.initial_radius", p.initial_radius)
-    fraction = np.sum(np.pi * scene.radii**2) / (grid.length * grid.width)
+    fraction = np.sum(np.pi * scene.radii**2) / domain.area
     if fraction > MAX_AREA_FRACTION:
         raise SceneError(
             "particles.N", n,
-            f"the particles' total area is {fraction:.2f} × the channel's; at most {MAX_AREA_FRACTION} fits "
-            f"(N ≤ {int(MAX_AREA_FRACTION * grid.length * grid.width / (np.pi * np.mean(scene.radii) ** 2))} "
+            f"the particles' total area is {fraction:.2f} × the domain's; at most {MAX_AREA_FRACTION} fits "
+            f"(N ≤ {int(MAX_AREA_FRACTION * domain.area / (np.pi * np.mean(scene.radii) ** 2))} "
             f"at R = {np.mean(scene.radii):g})",
         )
+    if p.layout != "random":  # fixed centres: check them now, not at the run
+        initial_centres(scene)
 
 
 def initial_centres(scene: Scene) -> np.ndarray:
-    """Centres (N, 2) of the initial discs for the scene's layout."""
-    p, grid = scene.particles, scene.grid
-    if p.layout == "single":
-        return np.asarray(p.centres or [[0.5 * grid.length, 0.5 * grid.width]], dtype=float)[:1]
-    if p.layout == "list":
-        return np.asarray(p.centres, dtype=float)
+    """Centres (N, 2) of the initial discs for the scene's layout; SceneError when a fixed
+    centre lies outside the domain."""
+    p, domain = scene.particles, scene.domain
+    low, high = domain.y_range
+    if p.layout == "random":
+        return domain.random_centres(p.N, float(np.max(scene.initial_radii())), p.seed)
     if p.layout == "hexagonal":
-        return hexagonal_centres(p.N, grid.length, grid.width, p.per_row)
-    r0 = p.initial_radius if p.initial_radius is not None else 0.5 * float(np.max(scene.radii))
-    return random_centres(p.N, grid.length, grid.width, r0, p.seed)
-
-
-def hexagonal_centres(n: int, length: float, width: float, per_row: int | None = None) -> np.ndarray:
-    """A hexagonal lattice with rows along x filling the channel: per_row × rows = n.
-
-    Without per_row, the row length is the one closest to an ideal lattice of n sites on
-    the channel's area. Rows are ``width/rows`` apart, alternate rows offset by half a
-    spacing (the paper's Fig. 2: 5 per row, 20 rows in 70 × 240).
-    """
-    if per_row is None:
-        spacing = math.sqrt(2.0 * length * width / (math.sqrt(3.0) * n))
-        per_row = max(1, round(length / spacing))
-    if n % per_row:
-        raise SceneError("particles.N", n, f"a multiple of per_row = {per_row} for the hexagonal layout")
-    rows = n // per_row
-    dx, dy = length / per_row, width / rows
-    i, j = np.meshgrid(np.arange(per_row), np.arange(rows))
-    x = ((i + 0.25 + 0.5 * (j % 2)) * dx) % length
-    y = (j + 0.5) * dy
-    return np.stack([x.ravel(), y.ravel()], axis=1)
-
-
-def clear_of_discs(centres: np.ndarray, candidate: np.ndarray, period: float, radius: float) -> bool:
-    """Whether a disc of ``radius`` at ``candidate`` overlaps none of the discs at ``centres``
-    (the same radius; distances by the minimum image over the period in x)."""
-    dx = (centres[:, 0] - candidate[0] + 0.5 * period) % period - 0.5 * period
-    return bool(np.all(dx**2 + (centres[:, 1] - candidate[1]) ** 2 >= (2 * radius) ** 2))
-
-
-def random_centres(n: int, length: float, width: float, radius: float, seed: int, attempts: int = 200_000) -> np.ndarray:
-    """Uniformly random centres of non-overlapping discs of ``radius`` inside the channel."""
-    rng = np.random.default_rng(seed)
-    centres = np.empty((0, 2))
-    for _ in range(attempts):
-        candidate = np.array([rng.uniform(0, length), rng.uniform(radius, width - radius)])
-        if clear_of_discs(centres, candidate, length, radius):
-            centres = np.vstack([centres, candidate])
-            if len(centres) == n:
-                return centres
-    raise SceneError(
-        "particles.N", n,
-        f"only {len(centres)} non-overlapping initial discs of radius {radius:g} fit after {attempts} tries; "
-        "use fewer particles or a smaller particles.initial_radius",
-    )
+        centres = hexagonal_centres(p.N, domain.period, high - low, p.per_row) + [domain.x0, low]
+    elif p.centres:
+        centres = np.asarray(p.centres, dtype=float)[: 1 if p.layout == "single" else None]
+    else:
+        centres = np.array([[domain.x0 + 0.5 * domain.period, 0.5 * (low + high)]])
+    outside = ~domain.inside(centres[:, 0], centres[:, 1])
+    if outside.any():
+        raise SceneError("particles.centres", centres[outside].tolist(),
+                         f"centres inside the domain (y between the walls, {low:g} ≤ y ≤ {high:g})")
+    return centres
 
 
 def set_value(data: dict, assignment: str) -> None:
@@ -384,14 +371,6 @@ def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> d
     return data
 
 
-def is_mesh_scene(data: dict) -> bool:
-    """True for scenes on a meshed geometry (``[domain] kind = "mesh"``)."""
-    kind = data.get("domain", {}).get("kind", "grid")
-    if kind not in DOMAIN_KINDS:
-        raise SceneError("domain.kind", kind, f"one of {DOMAIN_KINDS}")
-    return kind == "mesh"
-
-
 def load_scene(path: str | Path, assignments: list[str] | None = None) -> Scene:
-    """Read and validate a scene file on the structured channel, applying ``--set`` first."""
+    """Read and validate a scene file (any domain kind), applying ``--set`` first."""
     return scene_from_dict(read_scene_data(path, assignments), Path(path).parent)

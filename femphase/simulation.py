@@ -9,36 +9,40 @@ frames in memory, and are composed by the caller.
 from __future__ import annotations
 
 import time as wallclock
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from . import __version__
-from .analysis.order import OrderObserver
-from .analysis.shape import ShapeObservables, shape_observables
-from .energy import FreeEnergy, free_energy
+from .analysis.shape import ShapeObservables
+from .energy import FreeEnergy
 from .errors import SceneError
-from .io import (
-    GLOBAL_COLUMNS, ORDER_GLOBAL_COLUMNS, ORDER_PARTICLE_COLUMNS, PARTICLE_COLUMNS,
-    CsvWriter, FieldWriter, load_checkpoint, load_observers, point_data, save_checkpoint, to_toml, write_json,
-)
+from .io import CsvWriter, FieldWriter, load_checkpoint, point_data, save_checkpoint, to_toml, write_json
+from .observables import OBSERVABLES, Observable, resolve
 from .scene import Phase, Scene
 from .state import State
-from .stepping import SemiImplicitStepper
+from .stepping import Stepper
 
-METHODS = ("fem", "fd")
+#: ``method`` → the time scheme it forces (None: the scene's ``numerics.scheme``).
+METHODS = {"fem": None, "fd": "fd-heun"}
 
 
 @dataclass
 class Frame:
-    """What trackers receive at a frame; observables not asked for are None."""
+    """What trackers receive at a frame: the state, its phase and the observables' values,
+    per particle (column → array of length N; particles.csv) and global (column → number;
+    global.csv). The two may share a name ("area": ∫φ² per particle, the area energy)."""
 
     state: State
     phase: Phase
-    shape: ShapeObservables | None = None
-    energy: FreeEnergy | None = None
-    order: dict | None = None
+    particle: dict = field(default_factory=dict)
+    globals: dict = field(default_factory=dict)
+
+    @property
+    def shape(self) -> ShapeObservables:
+        v = self.particle
+        return ShapeObservables(v["x"], v["y"], v["area"], v["elongation"], v["orientation"])
 
 
 class Tracker:
@@ -56,32 +60,45 @@ class Tracker:
 
 
 class Simulation:
-    """Runs a scene's phases with the finite-element (``method="fem"``) or the
-    finite-difference reference (``method="fd"``) stepper."""
+    """Runs a scene's phases on its domain: ``method="fem"`` with the scene's time scheme,
+    ``method="fd"`` with the finite-difference reference ("fd-heun")."""
 
-    def __init__(self, scene: Scene, method: str = "fem", observers: dict[str, np.ndarray] | None = None) -> None:
-        """``observers``: the running state of the frame observers from a checkpoint
-        (:func:`femphase.io.load_observers`), so a resumed run continues its T1 count."""
+    def __init__(self, scene: Scene, method: str = "fem", energy: FreeEnergy | None = None) -> None:
         if method not in METHODS:
-            raise SceneError("--method", method, f"one of {METHODS}")
+            raise SceneError("--method", method, f"one of {tuple(METHODS)}")
         self.scene, self.method = scene, method
-        self.discretisation = scene.discretisation()
-        self._order: OrderObserver | None = None
-        self._observers = observers or None
+        self.domain = scene.domain
+        self.energy = energy or FreeEnergy.paper(scene.model)
+        self.observables: dict[str, Observable] = {}
 
-    def observers(self) -> dict[str, np.ndarray]:
-        """The frame observers' running state, for a checkpoint."""
-        return self._order.snapshot() if self._order is not None else {}
+    def observer_state(self) -> dict[str, np.ndarray]:
+        """The observables' running state, for a checkpoint."""
+        out: dict[str, np.ndarray] = {}
+        for observable in self.observables.values():
+            out.update(observable.snapshot())
+        return out
 
-    def stepper(self, phase: Phase, radii: np.ndarray):
-        flow = self.scene.flow(phase)
-        if self.method == "fd":
-            from .fd import FiniteDifferenceStepper
+    def restore_observers(self, snapshot: dict[str, np.ndarray]) -> None:
+        """Continue the observables' running state from a checkpoint (a resumed run)."""
+        for name in self.scene.output.observables:
+            self.observable(name).restore(snapshot)
 
-            cls = FiniteDifferenceStepper
-        else:
-            cls = SemiImplicitStepper
-        return cls(self.discretisation, self.scene.model, self.scene.numerics, phase.dt, flow, radii)
+    def observable(self, name: str) -> Observable:
+        if name not in self.observables:
+            self.observables[name] = OBSERVABLES.get(name)(self)
+        return self.observables[name]
+
+    def columns(self) -> tuple[list[str], list[str]]:
+        """(particle columns, global columns) of the scene's observables, in output order."""
+        particle, global_ = [], []
+        for name in resolve(self.scene.output.observables):
+            particle += self.observable(name).particle_columns
+            global_ += self.observable(name).global_columns
+        return particle, global_
+
+    def stepper(self, phase: Phase, radii: np.ndarray) -> Stepper:
+        return Stepper(self.domain, self.scene.model, self.scene.numerics, phase.dt, self.scene.flow(phase),
+                       radii, energy=self.energy, scheme=METHODS[self.method])
 
     def total_steps(self) -> int:
         return sum(p.n_steps for p in self.scene.phases)
@@ -123,25 +140,14 @@ class Simulation:
                 tracker.finish(state, error)
         return state
 
-    def shape(self, state: State) -> ShapeObservables:
-        """The shape observables of a state (the meshed path overrides this)."""
-        return shape_observables(state, self.discretisation.operators)
-
-    def period_x(self) -> float:
-        """The channel's period in x (lattice units)."""
-        return self.discretisation.grid.length
-
     def _frame(self, state: State, phase: Phase, trackers: list[Tracker], needs: frozenset) -> None:
         frame = Frame(state, phase)
-        if "shape" in needs:
-            frame.shape = self.shape(state)
-        if "energy" in needs:
-            frame.energy = free_energy(state.global_fields(), state.radii, self.scene.model,
-                                       self.discretisation.operators)
-        if "order" in needs and "order" in self.scene.output.observables:
-            if self._order is None:
-                self._order = OrderObserver(self.period_x(), self._observers)
-            frame.order = self._order(frame.shape)
+        # only what a tracker uses and the scene asked for
+        for name in resolve([name for name in self.scene.output.observables if name in needs]):
+            observable = self.observable(name)
+            values = observable(state, frame.particle)
+            frame.particle.update({c: values[c] for c in observable.particle_columns})
+            frame.globals.update({c: values[c] for c in observable.global_columns})
         for tracker in trackers:
             tracker.frame(frame)
 
@@ -172,7 +178,7 @@ class ProgressBar(Tracker):
 
 
 class FrameRecorder(Tracker):
-    """Keeps every frame's observables in memory (for scripts, tests and notebooks)."""
+    """Keeps every frame's state and observables in memory (for scripts, tests, notebooks)."""
 
     needs = frozenset({"shape", "energy", "order"})
 
@@ -180,11 +186,13 @@ class FrameRecorder(Tracker):
         self.frames: list[Frame] = []
 
     def frame(self, frame: Frame) -> None:
-        self.frames.append(Frame(frame.state.copy(), frame.phase, frame.shape, frame.energy, frame.order))
+        self.frames.append(Frame(frame.state.copy(), frame.phase, dict(frame.particle), dict(frame.globals)))
 
-    def series(self, name: str) -> np.ndarray:
-        """(n_frames, N) array of a shape observable, e.g. "elongation"."""
-        return np.stack([getattr(f.shape, name) for f in self.frames])
+    def series(self, name: str, kind: str = "particle") -> np.ndarray:
+        """(n_frames, N) array of a per-particle column (e.g. "elongation"), or with
+        kind="global" (n_frames,) of a global one (e.g. "free_energy")."""
+        return np.stack([np.asarray(getattr(f, "globals" if kind == "global" else "particle")[name])
+                         for f in self.frames])
 
     @property
     def times(self) -> np.ndarray:
@@ -197,46 +205,32 @@ class RunDirectory(Tracker):
     def __init__(self, directory: str | Path, resume: bool = False) -> None:
         self.directory = Path(directory)
         self.resume = resume
-        self.needs = frozenset({"shape", "energy", "order"})
+        self.needs = frozenset(OBSERVABLES.names())
 
     def start(self, simulation: Simulation, state: State) -> None:
         scene = simulation.scene
         self.simulation = simulation
         self.directory.mkdir(parents=True, exist_ok=True)
         keep = state.time if self.resume else None
-        order = "order" in scene.output.observables
         (self.directory / "scene.toml").write_text(to_toml(scene.to_dict()))
-        self.particles = CsvWriter(
-            self.directory / "particles.csv", PARTICLE_COLUMNS + (ORDER_PARTICLE_COLUMNS if order else []), keep
-        )
-        self.globals = CsvWriter(
-            self.directory / "global.csv", GLOBAL_COLUMNS + (ORDER_GLOBAL_COLUMNS if order else []), keep
-        )
-        self.fields = (
-            FieldWriter(self.directory, simulation.discretisation.mesh, keep) if scene.output.fields else None
-        )
+        self.particle_columns, self.global_columns = simulation.columns()
+        self.particles = CsvWriter(self.directory / "particles.csv", ["time", "id"] + self.particle_columns, keep)
+        self.globals = CsvWriter(self.directory / "global.csv", ["time", "step"] + self.global_columns, keep)
+        self.fields = FieldWriter(self.directory, simulation.domain.mesh, keep) if scene.output.fields else None
         self.started = wallclock.perf_counter()
         self.first_step = state.step
 
     def frame(self, frame: Frame) -> None:
-        state, shape, energy = frame.state, frame.shape, frame.energy
-        order = frame.order or {}
-        rows = []
-        for i in range(state.n_particles):
-            row = [state.time, i, shape.x[i], shape.y[i], shape.area[i], shape.elongation[i], shape.orientation[i]]
-            if order:
-                row += [abs(order["psi6"][i]), abs(order["psi2"][i])]
-            rows.append(row)
-        self.particles.write_rows(rows)
-        row = [state.time, state.step, energy.total, energy.interface, energy.area, energy.repulsion]
-        if order:
-            row += [order["Psi6"], order["Psi2"], order["lattice_angle"], order["t1_count"]]
-        self.globals.write_rows([row])
+        state = frame.state
+        columns = np.column_stack([np.full(state.n_particles, state.time), np.arange(state.n_particles)]
+                                  + [np.asarray(frame.particle[c], dtype=float) for c in self.particle_columns])
+        self.particles.write_rows([[row[0], int(row[1]), *row[2:]] for row in columns.tolist()])
+        self.globals.write_rows([[state.time, state.step] + [frame.globals[c] for c in self.global_columns]])
+        output = self.simulation.scene.output
         if self.fields is not None:
-            output = self.simulation.scene.output
-            self.fields.write(state.time, point_data(state, self.simulation.discretisation.dof_map, output.per_particle_fields))
-        if self.simulation.scene.output.checkpoint:
-            save_checkpoint(self.directory / "checkpoint.npz", state, self.simulation.observers())
+            self.fields.write(state.time, point_data(state, output.per_particle_fields))
+        if output.checkpoint:
+            save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state())
 
     def finish(self, state: State, error: Exception | None) -> None:
         for writer in (self.particles, self.globals, self.fields):
@@ -258,19 +252,23 @@ class RunDirectory(Tracker):
         })
 
 
+#: The checkpoint's file name in a run directory.
+CHECKPOINT = "checkpoint.h5"
+
+
 def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, method: str = "fem",
               progress: bool | None = None) -> State:
-    """Run a scene into a run directory (what ``femphase run`` does)."""
+    """Run a scene into a run directory (what ``femphase run`` does), on any domain."""
     directory = Path(directory)
-    checkpoint = directory / "checkpoint.npz"
+    simulation = Simulation(scene, method)
     if resume:
+        checkpoint = directory / CHECKPOINT
         if not checkpoint.exists():
-            raise SceneError("--resume", str(directory), "a run directory that holds checkpoint.npz")
-        state = load_checkpoint(checkpoint)
-        simulation = Simulation(scene, method, load_observers(checkpoint))
+            raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}")
+        state, observers = load_checkpoint(checkpoint, simulation.domain)
+        simulation.restore_observers(observers)
     else:
         state = scene.initial_state()
-        simulation = Simulation(scene, method)
     trackers: list[Tracker] = [RunDirectory(directory, resume)]
     if progress is not False:
         trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))

@@ -1,28 +1,28 @@
-"""The simulation state: one phase field per particle, each on its own window."""
+"""The simulation state: one phase field per particle, each on its own window of a Domain."""
 
 from __future__ import annotations
 
-import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import Hashable
 
 import numpy as np
 
-from .mesh import ChannelGrid
-from .model import interface_profile
-from .windows import Window, WindowPolicy
+from .domain import Domain
+from .windows import Layout
 
 
 @dataclass
 class State:
-    """Fields φ_i on windows, the particles' target radii, and the clock.
+    """Fields φ_i on windows of ``domain``, the particles' target radii, and the clock.
 
-    fields[i] is an (windows[i].ny, windows[i].nx) array of nodal values; the field is zero
-    outside its window. time is in the model's time units, step counts completed steps,
-    phase is the index of the scene phase under way and phase_step the steps done in it.
+    fields[i] holds φ_i's values on the dofs of windows[i] (:meth:`Domain.window_dofs`, in
+    that order; a flat array); φ_i is zero outside its window. time is in the model's time
+    units, step counts completed steps, phase is the index of the scene phase under way and
+    phase_step the steps done in it. Radii are lengths (lattice units).
     """
 
-    grid: ChannelGrid
-    windows: list[Window]
+    domain: Domain
+    windows: list[Hashable]
     fields: list[np.ndarray]
     radii: np.ndarray
     time: float = 0.0
@@ -34,51 +34,41 @@ class State:
     def n_particles(self) -> int:
         return len(self.fields)
 
+    def layout(self) -> Layout:
+        """The windows grouped by the domain (cached there while they do not change)."""
+        return self.domain.layout(self.windows)
+
+    def flat(self) -> tuple[Layout, np.ndarray]:
+        """(layout, all fields gathered into one vector in layout order)."""
+        layout = self.layout()
+        return layout, layout.gather(self.fields)
+
     def global_field(self, i: int) -> np.ndarray:
-        """Field i on every node of the channel, in grid order (zeros outside its window)."""
-        out = np.zeros(self.grid.n_nodes)
-        out[self.windows[i].node_indices(self.grid)] = self.fields[i].ravel()
+        """Field i on every dof of the domain (zeros outside its window)."""
+        out = np.zeros(self.domain.n_dofs)
+        out[self.domain.window_dofs(self.windows[i])] = self.fields[i]
         return out
 
     def global_fields(self) -> np.ndarray:
-        """(N, n_nodes) array of all fields on the whole channel."""
+        """(N, n_dofs) array of all fields on the whole domain (memory N × n_dofs: for
+        small scenes and tests; frames work window by window)."""
         return np.stack([self.global_field(i) for i in range(self.n_particles)])
 
     def copy(self) -> "State":
-        return copy.deepcopy(self)
+        """A copy sharing the (immutable) domain and windows."""
+        return replace(self, windows=list(self.windows), fields=[f.copy() for f in self.fields],
+                       radii=self.radii.copy())
 
 
-def disc_field(
-    grid: ChannelGrid, window: Window, centre: tuple[float, float], radius: float, width: float
-) -> np.ndarray:
-    """The equilibrium profile (1 + tanh((radius − d)/λ))/2 of a disc, on ``window``.
-
-    d is the distance to ``centre`` with the minimum image in x (periodic).
-    """
-    x = window.columns(grid) * grid.h
-    y = window.rows() * grid.h
-    dx = (x - centre[0] + 0.5 * grid.length) % grid.length - 0.5 * grid.length
-    dy = y - centre[1]
-    distance = np.hypot(dx[None, :], dy[:, None])
-    return interface_profile(radius - distance, width)
-
-
-def discs_state(
-    grid: ChannelGrid,
-    centres: np.ndarray,
-    radii: np.ndarray,
-    initial_radii: np.ndarray,
-    interface_width: float,
-    policy: WindowPolicy,
-) -> State:
-    """A state of discs of radius initial_radii at centres, with target radii ``radii``."""
+def discs_state(domain: Domain, centres: np.ndarray, radii: np.ndarray, initial_radii: np.ndarray,
+                interface_width: float, policy) -> State:
+    """Discs of radius ``initial_radii`` at ``centres`` (N, 2), with target radii ``radii``:
+    the profile (1 + tanh((r0 − d)/λ))/2, each on the window that covers it."""
     windows, fields = [], []
-    for (cx, cy), r0 in zip(centres, initial_radii):
-        # the box where the profile exceeds the threshold, in nodes
+    for centre, r0 in zip(np.asarray(centres, dtype=float), np.broadcast_to(initial_radii, len(centres))):
+        # where the profile crosses the policy's threshold
         reach = r0 + interface_width * np.arctanh(1.0 - 2.0 * policy.threshold)
-        rows = (max(0, int(np.floor((cy - reach) / grid.h))), min(grid.ny - 1, int(np.ceil((cy + reach) / grid.h))))
-        cols = (int(np.floor((cx - reach) / grid.h)), int(np.ceil((cx + reach) / grid.h)))
-        window = policy.cover(rows, cols, grid)
+        window = domain.disc_window(tuple(centre), reach, policy)
         windows.append(window)
-        fields.append(disc_field(grid, window, (cx, cy), r0, interface_width))
-    return State(grid=grid, windows=windows, fields=fields, radii=np.asarray(radii, dtype=float))
+        fields.append(domain.disc_field(window, tuple(centre), r0, interface_width))
+    return State(domain, windows, fields, np.asarray(radii, dtype=float).copy())

@@ -33,7 +33,10 @@ stabilisation is needed, assembled on the non-periodic mesh and folded with
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.sparse as sp
@@ -51,7 +54,14 @@ from skfem import (
 )
 from skfem.helpers import ddot, div, sym_grad
 
+from femphase.errors import SceneError
 from femphase.periodic import fold_matrix, periodic_dof_map
+
+if TYPE_CHECKING:
+    from femphase.meshed import MeshDomain
+
+#: Keys of a scene's ``flow = {type = "stokes", ...}`` table; exactly one driving key.
+STOKES_DRIVES = ("max_velocity", "flux", "pressure_drop")
 
 
 @BilinearForm
@@ -328,3 +338,80 @@ def _unit_force_solution(
     weights = unit.assemble(pressure_basis)
     pressure -= weights @ pressure / weights.sum()
     return velocity, pressure
+
+
+def stokes_drive(spec: dict) -> tuple[str, float, float]:
+    """(driving key, its value, viscosity) of a ``{type = "stokes", ...}`` flow table;
+    raises SceneError naming a bad key or value."""
+    allowed = {"type", "viscosity", *STOKES_DRIVES}
+    for key in spec:
+        if key not in allowed:
+            raise SceneError(f"flow.{key}", spec[key], f"a stokes flow takes only {sorted(allowed)}")
+    given = [k for k in STOKES_DRIVES if k in spec]
+    if len(given) != 1:
+        raise SceneError("flow", spec, f"exactly one of {list(STOKES_DRIVES)} for a stokes flow")
+    value = spec[given[0]]
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
+        raise SceneError(f"flow.{given[0]}", value, "a finite number")
+    viscosity = spec.get("viscosity", 1.0)
+    if not isinstance(viscosity, (int, float)) or isinstance(viscosity, bool) or not viscosity > 0:
+        raise SceneError("flow.viscosity", viscosity, "a number > 0")
+    return given[0], float(value), float(viscosity)
+
+
+def stokes_flow(domain: "MeshDomain", spec: dict, unit: StokesFlow | None = None,
+                cache: str | Path | None = None) -> StokesFlow:
+    """The Stokes flow a scene's ``flow = {type = "stokes", ...}`` table describes.
+
+    Keys: exactly one of ``max_velocity`` (the largest nodal speed; on a straight channel
+    the Poiseuille centre-line velocity, the ``rate`` of ``type = "poiseuille"``), ``flux``
+    (period-averaged flux Q) or ``pressure_drop`` (Δp over one period), and optionally
+    ``viscosity`` (default 1). Walls are no-slip. ``unit``, a flow already solved on this
+    domain with the same viscosity, is rescaled instead of solving again (Stokes is linear);
+    ``cache`` is passed on to :func:`unit_stokes_flow`.
+    """
+    drive, value, viscosity = stokes_drive(spec)
+    if unit is None or unit.viscosity != viscosity:
+        unit = unit_stokes_flow(domain, float(viscosity), cache)
+    if drive == "pressure_drop":
+        scale = value / unit.pressure_drop
+    elif drive == "flux":
+        scale = value / unit.flux
+    else:
+        scale = value / np.hypot(*unit.velocity_at_nodes()).max()
+    return replace(unit, velocity=scale * unit.velocity, pressure=scale * unit.pressure,
+                   pressure_drop=scale * unit.pressure_drop, flux=scale * unit.flux)
+
+
+def unit_stokes_flow(domain: "MeshDomain", viscosity: float = 1.0, cache: str | Path | None = None) -> StokesFlow:
+    """The Stokes flow driven by a unit pressure drop, read from ``cache`` (an .npz file)
+    when it holds this mesh's solution, else solved (and written there).
+
+    A P2 Stokes solve on a ~20k-node channel takes about a minute with SuperLU, so scenes
+    keep the unit solution next to their mesh; the file stores a checksum of the mesh and
+    the viscosity, and a stale file is solved again and overwritten.
+    """
+    checksum = _mesh_checksum(domain, viscosity)
+    if cache is not None and Path(cache).is_file():
+        with np.load(cache) as data:
+            if str(data["checksum"]) == checksum:
+                velocity_basis = Basis(domain.mesh, ElementVector(ElementTriP2()))
+                return StokesFlow(
+                    mesh=domain.mesh, velocity_basis=velocity_basis,
+                    pressure_basis=velocity_basis.with_element(ElementTriP1()),
+                    velocity=data["velocity"], pressure=data["pressure"], period=domain.period,
+                    viscosity=viscosity, pressure_drop=1.0, flux=float(data["flux"]),
+                )
+    flow = solve_stokes(domain.mesh, domain.period, wall_facets=domain.wall_facets,
+                        pressure_drop=1.0, viscosity=viscosity)
+    if cache is not None:
+        np.savez(cache, checksum=checksum, velocity=flow.velocity, pressure=flow.pressure, flux=flow.flux)
+    return flow
+
+
+def _mesh_checksum(domain: "MeshDomain", viscosity: float) -> str:
+    digest = hashlib.sha256()
+    for array in (domain.mesh.p, domain.mesh.t, domain.wall_facets):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    digest.update(repr(float(viscosity)).encode())
+    return digest.hexdigest()

@@ -1,78 +1,71 @@
-"""Per-particle windows: each field lives on a rectangular block of the channel's nodes.
+"""Per-particle windows: each field is computed only on a set of dofs that covers it.
 
-As in the paper's supplement, a field is only computed on a window that covers it: the
-nodes where φ > threshold, plus a margin (4 lattice units by default) on every side. The
-window grows when the margin runs short, shrinks when it is far too long, is not forced to
-be square, follows the particle, wraps periodically in x and is clipped at the walls.
+As in the paper's supplement, a window covers the nodes where φ > threshold plus a margin
+(4 lattice units by default) on every side; it grows when the margin runs short, shrinks
+when it is far too long, follows the particle, wraps periodically in x and ends at the walls.
+Outside its window a field is zero, so a window's linear system is the principal submatrix
+of the full-domain system on the window's dofs (homogeneous Dirichlet data on the window's
+artificial edges, natural Neumann on the walls).
 
-Outside its window a field is zero. A window's linear system is therefore the principal
-submatrix of the full-mesh system on the window's nodes (homogeneous Dirichlet data on the
-window's artificial edges, natural Neumann on the walls). On the structured mesh that
-submatrix depends only on the window's :meth:`Window.key`, so windows of the same shape
-share one matrix, one factorisation and one multi-right-hand-side solve.
+A window is a hashable description that its :class:`~femphase.domain.Domain` turns into
+dofs. Two kinds exist:
+
+* :class:`Window`, a rectangular block of the structured channel's node lattice. Its
+  submatrix depends only on :meth:`Window.key`, so windows of one shape share one matrix,
+  one solver and one multi-right-hand-side solve (the structured fast path);
+* :class:`Box`, the dofs of any mesh inside an axis-aligned box (periodic in x).
+
+:class:`Layout` concatenates all windows' fields into one flat vector, grouped by key.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable, Hashable, Sequence
 
 import numpy as np
 
-from .mesh import ChannelGrid
-
+# -- rectangular windows of the structured channel ---------------------------------------
 
 @dataclass(frozen=True)
 class Window:
-    """Rows iy0 … iy0+ny−1 and columns ix0 … ix0+nx−1 (mod grid.nx) of the node lattice.
-
-    A window with nx == grid.nx spans the whole periodic width (then ix0 = 0).
-    """
+    """Rows iy0 … iy0+ny−1 and columns ix0 … ix0+nx−1 (mod the lattice's nx) of the channel's
+    node lattice; its field is stored row by row (x fastest). A window with nx equal to the
+    lattice's spans the whole periodic width (then ix0 = 0)."""
 
     iy0: int
     ny: int
     ix0: int
     nx: int
 
+    @property
+    def shape(self) -> tuple[int, int]:
+        return (self.ny, self.nx)
+
     def rows(self) -> np.ndarray:
         return np.arange(self.iy0, self.iy0 + self.ny)
 
-    def columns(self, grid: ChannelGrid) -> np.ndarray:
-        return (self.ix0 + np.arange(self.nx)) % grid.nx
+    def columns(self, lattice_nx: int) -> np.ndarray:
+        return (self.ix0 + np.arange(self.nx)) % lattice_nx
 
-    def node_indices(self, grid: ChannelGrid) -> np.ndarray:
-        """Global dofs of the window's nodes, row by row (x fastest)."""
-        return (self.rows()[:, None] * grid.nx + self.columns(grid)[None, :]).ravel()
-
-    def key(self, grid: ChannelGrid, alternating: bool) -> tuple:
+    def key(self, lattice_ny: int, lattice_nx: int, alternating: bool) -> tuple:
         """Everything the window's submatrix depends on: shape, walls touched, periodicity,
-        and (for the alternating diagonal pattern only) the chequerboard parity."""
+        and (alternating diagonals only) the chequerboard parity."""
         parity = (self.ix0 + self.iy0) % 2 if alternating else 0
-        return (
-            self.ny,
-            self.nx,
-            self.iy0 == 0,
-            self.iy0 + self.ny == grid.ny,
-            self.nx == grid.nx,
-            parity,
-        )
-
-
-def full_window(grid: ChannelGrid) -> Window:
-    """The window that is the whole mesh (full-mesh mode)."""
-    return Window(0, grid.ny, 0, grid.nx)
+        return (self.ny, self.nx, self.iy0 == 0, self.iy0 + self.ny == lattice_ny, self.nx == lattice_nx, parity)
 
 
 @dataclass(frozen=True)
 class WindowPolicy:
-    """How windows follow their fields (all lengths in nodes of the grid).
+    """How rectangular windows follow their fields (all lengths in nodes of the lattice).
 
     threshold   φ above which a node belongs to the particle (the paper: 0.01)
     margin      nodes kept between the particle and a window edge (the paper: 4 sites)
     room        extra nodes a new window leaves on each side, so it need not move every step
     quantum     window sizes are rounded up to a multiple of this, so that few distinct
-                shapes (and factorisations) exist
-    enabled     False: every window is the whole mesh (full-mesh mode)
+                shapes (and solvers) exist
+    enabled     False: every window is the whole channel (full-mesh mode)
     """
 
     threshold: float = 0.01
@@ -86,72 +79,83 @@ class WindowPolicy:
                     enabled: bool = True) -> "WindowPolicy":
         """A policy whose margin is ``margin`` lattice units (not nodes) at spacing h."""
         margin_nodes = math.ceil(margin / h - 1e-9)
-        return cls(
-            threshold=threshold,
-            margin=margin_nodes,
-            room=max(1, math.ceil(margin_nodes / 4)),
-            quantum=max(4, 2 * math.ceil(1.0 / h)),
-            enabled=enabled,
-        )
+        return cls(threshold=threshold, margin=margin_nodes, room=max(1, math.ceil(margin_nodes / 4)),
+                   quantum=max(4, 2 * math.ceil(1.0 / h)), enabled=enabled)
 
-    def cover(self, rows: tuple[int, int], cols: tuple[int, int], grid: ChannelGrid) -> Window:
-        """A window around the occupied node box rows × cols (inclusive, cols may exceed nx)."""
+    @property
+    def longest_margin(self) -> int:
+        """The longest margin a window keeps before it shrinks."""
+        return self.margin + 2 * self.room + self.quantum
+
+    def cover(self, rows: tuple[int, int], cols: tuple[int, int], lattice: tuple[int, int]) -> Window:
+        """A window around the occupied node box rows × cols (inclusive; cols may exceed nx)
+        on a lattice of (ny, nx) nodes."""
+        lattice_ny, lattice_nx = lattice
         if not self.enabled:
-            return full_window(grid)
+            return Window(0, lattice_ny, 0, lattice_nx)
         pad = self.margin + self.room
         ny = _round_up(rows[1] - rows[0] + 1 + 2 * pad, self.quantum)
         nx = _round_up(cols[1] - cols[0] + 1 + 2 * pad, self.quantum)
         iy0 = rows[0] - (ny - (rows[1] - rows[0] + 1)) // 2
         # clip at the walls: the window ends there, it does not slide inward
-        top = min(iy0 + ny, grid.ny)
+        top = min(iy0 + ny, lattice_ny)
         iy0 = max(iy0, 0)
         ny = top - iy0
-        if nx >= grid.nx:
-            return Window(int(iy0), int(ny), 0, int(grid.nx))
-        ix0 = (cols[0] - (nx - (cols[1] - cols[0] + 1)) // 2) % grid.nx
+        if nx >= lattice_nx:
+            return Window(int(iy0), int(ny), 0, int(lattice_nx))
+        ix0 = (cols[0] - (nx - (cols[1] - cols[0] + 1)) // 2) % lattice_nx
         return Window(int(iy0), int(ny), int(ix0), int(nx))
 
-    def misfits(self, block: np.ndarray, windows: list[Window], grid: ChannelGrid) -> np.ndarray:
-        """For fields block (n, ny, nx) on windows of one shape: which need another window.
-
-        A window fits while every margin not at a wall lies within
-        [margin, margin + 2·room + quantum]; full-width windows are always re-examined.
-        """
-        if not self.enabled:
-            return np.zeros(len(windows), dtype=bool)
+    def margins(self, block: np.ndarray, windows: Sequence[Window], lattice_ny: int) -> np.ndarray:
+        """(n, 4) margins left, right, bottom, top (nodes) of fields block (n, ny, nx); NaN
+        at a wall (no margin needed there); a row of −1 for a field with no occupied node."""
         occupied = block > self.threshold
         rows, cols = occupied.any(axis=2), occupied.any(axis=1)
-        empty = ~rows.any(axis=1)
-        ny, nx = block.shape[1:]
-        bottom = np.argmax(rows, axis=1).astype(float)
-        top = np.argmax(rows[:, ::-1], axis=1).astype(float)
-        left = np.argmax(cols, axis=1)
-        right = np.argmax(cols[:, ::-1], axis=1)
+        margins = np.stack([
+            np.argmax(cols, axis=1), np.argmax(cols[:, ::-1], axis=1),
+            np.argmax(rows, axis=1), np.argmax(rows[:, ::-1], axis=1),
+        ], axis=1).astype(float)
         iy0 = np.array([w.iy0 for w in windows])
-        bottom[iy0 == 0] = np.nan
-        top[iy0 + ny == grid.ny] = np.nan
-        margins = np.stack([left, right, bottom, top], axis=1)
-        longest = self.margin + 2 * self.room + self.quantum
-        with np.errstate(invalid="ignore"):
-            bad = ((margins < self.margin) | (margins > longest)).any(axis=1)
-        return (bad | (nx == grid.nx)) & ~empty
+        margins[iy0 == 0, 2] = np.nan
+        margins[iy0 + block.shape[1] == lattice_ny, 3] = np.nan
+        margins[~rows.any(axis=1)] = -1.0
+        return margins
 
-    def fit(self, phi: np.ndarray, window: Window, grid: ChannelGrid) -> Window:
-        """The window ``phi`` (on ``window``) should live on next: ``window`` itself unless
-        :meth:`misfits` says otherwise."""
-        if not self.misfits(phi[None], [window], grid)[0]:
-            return window
+    def misfits(self, block: np.ndarray, windows: Sequence[Window], lattice: tuple[int, int]) -> np.ndarray:
+        """For fields block (n, ny, nx) on windows of one shape: which need another window.
+
+        A window fits while every margin not at a wall lies within [margin, longest_margin];
+        full-width windows are always re-examined (the particle may fit a narrower one)."""
+        if not self.enabled:
+            return np.zeros(len(windows), dtype=bool)
+        margins = self.margins(block, windows, lattice[0])
+        empty = margins[:, 0] < 0
+        with np.errstate(invalid="ignore"):
+            bad = ((margins < self.margin) | (margins > self.longest_margin)).any(axis=1)
+        return (bad | (block.shape[2] == lattice[1])) & ~empty
+
+    def fit(self, phi: np.ndarray, window: Window, lattice: tuple[int, int]) -> Window:
+        """The window ``phi`` (ny, nx on ``window``) should live on next."""
+        lattice_ny, lattice_nx = lattice
         occupied = phi > self.threshold
         row_hits = np.flatnonzero(occupied.any(axis=1))
+        if row_hits.size == 0:
+            return window
         rows = (window.iy0 + row_hits[0], window.iy0 + row_hits[-1])
         col_occupied = occupied.any(axis=0)
-        if window.nx == grid.nx:
+        if window.nx == lattice_nx:
             c0, c1 = _circular_extent(col_occupied)
-            if c1 - c0 + 1 + 2 * (self.margin + self.room) + self.quantum > grid.nx:
-                return window
-            return self.cover(rows, (c0, c1), grid)
+            if c1 - c0 + 1 + 2 * (self.margin + self.room) + self.quantum <= lattice_nx:
+                return self.cover(rows, (c0, c1), lattice)
+            # the particle needs the whole width; its rows must still follow it (a channel
+            # narrower than a window: the y-extent must not freeze)
+            margins = self.margins(phi[None], [window], lattice_ny)[0, 2:]
+            with np.errstate(invalid="ignore"):
+                if not ((margins < self.margin) | (margins > self.longest_margin)).any():
+                    return window
+            return self.cover(rows, (0, lattice_nx - 1), lattice)
         col_hits = np.flatnonzero(col_occupied)
-        return self.cover(rows, (window.ix0 + col_hits[0], window.ix0 + col_hits[-1]), grid)
+        return self.cover(rows, (window.ix0 + col_hits[0], window.ix0 + col_hits[-1]), lattice)
 
 
 def _round_up(n: int, quantum: int) -> int:
@@ -171,92 +175,233 @@ def _circular_extent(occupied: np.ndarray) -> tuple[int, int]:
     return int(start), int(end)
 
 
-def pad_window(phi: np.ndarray, window: Window, grid: ChannelGrid, width: int) -> np.ndarray:
+def pad_window(phi: np.ndarray, window: Window, lattice: tuple[int, int], width: int) -> np.ndarray:
     """phi (..., ny, nx) with ``width`` extra nodes on every side: mirrored at a wall (the
     Neumann condition), periodic across the seam of a full-width window, zero beyond a
     window's artificial edge (the field is zero there by definition). Leading axes stack
     fields on windows of the same key."""
     ny, nx = phi.shape[-2:]
     # filled slice by slice: np.pad's generality costs ~0.3 ms a call, and this runs for
-    # every window at every frame
+    # every window group at every frame
     out = np.zeros(phi.shape[:-2] + (ny + 2 * width, nx + 2 * width), dtype=phi.dtype)
     out[..., width:width + ny, width:width + nx] = phi
     if window.iy0 == 0:  # reflected without repeating the wall row, as np.pad's "reflect"
         out[..., :width, width:width + nx] = phi[..., width:0:-1, :]
-    if window.iy0 + window.ny == grid.ny:
+    if window.iy0 + window.ny == lattice[0]:
         out[..., width + ny:, width:width + nx] = phi[..., -2:-2 - width:-1, :]
-    if window.nx == grid.nx:
+    if window.nx == lattice[1]:
         out[..., :width] = out[..., nx:nx + width]
         out[..., width + nx:] = out[..., width:2 * width]
     return out
 
 
-def transfer(phi: np.ndarray, old: Window, new: Window, grid: ChannelGrid) -> np.ndarray:
-    """The field ``phi`` (on ``old``) on the nodes of ``new``; zero where ``old`` had none."""
+def transfer(phi: np.ndarray, old: Window, new: Window, lattice_nx: int) -> np.ndarray:
+    """The field ``phi`` (ny, nx on ``old``) on the nodes of ``new``; zero where ``old`` had none."""
     out = np.zeros((new.ny, new.nx), dtype=phi.dtype)
     row_lo, row_hi = max(old.iy0, new.iy0), min(old.iy0 + old.ny, new.iy0 + new.ny)
     if row_lo >= row_hi:
         return out
-    local_old = (new.columns(grid) - old.ix0) % grid.nx
+    local_old = (new.columns(lattice_nx) - old.ix0) % lattice_nx
     keep = local_old < old.nx
     out[row_lo - new.iy0:row_hi - new.iy0, keep] = phi[row_lo - old.iy0:row_hi - old.iy0][:, local_old[keep]]
     return out
 
 
+# -- box windows of any mesh --------------------------------------------------------------
+
+@dataclass(frozen=True, order=True)
+class Box:
+    """x from ``x0`` over ``width`` (mod the period; ``width == period``: the whole period),
+    y from ``y0`` to ``y1`` (length units). Its dofs are the mesh's dofs inside it."""
+
+    x0: float
+    width: float
+    y0: float
+    y1: float
+
+    def contains(self, x: np.ndarray, y: np.ndarray, period: float) -> np.ndarray:
+        return (local_x(x, self.x0, period) <= self.width) & (y >= self.y0) & (y <= self.y1)
+
+
+def local_x(x: np.ndarray, x0, period: float) -> np.ndarray:
+    """x measured from a box's left edge x0 along +x, in [0, period)."""
+    return np.mod(x - x0, period)
+
+
+@dataclass(frozen=True)
+class BoxPolicy:
+    """How boxes follow their fields (lengths in the mesh's unit).
+
+    threshold   φ above which a node belongs to the particle (the paper: 0.01)
+    margin      length kept between the particle and a box edge (the paper: 4 sites)
+    room        extra length a refitted box leaves on each side
+    slack       box sizes are rounded up to a multiple of this (hysteresis: a box fits while
+                every margin is within [margin, margin + 2 room + slack + motion allowance])
+    lookahead   steps of motion a refitted box leaves room for ahead of a moving particle
+                (up to four margins), so that its solvers last several steps
+    enabled     False: every box is the whole domain (full-mesh mode)
+    """
+
+    threshold: float = 0.01
+    margin: float = 4.0
+    room: float = 1.0
+    slack: float = 4.0
+    lookahead: float = 12.0
+    enabled: bool = True
+
+    @classmethod
+    def for_spacing(cls, h: float, *, threshold: float = 0.01, margin: float = 4.0,
+                    enabled: bool = True) -> "BoxPolicy":
+        """The structured policy's margins at mesh spacing h (room h, slack ≥ 4h)."""
+        margin = h * math.ceil(margin / h - 1e-9)
+        return cls(threshold=threshold, margin=margin, room=max(h, margin / 4),
+                   slack=max(4.0 * h, margin), enabled=enabled)
+
+    def allowance(self, step: np.ndarray) -> np.ndarray:
+        """Room ahead of a particle moving by ``step`` per time step (any shape)."""
+        step = np.abs(step)
+        return np.maximum(step, np.minimum(self.lookahead * step, 4.0 * self.margin))
+
+    def cover(self, x_range: tuple[float, float], y_range: tuple[float, float], extent: tuple[float, float, float],
+              step: tuple[float, float] = (0.0, 0.0)) -> Box:
+        """The box around the occupied extent x_range × y_range (x_range may pass the seam),
+        leaving room for a particle moving by ``step`` per time step; ``extent`` is the
+        domain's (x0, period, y_low, y_high)."""
+        x0, period, wall_low, wall_high = extent
+        if not self.enabled:
+            return Box(x0, period, wall_low, wall_high)
+        pad = self.margin + self.room
+        (lx, hx), (ly, hy) = self._extent(x_range, step[0], pad), self._extent(y_range, step[1], pad)
+        ly, hy = max(ly, wall_low), min(hy, wall_high)
+        if hx - lx >= period:
+            return Box(x0, period, float(ly), float(hy))
+        return Box(x0 + float(np.mod(lx - x0, period)), float(hx - lx), float(ly), float(hy))
+
+    def _extent(self, span: tuple[float, float], step: float, pad: float) -> tuple[float, float]:
+        low = span[0] - pad - (self.allowance(step) if step < 0 else 0.0)
+        high = span[1] + pad + (self.allowance(step) if step > 0 else 0.0)
+        grow = self.slack * math.ceil((high - low) / self.slack - 1e-9) - (high - low)
+        return low - 0.5 * grow, high + 0.5 * grow
+
+    def misfits(self, extents: np.ndarray, boxes: Sequence[Box], extent: tuple[float, float, float, float],
+                steps: np.ndarray) -> np.ndarray:
+        """Which boxes need refitting, for all particles at once.
+
+        extents (N, 4): occupied x_min, x_max (from each box's x0, see :func:`local_x`),
+        y_min, y_max; NaN rows for particles with no node above threshold (left alone).
+        steps (N, 2): each particle's displacement over the coming step. Boxes spanning the
+        whole period are always re-examined."""
+        if not self.enabled:
+            return np.zeros(len(boxes), dtype=bool)
+        _, period, wall_low, wall_high = extent
+        box = np.array([[b.x0, b.width, b.y0, b.y1] for b in boxes])
+        margins = np.stack([
+            extents[:, 0], box[:, 1] - extents[:, 1], extents[:, 2] - box[:, 2], box[:, 3] - extents[:, 3],
+        ], axis=1)
+        # a box side at or beyond a wall needs no margin there
+        margins[box[:, 2] <= wall_low, 2] = np.nan
+        margins[box[:, 3] >= wall_high, 3] = np.nan
+        ahead = np.stack([np.maximum(-steps[:, 0], 0), np.maximum(steps[:, 0], 0),
+                          np.maximum(-steps[:, 1], 0), np.maximum(steps[:, 1], 0)], axis=1)
+        shortest = self.margin + ahead
+        longest = self.margin + 2 * self.room + self.slack + self.allowance(ahead) + self.allowance(
+            ahead[:, [1, 0, 3, 2]])
+        with np.errstate(invalid="ignore"):
+            bad = ((margins < shortest) | (margins > longest)).any(axis=1)
+        full = box[:, 1] >= period
+        return (bad | full) & ~np.isnan(extents[:, 0])
+
+
+def circular_extent(x: np.ndarray, period: float) -> tuple[float, float]:
+    """The shortest periodic interval [a, b] (b up to a + period) holding every x: it starts
+    after the widest gap between consecutive points."""
+    x = np.sort(np.mod(x, period))
+    gaps = np.diff(np.append(x, x[0] + period))
+    widest = int(np.argmax(gaps))
+    start = x[(widest + 1) % x.size]
+    return float(start), float(start + period - gaps[widest])
+
+
+# -- all windows of a state ---------------------------------------------------------------
+
 class Layout:
     """All windows of a state, ordered so that windows sharing a key are contiguous.
 
-    ``gather`` concatenates the fields into one flat vector in that order, ``scatter`` splits
-    such a vector back into per-particle arrays. ``groups`` lists (key, particle ids,
-    start, stop, dofs per window), each group a contiguous slice of the flat vector.
+    ``gather`` concatenates the fields into one flat vector in that order ("layout order"),
+    ``scatter`` splits such a vector back into per-particle arrays (views). ``groups`` lists
+    (key, particle ids, start, stop, dofs per window), each group a contiguous slice.
+
+    node_index         the dof of every position of the flat vector
+    order              particle id of every window, in layout order
+    offsets, sizes     start of every window's slice (and the total), and its length
+    owner              particle id of every position
+    mass               lumped mass of every position's dof
+    overlap_positions  positions whose dof lies in more than one window
     """
 
-    def __init__(self, windows: list[Window], grid: ChannelGrid, alternating: bool) -> None:
+    def __init__(self, windows: Sequence[Hashable], key: Callable[[Hashable], Hashable],
+                 group_dofs: Callable[[list], np.ndarray], shape: Callable[[Hashable], tuple[int, ...]],
+                 lumped_mass: np.ndarray) -> None:
+        """``key(window)`` groups windows; ``group_dofs(windows)`` returns the dofs (k, size)
+        of k windows of one key; ``shape(window)`` the shape a window's field is viewed in."""
         self.windows = tuple(windows)
-        keys = [w.key(grid, alternating) for w in windows]
-        members_of: dict[tuple, list[int]] = {}
-        for i, key in enumerate(keys):
-            members_of.setdefault(key, []).append(i)
-        self.order = np.array([i for key in sorted(members_of) for i in members_of[key]], dtype=int)
-        sizes = np.array([windows[i].ny * windows[i].nx for i in self.order])
-        self.offsets = np.concatenate([[0], np.cumsum(sizes)])
+        members_of: dict = {}
+        for i, w in enumerate(self.windows):
+            members_of.setdefault(key(w), []).append(i)
+        keys = sorted(members_of)
+        self.order = np.array([i for k in keys for i in members_of[k]], dtype=int)
         self.groups = []
+        self.shapes = []
         blocks = []
         start = 0
-        for key in sorted(members_of):
-            members = np.array(members_of[key])
-            w = windows[members[0]]
-            iy0 = np.array([windows[i].iy0 for i in members])
-            ix0 = np.array([windows[i].ix0 for i in members])
-            rows = iy0[:, None, None] + np.arange(w.ny)[None, :, None]
-            cols = (ix0[:, None, None] + np.arange(w.nx)[None, None, :]) % grid.nx
-            blocks.append((rows * grid.nx + cols).ravel())
-            stop = start + w.ny * w.nx * members.size
-            self.groups.append((key, members, start, stop, w.ny * w.nx))
-            start = stop
-        self.node_index = np.concatenate(blocks)
-        self.sizes = np.diff(self.offsets)
-        coverage = np.bincount(self.node_index, minlength=grid.n_nodes)
-        #: positions in the flat vector whose node is covered by more than one window
+        for k in keys:
+            members = np.array(members_of[k])
+            dofs = group_dofs([self.windows[i] for i in members])
+            size = dofs.shape[1]
+            blocks.append(dofs.ravel())
+            self.groups.append((k, members, start, start + size * members.size, size))
+            self.shapes.append(shape(self.windows[members[0]]))
+            start += size * members.size
+        self.node_index = np.concatenate(blocks) if blocks else np.zeros(0, dtype=int)
+        self.sizes = np.concatenate([np.full(m.size, size) for _, m, _, _, size in self.groups]).astype(int)
+        self.offsets = np.concatenate([[0], np.cumsum(self.sizes)])
+        self.owner = np.repeat(self.order, self.sizes)
+        self.mass = lumped_mass[self.node_index]
+        coverage = np.bincount(self.node_index, minlength=lumped_mass.size)
         self.overlap_positions = np.flatnonzero(coverage[self.node_index] > 1)
 
-    def gather(self, fields: list[np.ndarray]) -> np.ndarray:
+    def gather(self, fields: Sequence[np.ndarray]) -> np.ndarray:
         return np.concatenate([fields[i].ravel() for i in self.order])
 
     def scatter(self, flat: np.ndarray) -> list[np.ndarray]:
+        """Per-particle flat views of ``flat`` (particle order)."""
         fields: list[np.ndarray] = [None] * len(self.windows)  # type: ignore[list-item]
-        for key, members, start, stop, size in self.groups:
-            w = self.windows[members[0]]
-            block = flat[start:stop].reshape(members.size, w.ny, w.nx)
-            for i, values in zip(members, block):
-                fields[i] = values
+        for slot, i in enumerate(self.order):
+            fields[i] = flat[self.offsets[slot]:self.offsets[slot + 1]]
         return fields
 
     def group_block(self, flat: np.ndarray, group: int) -> np.ndarray:
-        """The group's slice of ``flat`` as an (n_members, ny, nx) view."""
+        """The group's slice of ``flat`` as an (n_members, *shape) view."""
         _, members, start, stop, _ = self.groups[group]
-        w = self.windows[members[0]]
-        return flat[start:stop].reshape(members.size, w.ny, w.nx)
+        return flat[start:stop].reshape((members.size,) + self.shapes[group])
 
-    def representative(self, group: int) -> Window:
+    def representative(self, group: int) -> Hashable:
         return self.windows[self.groups[group][1][0]]
+
+    def per_slot(self, values: np.ndarray) -> np.ndarray:
+        """Per-particle values (particle order) in layout order."""
+        return np.asarray(values)[self.order]
+
+    def reduce(self, ufunc: np.ufunc, values: np.ndarray) -> np.ndarray:
+        """``ufunc`` reduced over every window's slice, in layout order."""
+        return ufunc.reduceat(values, self.offsets[:-1])
+
+    def others_squared(self, squares: np.ndarray) -> np.ndarray:
+        """Σ_{j≠i} φ_j² at every position (zero where no other window overlaps)."""
+        others = np.zeros_like(squares)
+        shared = self.overlap_positions
+        if shared.size:
+            nodes = self.node_index[shared]
+            total = np.bincount(nodes, weights=squares[shared])
+            others[shared] = total[nodes] - squares[shared]
+        return others

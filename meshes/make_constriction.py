@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from femphase.unstructured.domain import write_domain
-from femphase.unstructured.meshing import delaunay_channel, edge_for_spacing, mesh_quality
+from femphase.meshed import write_domain
+from femphase.meshing import delaunay_channel, edge_for_spacing, mesh_quality
 
 LENGTH, HEIGHT, DEPTH, SPACING = 70.0, 240.0, 48.0, 1.0
 

@@ -4,16 +4,16 @@ The paper's channel, 70 × 240 lattice units, one node per unit area (h = 1):
 
 * straight_structured.vtu    femphase's structured mesh (right diagonals), tagged boundaries;
 * straight_unstructured.vtu  a Delaunay mesh of a rotated, jittered hexagonal lattice
-                             (femphase.unstructured.meshing.delaunay_channel).
+                             (femphase.meshing.delaunay_channel).
 
-Boundaries are line cells with cell data "boundary" = femphase.unstructured.BOUNDARY_TAGS
+Boundaries are line cells with cell data "boundary" = femphase.meshed.BOUNDARY_TAGS
 (left 1, right 2, bottom 3, top 4); ``right`` is ``left`` moved by 70 in x (periodic pair).
 """
 
 from pathlib import Path
 
-from femphase.unstructured.domain import write_domain
-from femphase.unstructured.meshing import delaunay_channel, edge_for_spacing, mesh_quality, structured_channel
+from femphase.meshed import write_domain
+from femphase.meshing import delaunay_channel, edge_for_spacing, mesh_quality, structured_channel
 
 LENGTH, HEIGHT, SPACING = 70.0, 240.0, 1.0
 HERE = Path(__file__).parent

@@ -2,24 +2,33 @@
 
 import numpy as np
 
+from femphase.channel import ChannelDomain
+from femphase.energy import EnergyParts, FreeEnergy, WindowedFields
 from femphase.mesh import channel_grid
 from femphase.model import ModelParameters
-from femphase.state import discs_state
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper
-from femphase.windows import WindowPolicy
+from femphase.state import State, discs_state
+from femphase.stepping import Numerics, Stepper
 
 
 def small_system(centres, length=40.0, width=40.0, h=1.0, radius=8.0, initial_radius=None,
                  windows=True, diagonals="right"):
-    """(discretisation, state) for discs at ``centres`` in a small channel."""
-    grid = channel_grid(length, width, h)
-    disc = Discretisation.structured(grid, diagonals)
+    """(domain, state) for discs at ``centres`` in a small structured channel."""
+    domain = ChannelDomain(channel_grid(length, width, h), diagonals)
     centres = np.asarray(centres, dtype=float)
     n = len(centres)
     r0 = np.full(n, radius if initial_radius is None else initial_radius)
-    state = discs_state(grid, centres, np.full(n, radius), r0, 2.0, WindowPolicy.for_spacing(h, enabled=windows))
-    return disc, state
+    policy = domain.window_policy(Numerics(windows=windows, diagonals=diagonals))
+    state = discs_state(domain, centres, np.full(n, radius), r0, 2.0, policy)
+    return domain, state
 
 
-def stepper(disc, state, dt=1.0, flow=None, params=ModelParameters(), **numerics):
-    return SemiImplicitStepper(disc, params, Numerics(**numerics), dt, flow, state.radii)
+def stepper(domain, state, dt=1.0, flow=None, params=ModelParameters(), **numerics):
+    """The stepper of ``domain`` for ``state``'s particles (``numerics``: Numerics fields)."""
+    return Stepper(domain, params, Numerics(**numerics), dt, flow, state.radii)
+
+
+def energy_of(state: State, params: ModelParameters) -> EnergyParts:
+    """The paper's free energy of ``state``, computed window by window."""
+    layout, phi = state.flat()
+    fields = WindowedFields(phi, layout, state.radii, state.domain.stiffness_apply(layout))
+    return FreeEnergy.paper(params).parts(fields)

@@ -1,4 +1,4 @@
-"""`femphase compare`: differences between runs, and between a run and external grid data."""
+"""`femphase compare`: differences between runs (grid and mesh), and between a run and external grid data."""
 
 from __future__ import annotations
 
@@ -158,3 +158,102 @@ def test_malformed_grid_data_is_rejected(runs, tmp_path):
         compare_runs(runs["fem"], tmp_path / "junk.npz")
     with pytest.raises(ValueError, match="suffix"):
         save_grid_data(tmp_path / "data.txt", data)
+
+
+# -- meshed runs ----------------------------------------------------------------------------
+
+def mesh_scene(mesh_file, dt: float = 0.1, per_particle: bool = True):
+    """tiny_scene's two particles on a meshed 24 × 24 channel (``mesh_file``, a .vtu)."""
+    return scene_from_dict({
+        "name": "tiny mesh",
+        "domain": {"kind": "mesh", "mesh": mesh_file.name, "h": 1.0},
+        "particles": {"layout": "list", "centres": [[8.0, 12.0], [17.0, 12.0]], "initial_radius": 5.0},
+        "output": {"fields": True, "per_particle_fields": per_particle},
+        "phases": [{"name": "relax", "duration": 3.0, "dt": dt, "frame_interval": 1.0}],
+    }, mesh_file.parent)
+
+
+@pytest.fixture(scope="module")
+def mesh_runs(tmp_path_factory):
+    """Two identical runs on a Delaunay mesh, one with half the time step, one on the
+    structured channel's triangulation read as a mesh."""
+    from femphase.meshed import write_domain
+    from femphase.meshing import delaunay_channel, edge_for_spacing, structured_channel
+
+    root = tmp_path_factory.mktemp("mesh_runs")
+    wall = lambda height: (lambda x: 0 * x + height)  # noqa: E731
+    write_domain(root / "delaunay.vtu", *delaunay_channel(24.0, edge_for_spacing(1.0), wall(0.0), wall(24.0), seed=1))
+    write_domain(root / "square.vtu", *structured_channel(24.0, 24.0, 1.0))
+    paths = {}
+    for name, mesh, kwargs in [("mesh", "delaunay.vtu", {}), ("mesh_again", "delaunay.vtu", {}),
+                               ("half_dt", "delaunay.vtu", {"dt": 0.05}),
+                               ("sum_only", "delaunay.vtu", {"per_particle": False}),
+                               ("square", "square.vtu", {})]:
+        paths[name] = root / name
+        run_scene(mesh_scene(root / mesh, **kwargs), paths[name], progress=False)
+    return paths
+
+
+def test_identical_mesh_runs_and_a_mesh_run_and_itself_differ_by_nothing(mesh_runs):
+    for b in ("mesh_again", "mesh"):
+        result = compare_runs(mesh_runs["mesh"], mesh_runs[b], fields=True)
+        assert result["field_mode"] == "per_particle"
+        assert result["grid"] is None and result["domain"]["kind"] == "mesh"
+        np.testing.assert_allclose(result["time"], [0.0, 1.0, 2.0, 3.0])
+        assert set(maxima(result)) >= {"x", "y", "area", "elongation", "energy_total", "phi_l2", "phi_sum_linf"}
+        assert all(value == 0 for value in maxima(result).values()), b
+    assert compare_runs(mesh_runs["mesh"], mesh_runs["sum_only"], fields=True)["field_mode"] == "phi_sum"
+
+
+def test_mesh_runs_with_different_time_steps_differ_in_fields_and_observables(mesh_runs):
+    result = compare_runs(mesh_runs["mesh"], mesh_runs["half_dt"], fields=True)
+    largest = maxima(result)
+    for name in ("area", "energy_total", "phi_l2", "phi_linf", "phi_sum_l2"):
+        assert largest[name] > 0
+    assert result["series"]["phi_l2"][0] == 0  # the same initial state
+    assert largest["phi_linf"] < 0.05  # dt = 0.1 and 0.05 agree closely
+    assert np.asarray(result["per_particle"]["phi_l2"]).shape == (4, 2)
+    # the field norms use the mesh's lumped mass: the sum's L2 norm is bounded by the particles'
+    assert np.all(result["series"]["phi_sum_l2"] <= np.sqrt(2) * result["series"]["phi_l2"] + 1e-15)
+
+
+def test_runs_on_different_domains_compare_observables_but_not_fields(runs, mesh_runs, capsys):
+    from femphase.cli import main
+
+    # a Delaunay mesh against the structured triangulation read as a mesh: O(h²) apart
+    result = compare_runs(mesh_runs["mesh"], mesh_runs["square"])
+    assert result["field_mode"] == "none" and "energy_total" in result["series"]
+    largest = maxima(result)
+    assert 0 < largest["x"] < 0.01 and largest["y"] < 0.01 and 0 < largest["area"] < 0.1  # area ≈ 80
+    # the structured channel and its triangulation read as a mesh: the same discretisation;
+    # only the shape tensor's rule differs (central differences on the grid, exact P1
+    # gradients on a mesh, whose bias on a disc is ≈ 0.03 h²)
+    largest = maxima(compare_runs(runs["fem"], mesh_runs["square"]))
+    assert largest["x"] < 1e-10 and largest["y"] < 1e-10 and largest["area"] < 1e-9
+    assert largest["energy_total"] < 1e-9 and largest["elongation"] < 0.05
+    with pytest.raises(ValueError, match="different domains .* compare these without --fields"):
+        compare_runs(mesh_runs["mesh"], mesh_runs["square"], fields=True)
+    with pytest.raises(ValueError, match="different domains .*kind"):
+        compare_runs(runs["fem"], mesh_runs["square"], fields=True)
+    assert main(["compare", str(mesh_runs["mesh"]), str(mesh_runs["square"]), "--fields"]) == 2
+    err = capsys.readouterr().err
+    assert "different domains" in err and "Traceback" not in err
+
+
+def test_grid_data_and_mesh_runs_are_not_compared(runs, mesh_runs, tmp_path):
+    with pytest.raises(ValueError, match="structured-grid runs only"):
+        grid_data_from_run(mesh_runs["mesh"])
+    path = tmp_path / "fem.npz"
+    save_grid_data(path, grid_data_from_run(runs["fem"]))
+    with pytest.raises(ValueError, match="grid data is compared only with runs on the structured grid"):
+        compare_runs(mesh_runs["square"], path)
+
+
+def test_cli_compares_mesh_runs_into_dir_b(mesh_runs, capsys):
+    parser = argparse.ArgumentParser()
+    register_cli(parser.add_subparsers())
+    args = parser.parse_args(["compare", str(mesh_runs["mesh"]), str(mesh_runs["half_dt"]), "--fields"])
+    assert args.func(args) == 0
+    assert "phi_l2" in capsys.readouterr().out
+    for name in ("compare.csv", "compare.json", "compare.png"):
+        assert (mesh_runs["half_dt"] / "compare" / name).stat().st_size > 0

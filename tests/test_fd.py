@@ -7,9 +7,10 @@ import pytest
 
 from femphase.analysis.shape import shape_observables
 from femphase.errors import BlowUpError, SceneError
+from femphase.channel import ChannelDomain
+from femphase.energy import FreeEnergy
 from femphase.fd import (
     COURANT_NUMBER,
-    FiniteDifferenceStepper,
     explicit_stability_limit,
     five_point_laplacian,
     laplacian,
@@ -17,13 +18,18 @@ from femphase.fd import (
 )
 from femphase.flows import linear_shear, python_flow
 from femphase.mesh import channel_grid
-from femphase.model import ModelParameters, explicit_curvature_bound
+from femphase.model import ModelParameters
 from femphase.scene import scene_from_dict
 from femphase.simulation import FrameRecorder, Simulation
-from femphase.stepping import Discretisation, Numerics
-from femphase.windows import Window, WindowPolicy, full_window
+from femphase.stepping import Numerics, Stepper
+from femphase.windows import Window, WindowPolicy
 
 PARAMS = ModelParameters()
+
+
+def fd_stepper(domain, dt, flow=None, radii=None, numerics=Numerics()):
+    """The finite-difference reference scheme ("fd-heun") on ``domain``."""
+    return Stepper(domain, PARAMS, numerics, dt, flow, radii, scheme="fd-heun")
 
 
 def single_particle_scene(method_dt: float, duration: float, frame: float, **particles) -> object:
@@ -39,20 +45,21 @@ def test_laplacian_equals_minus_lumped_mass_inverse_stiffness_on_windows():
     """Δ_h φ = −M_L⁻¹Kφ node by node for fields zero outside their windows: walls (mirror),
     the periodic seam (a wrapping window, a full-width window) and artificial window edges."""
     grid = channel_grid(6.0, 4.0, 0.5)  # 12 × 9 nodes
-    ops = Discretisation.structured(grid).operators
+    domain = ChannelDomain(grid)
+    ops = domain.operators
     windows = [
         Window(2, 4, 3, 5),  # interior: zero beyond every edge
         Window(0, 5, 9, 6),  # on the bottom wall, wrapping across the seam
         Window(4, grid.ny - 4, 2, 7),  # on the top wall
-        full_window(grid),  # both walls, periodic in x
+        domain.full_window(),  # both walls, periodic in x
         Window(3, 4, 0, grid.nx),  # full width between the walls
     ]
     rng = np.random.default_rng(1)
-    fields = [rng.random((w.ny, w.nx)) for w in windows]
-    for phi, w, lap in zip(fields, windows, laplacian(fields, windows, grid)):
+    fields = [rng.random(w.ny * w.nx) for w in windows]
+    for phi, w, lap in zip(fields, windows, laplacian(fields, windows, domain)):
         full = np.zeros(grid.n_nodes)
-        nodes = w.node_indices(grid)
-        full[nodes] = phi.ravel()
+        nodes = domain.window_dofs(w)
+        full[nodes] = phi
         fem = -(ops.stiffness @ full) / ops.lumped_mass
         np.testing.assert_allclose(lap.ravel(), fem[nodes], rtol=0, atol=1e-12 / grid.h**2)
 
@@ -99,7 +106,7 @@ def test_documented_stability_limit_is_stable_for_the_frozen_coefficient_symbol(
     def advection(t):  # symbol of −u ∂ for u = 1 (see the previous test)
         return -(1j * np.sin(t) * (4 - np.cos(t)) + (1 - np.cos(t)) ** 2) / (3 * h)
 
-    rates = -PARAMS.mobility * explicit_curvature_bound(PARAMS, PARAMS.radius) * np.linspace(0, 1, 5)
+    rates = -PARAMS.mobility * FreeEnergy.paper(PARAMS).curvature_bound(PARAMS.radius) * np.linspace(0, 1, 5)
     for share in np.linspace(0, 1, 5):
         for rate in rates:
             z = dt * (diffusion + rate + speed * (share * advection(tx) + (1 - share) * advection(ty)))
@@ -118,17 +125,19 @@ def test_heun_with_upwind_advection_needs_the_courant_limit():
 
 def test_paper_dt_is_accepted_and_too_large_dt_raises_a_clear_error():
     grid = channel_grid(32.0, 32.0, 1.0)
-    disc = Discretisation.structured(grid)
+    domain = ChannelDomain(grid)
     assert 0.3 < explicit_stability_limit(PARAMS, 1.0) < 0.35
-    FiniteDifferenceStepper(disc, PARAMS, Numerics(), 0.1)
+    assert fd_stepper(domain, 0.1).scheme.dt_max == pytest.approx(explicit_stability_limit(PARAMS, 1.0))
+    # numerics.scheme selects the reference as well as the stepper's argument does
+    assert Stepper(domain, PARAMS, Numerics(scheme="fd-heun"), 0.1).scheme.name == "fd-heun"
     with pytest.raises(SceneError, match=r"phases\.dt.*≤ 0\.3"):
-        FiniteDifferenceStepper(disc, PARAMS, Numerics(), 1.0)
+        fd_stepper(domain, 1.0)
     # a fast flow: the Courant condition dt (|u| + |v|)/h ≤ 0.4 binds
     with pytest.raises(SceneError, match="advection"):
-        FiniteDifferenceStepper(disc, PARAMS, Numerics(), 0.1, linear_shear(8.0, grid.width))
-    fine = Discretisation.structured(channel_grid(16.0, 16.0, 0.25))
+        fd_stepper(domain, 0.1, linear_shear(8.0, grid.width))
+    fine = ChannelDomain(channel_grid(16.0, 16.0, 0.25))
     with pytest.raises(SceneError, match="h = 0.25"):
-        FiniteDifferenceStepper(fine, PARAMS, Numerics(), 0.1)
+        fd_stepper(fine, 0.1)
 
 
 def test_isolated_particle_relaxation_agrees_with_fem_to_the_fem_time_error():
@@ -161,13 +170,13 @@ def _advect(h: float, centre: tuple, flow_for, steps: int, size=(48.0, 32.0)):
         "particles": {"layout": "single", "centres": [list(centre)], "initial_radius": 8.0},
         "phases": [{"name": "p", "duration": 1.0, "dt": 0.1, "frame_interval": 1.0}],
     })
-    disc = scene.discretisation()
+    domain = scene.domain
     state = scene.initial_state()
-    stepper = FiniteDifferenceStepper(disc, PARAMS, Numerics(), 0.1, flow_for(scene.grid), state.radii)
-    start, window = shape_observables(state, disc.operators), state.windows[0]
+    stepper = fd_stepper(domain, 0.1, flow_for(domain.grid), state.radii)
+    start, window = shape_observables(state), state.windows[0]
     for _ in range(steps):
         stepper.step(state)
-    return start, shape_observables(state, disc.operators), window, state.windows[0]
+    return start, shape_observables(state), window, state.windows[0]
 
 
 def test_advection_in_shear_moves_the_centroid_by_the_local_velocity():
@@ -196,12 +205,11 @@ def test_general_flow_advects_along_both_axes():
 
 
 def test_blow_up_raises_and_leaves_the_state_unchanged():
-    grid = channel_grid(32.0, 32.0, 1.0)
     scene = single_particle_scene(0.1, 1.0, 1.0)
     state = scene.initial_state()
-    state.fields[0][3, 3] = np.nan
+    state.fields[0].reshape(state.windows[0].shape)[3, 3] = np.nan
     before = state.copy()
-    stepper = FiniteDifferenceStepper(Discretisation.structured(grid), PARAMS, Numerics(), 0.1)
+    stepper = fd_stepper(scene.domain, 0.1)
     with pytest.raises(BlowUpError, match="not finite"):
         stepper.step(state)
     assert state.time == before.time and state.step == before.step
@@ -210,8 +218,6 @@ def test_blow_up_raises_and_leaves_the_state_unchanged():
 
 def test_windows_agree_with_full_mesh_fields():
     """Windows are exact up to the field left beyond their margin (φ < threshold there)."""
-    grid = channel_grid(32.0, 32.0, 1.0)
-    disc = Discretisation.structured(grid)
     scene = scene_from_dict({
         "domain": {"Lx": 32.0, "Ly": 32.0, "h": 1.0},
         "particles": {"layout": "list", "centres": [[10.0, 16.0], [22.0, 16.0]], "initial_radius": 7.0},
@@ -221,9 +227,9 @@ def test_windows_agree_with_full_mesh_fields():
     for windows in (True, False):
         state = scene.initial_state()
         if not windows:
-            state.fields = [state.global_field(i).reshape(grid.ny, grid.nx) for i in range(2)]
-            state.windows = [full_window(grid)] * 2
-        stepper = FiniteDifferenceStepper(disc, PARAMS, Numerics(windows=windows), 0.1, None, state.radii)
+            state.fields = [state.global_field(i) for i in range(2)]
+            state.windows = [scene.domain.full_window()] * 2
+        stepper = fd_stepper(scene.domain, 0.1, None, state.radii, Numerics(windows=windows))
         for _ in range(100):
             stepper.step(state)
         results.append(state.global_fields())

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from femphase.analysis.shape import shape_observables
+from femphase.channel import ChannelDomain
 from femphase.errors import SceneError
 from femphase.flows import flow_from_spec, linear_shear, poiseuille, python_flow
 from femphase.mesh import channel_grid
@@ -15,29 +16,33 @@ from helpers import small_system, stepper
 def test_flow_conventions():
     y = np.array([0.0, 60.0, 120.0, 240.0])
     shear = linear_shear(0.5, 240.0)
-    assert np.allclose(shear.row_velocity(y), 0.5 * y / 240.0)  # bottom wall at rest, top at γ̇
-    assert np.allclose(linear_shear(0.5, 240.0, "shear_rate").row_velocity(y), 0.5 * y)
-    profile = poiseuille(0.5, 240.0).row_velocity(y)
+    assert np.allclose(shear.row_velocity(y, 0.0), 0.5 * y / 240.0)  # bottom wall at rest, top at γ̇
+    assert np.allclose(linear_shear(0.5, 240.0, "shear_rate").row_velocity(y, 0.0), 0.5 * y)
+    profile = poiseuille(0.5, 240.0).row_velocity(y, 0.0)
     assert profile[0] == profile[-1] == 0.0 and profile[2] == pytest.approx(0.5)
-    u, v = shear.velocity(np.zeros(4), y)
-    assert np.allclose(v, 0.0) and np.allclose(u, shear.row_velocity(y))
+    u, v = shear.velocity(np.zeros(4), y, 0.0)
+    assert np.allclose(v, 0.0) and np.allclose(u, shear.row_velocity(y, 0.0))
+    # a scene's flow table measures y from the domain's lower wall and Ly between the walls
+    domain = ChannelDomain(channel_grid(24.0, 240.0, 4.0))
+    from_spec = flow_from_spec({"type": "shear", "rate": 0.5}, domain)
+    assert np.allclose(from_spec.row_velocity(y, 0.0), shear.row_velocity(y, 0.0))
     with pytest.raises(SceneError, match="flow.rate"):
-        flow_from_spec({"type": "shear"}, 240.0)
+        flow_from_spec({"type": "shear"}, domain)
 
 
 def test_a_particle_crossing_the_periodic_seam_stays_whole():
-    disc, state = small_system([[50, 20]], length=60, width=40, initial_radius=8.0)
-    relax = stepper(disc, state)
+    domain, state = small_system([[50, 20]], length=60, width=40, initial_radius=8.0)
+    relax = stepper(domain, state)
     for _ in range(100):
         relax.step(state)
     # a uniform row flow: pure translation, so the particle must not change while it crosses
-    step = stepper(disc, state, flow=python_flow(lambda y: 0.5 + 0 * y, row_flow=True))
-    before = shape_observables(state, disc.operators)
+    step = stepper(domain, state, flow=python_flow(lambda y: 0.5 + 0 * y, row=True))
+    before = shape_observables(state)
     xs = []
     for _ in range(40):
         step.step(state)
-        xs.append(shape_observables(state, disc.operators).x[0])
-    after = shape_observables(state, disc.operators)
+        xs.append(shape_observables(state).x[0])
+    after = shape_observables(state)
     assert state.windows[0].ix0 + state.windows[0].nx > 60 or state.windows[0].ix0 < 10  # wraps
     assert after.area[0] == pytest.approx(before.area[0], rel=1e-3)
     assert after.elongation[0] < 0.01
@@ -48,30 +53,31 @@ def test_a_particle_crossing_the_periodic_seam_stays_whole():
 def test_a_particle_longer_than_the_period_gets_a_full_width_window_and_matches_the_full_mesh():
     fields = []
     for windows in (True, False):
-        disc, state = small_system([[12, 20]], length=24, width=40, initial_radius=8.0, windows=windows)
-        step = stepper(disc, state, windows=windows)
+        domain, state = small_system([[12, 20]], length=24, width=40, initial_radius=8.0, windows=windows)
+        step = stepper(domain, state, windows=windows)
         for _ in range(30):
             step.step(state)
         fields.append(state.global_fields())
         if windows:
-            assert state.windows[0].nx == disc.grid.nx  # 2(R + tail + margin) > Lx = 24
+            assert state.windows[0].nx == domain.grid.nx  # 2(R + tail + margin) > Lx = 24
     # the window spans the width but not the channel's height: the truncation bound applies
     assert np.abs(fields[0] - fields[1]).max() < 2 * 0.01 * np.exp(-2 * 4.0 / 2.0)
 
 
 def test_windows_grow_shrink_and_are_clipped_at_the_walls():
     grid = channel_grid(60, 40, 1.0)
+    lattice = (grid.ny, grid.nx)
     policy = WindowPolicy.for_spacing(1.0)
-    near_wall = policy.cover((0, 10), (20, 30), grid)
+    near_wall = policy.cover((0, 10), (20, 30), lattice)
     assert near_wall.iy0 == 0 and near_wall.ny < 10 + 1 + 2 * (policy.margin + policy.room) + policy.quantum
     window = Window(5, 30, 10, 30)
     phi = np.zeros((30, 30))
     phi[13:17, 13:17] = 1.0  # a small blob: margins of 13 > margin + 2 room + quantum → shrink
-    shrunk = policy.fit(phi, window, grid)
+    shrunk = policy.fit(phi, window, lattice)
     assert shrunk.ny < window.ny and shrunk.nx < window.nx
     phi = np.zeros((30, 30))
     phi[1:29, 10:20] = 1.0  # inside the margin → grow, not forced square
-    grown = policy.fit(phi, window, grid)
+    grown = policy.fit(phi, window, lattice)
     assert grown.ny > window.ny and grown.ny != grown.nx
-    moved = transfer(phi, window, grown, grid)
+    moved = transfer(phi, window, grown, grid.nx)
     assert moved.sum() == pytest.approx(phi.sum())

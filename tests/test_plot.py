@@ -1,7 +1,8 @@
-"""`femphase plot`: every figure of a tiny run is written; bad directories give clear errors."""
+"""`femphase plot`: every figure of a tiny grid or mesh run is written; bad directories give clear errors."""
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from femphase.cli import main
@@ -50,7 +51,7 @@ def test_snapshot_from_fields_xdmf_without_checkpoint(tiny_run, tmp_path):
     copy = tmp_path / "copy"
     copy.mkdir()
     for path in tiny_run.iterdir():
-        if path.name != "checkpoint.npz":
+        if path.name != "checkpoint.h5":
             (copy / path.name).write_bytes(path.read_bytes())
     _written(plot_run(copy))
     assert (copy / "figures" / "snapshot.png").is_file()
@@ -89,3 +90,87 @@ def test_run_without_flow(tmp_path):
     assert load_run(tmp_path / "run").shear_rate is None
     _written(plot_run(tmp_path / "run", tmp_path / "plain"))  # no ODE
     _written(plot_run(tmp_path / "run", tmp_path / "ode", ode_rate=0.2))  # the ODE from the first frame
+
+
+# -- meshed runs ----------------------------------------------------------------------------
+
+OBSTACLE = (18.0, 8.0, 3.0)
+MESH = {
+    "name": "tiny mesh",
+    "domain": {"kind": "mesh", "mesh": "channel.vtu", "h": 1.0},
+    "particles": {"layout": "random", "N": 4, "seed": 1, "initial_radius": 4.0},
+    "output": {"fields": True},
+    "phases": [
+        {"name": "relax", "duration": 10.0, "dt": 1.0, "frame_interval": 5.0},
+        {"name": "flow", "duration": 20.0, "dt": 1.0, "frame_interval": 5.0,
+         "flow": {"type": "stokes", "max_velocity": 0.3}},
+    ],
+}
+
+
+@pytest.fixture(scope="module")
+def mesh_run(tmp_path_factory) -> Path:
+    """A run on a Delaunay channel between walls at y = −4 and y = 20, around an obstacle."""
+    from femphase.meshed import write_domain
+    from femphase.meshing import delaunay_channel, edge_for_spacing
+
+    root = tmp_path_factory.mktemp("mesh")
+    mesh, boundaries = delaunay_channel(36.0, edge_for_spacing(1.0), lambda x: 0 * x - 4.0, lambda x: 0 * x + 20.0,
+                                        obstacles=[OBSTACLE], seed=2)
+    write_domain(root / "channel.vtu", mesh, boundaries)
+    run_scene(scene_from_dict(MESH, root), root / "run", progress=False)
+    return root / "run"
+
+
+def _copy_run(run: Path, to: Path, without: tuple = ()) -> Path:
+    to.mkdir()
+    for path in run.iterdir():
+        if path.is_file() and path.name not in without:
+            (to / path.name).write_bytes(path.read_bytes())
+    return to
+
+
+def test_plot_of_a_mesh_run_writes_every_figure(mesh_run, capsys):
+    assert main(["plot", str(mesh_run)]) == 0
+    printed = capsys.readouterr().out.split()
+    assert len(printed) == len(FIGURES)
+    for name in FIGURES:
+        assert (mesh_run / "figures" / f"{name}.png").stat().st_size > 1000
+    run = load_run(mesh_run)
+    assert run.kind == "mesh" and run.shear_rate is None  # a stokes flow has no rate: no ODE
+    assert run.extent == pytest.approx((0.0, 36.0, -4.0, 20.0))
+
+
+def test_mesh_snapshot_is_drawn_on_the_mesh_and_masks_the_obstacle(mesh_run):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from femphase.plot import draw_snapshot
+
+    fig, ax = plt.subplots()
+    draw_snapshot(ax, load_run(mesh_run))
+    phi_sum = ax.images[0].get_array()
+    assert ax.images[0].get_extent() == pytest.approx([0.0, 36.0, -4.0, 20.0])
+    rows, cols = phi_sum.shape
+    pixel = lambda x, y: (int((y + 4.0) / 24.0 * rows), int(x / 36.0 * cols))  # noqa: E731
+    assert np.ma.is_masked(phi_sum[pixel(*OBSTACLE[:2])])  # no mesh inside the obstacle
+    assert not np.ma.getmaskarray(phi_sum)[pixel(2.0, 18.0)]
+    assert 0.0 <= phi_sum.min() and phi_sum.max() > 0.9  # the particles' plateaus
+    plt.close(fig)
+
+
+@pytest.mark.parametrize("without", [("checkpoint.h5",), ("fields.xdmf", "fields.h5")])
+def test_mesh_snapshot_from_either_checkpoint_or_fields(mesh_run, tmp_path, without):
+    copy = _copy_run(mesh_run, tmp_path / "copy", without)
+    _written(plot_run(copy))
+
+
+def test_mesh_run_whose_mesh_file_is_gone_is_drawn_from_its_fields(mesh_run, tmp_path):
+    copy = _copy_run(mesh_run, tmp_path / "copy")
+    scene = (copy / "scene.toml").read_text()
+    mesh_line = next(line for line in scene.splitlines() if line.startswith("mesh = "))
+    (copy / "scene.toml").write_text(scene.replace(mesh_line, f'mesh = "{tmp_path / "gone.vtu"}"'))
+    _written(plot_run(copy))
+    assert load_run(copy).extent == pytest.approx((0.0, 36.0, -4.0, 20.0))  # from fields.xdmf's nodes

@@ -3,13 +3,12 @@
 import numpy as np
 import pytest
 
-from femphase.energy import free_energy
 from femphase.errors import BlowUpError
 from femphase.flows import linear_shear
 from femphase.model import ModelParameters
-from femphase.stepping import Numerics, SemiImplicitStepper
+from femphase.stepping import Numerics, Stepper
 
-from helpers import small_system, stepper
+from helpers import energy_of, small_system, stepper
 
 # three discs of the full radius almost on top of each other: far from equilibrium, with
 # large overlap (repulsion) forces
@@ -17,14 +16,14 @@ OVERLAPPING = [[20.0, 20.0], [23.0, 20.0], [20.0, 23.0]]
 
 
 def energy(state, step):
-    return free_energy(state.global_fields(), state.radii, step.params, step.disc.operators).total
+    return energy_of(state, step.params).total
 
 
 @pytest.mark.parametrize("mass", ["lumped", "consistent"])
 def test_huge_steps_without_flow_decrease_the_energy_with_auto_stabilisation(mass):
-    disc, state = small_system(OVERLAPPING, initial_radius=8.0)
-    step = stepper(disc, state, dt=100.0, mass=mass)
-    assert step.stabilisation > 0  # dt = 100 needs it
+    domain, state = small_system(OVERLAPPING, initial_radius=8.0)
+    step = stepper(domain, state, dt=100.0, mass=mass)
+    assert step.scheme.stabilisation > 0  # dt = 100 needs it
     energies = [energy(state, step)]
     for _ in range(10):
         step.step(state)
@@ -36,16 +35,16 @@ def test_huge_steps_without_flow_decrease_the_energy_with_auto_stabilisation(mas
 
 
 def test_huge_steps_in_shear_stay_bounded():
-    disc, state = small_system([[20.0, 12.0], [20.0, 28.0]], initial_radius=4.0)
-    step = stepper(disc, state, dt=100.0, flow=linear_shear(10.0, 40.0))
+    domain, state = small_system([[20.0, 12.0], [20.0, 28.0]], initial_radius=4.0)
+    step = stepper(domain, state, dt=100.0, flow=linear_shear(10.0, 40.0))
     for _ in range(10):
         step.step(state)
     assert all(np.isfinite(f).all() and f.min() > -0.1 and f.max() < 1.5 for f in state.fields)
 
 
 def test_without_stabilisation_a_large_step_blows_up_with_the_step_named_and_the_state_kept():
-    disc, state = small_system(OVERLAPPING, initial_radius=8.0)
-    step = stepper(disc, state, dt=10.0, stabilisation=0.0)
+    domain, state = small_system(OVERLAPPING, initial_radius=8.0)
+    step = stepper(domain, state, dt=10.0, stabilisation=0.0)
     before = state.copy()
     with pytest.raises(BlowUpError, match=r"step 1 \(t = 10\).*smaller dt") as failure:
         step.step(state)
@@ -56,8 +55,8 @@ def test_without_stabilisation_a_large_step_blows_up_with_the_step_named_and_the
 def test_a_diverging_run_is_never_a_silent_nan():
     # without the range guard the unstable step grows to inf/NaN within a few steps: the
     # finiteness check must still stop it, naming the step, and leave the last finite state
-    disc, state = small_system(OVERLAPPING, initial_radius=8.0)
-    step = stepper(disc, state, dt=100.0, stabilisation=0.0, blowup_margin=1e300)
+    domain, state = small_system(OVERLAPPING, initial_radius=8.0)
+    step = stepper(domain, state, dt=100.0, stabilisation=0.0, blowup_margin=1e300)
     with pytest.raises(BlowUpError, match="not finite") as failure, np.errstate(all="ignore"):
         for _ in range(50):
             step.step(state)
@@ -66,12 +65,12 @@ def test_a_diverging_run_is_never_a_silent_nan():
 
 
 def test_a_non_finite_source_is_reported_at_its_step():
-    disc, state = small_system([[20.0, 20.0]], initial_radius=8.0)
+    domain, state = small_system([[20.0, 20.0]], initial_radius=8.0)
 
     def source(x, y, t):
         return np.full_like(x, np.nan if t > 2.5 else 0.0)
 
-    step = SemiImplicitStepper(disc, ModelParameters(), Numerics(), 1.0, source=source, radii=state.radii)
+    step = Stepper(domain, ModelParameters(), Numerics(), 1.0, source=source, radii=state.radii)
     with pytest.raises(BlowUpError, match=r"step 3 \(t = 3\).*not finite"):
         for _ in range(5):
             step.step(state)

@@ -5,28 +5,28 @@ import pytest
 
 from femphase.advection import shift_rows
 from femphase.analysis.shape import shape_observables
-from femphase.energy import free_energy
 from femphase.flows import linear_shear, python_flow
 from femphase.mesh import channel_grid, load_mesh
 from femphase.model import ModelParameters
 from femphase.errors import SceneError
 from femphase.solvers import AMGSolver, DirectSolver, TensorSolver
-from femphase.stepping import Discretisation, Numerics, relaxation_system, tensor_solver
+from femphase.channel import ChannelDomain, tensor_solver
+from femphase.stepping import Numerics, Stepper
 from femphase.windows import Window
 
-from helpers import small_system, stepper
+from helpers import energy_of, small_system, stepper
 
 
 def test_isolated_particle_relaxes_to_the_area_set_by_tension_and_constraint():
     # Equilibrium of σ·2πr + μ(1 − a)² with σ = 2γ/3 (the tanh profile's line tension)
     # gives 1 − a ≈ πσR/(2μ): the area settles slightly below πR².
     params = ModelParameters()
-    disc, state = small_system([[20, 20]], initial_radius=4.0)
-    step = stepper(disc, state)
+    domain, state = small_system([[20, 20]], initial_radius=4.0)
+    step = stepper(domain, state)
     ratios = []
     for _ in range(400):
         step.step(state)
-        ratios.append(shape_observables(state, disc.operators).area[0] / (np.pi * 64))
+        ratios.append(shape_observables(state).area[0] / (np.pi * 64))
     sigma = 2 * params.tension / 3
     expected = 1 - np.pi * sigma * 8 / (2 * params.area_stiffness)
     assert ratios[0] < 0.5  # started from R/2
@@ -35,15 +35,15 @@ def test_isolated_particle_relaxes_to_the_area_set_by_tension_and_constraint():
 
 
 def test_isolated_particle_in_shear_elongates_and_settles_without_oscillating():
-    disc, state = small_system([[35, 120]], length=70, width=240, initial_radius=8.0)
-    relax = stepper(disc, state)
+    domain, state = small_system([[35, 120]], length=70, width=240, initial_radius=8.0)
+    relax = stepper(domain, state)
     for _ in range(100):
         relax.step(state)
-    shear = stepper(disc, state, flow=linear_shear(1.0, 240.0))
+    shear = stepper(domain, state, flow=linear_shear(1.0, 240.0))
     elongation = []
     for _ in range(1400):
         shear.step(state)
-        elongation.append(shape_observables(state, disc.operators).elongation[0])
+        elongation.append(shape_observables(state).elongation[0])
     elongation = np.array(elongation)
     late = elongation[-600:]
     assert elongation.max() > 1.0  # deformed
@@ -54,14 +54,14 @@ def test_isolated_particle_in_shear_elongates_and_settles_without_oscillating():
 def test_windows_agree_with_the_full_mesh():
     results = []
     for windows in (True, False):
-        disc, state = small_system([[15, 20], [30, 22]], length=50, width=40, initial_radius=6.0, windows=windows)
-        step = stepper(disc, state, windows=windows)
+        domain, state = small_system([[15, 20], [30, 22]], length=50, width=40, initial_radius=6.0, windows=windows)
+        step = stepper(domain, state, windows=windows)
         for _ in range(60):
             step.step(state)
-        shear = stepper(disc, state, flow=linear_shear(0.5, 40.0), windows=windows)
+        shear = stepper(domain, state, flow=linear_shear(0.5, 40.0), windows=windows)
         for _ in range(60):
             shear.step(state)
-        results.append((state.global_fields(), free_energy(state.global_fields(), state.radii, step.params, disc.operators).total))
+        results.append((state.global_fields(), energy_of(state, step.params).total))
     (windowed, e_w), (full, e_f) = results
     # a window drops the field beyond its edge, where the tanh tail has decayed from the
     # threshold over the margin: φ_edge ≈ threshold · exp(−2 margin/λ) = 0.01 e^{−4} ≈ 1.8e-4
@@ -86,11 +86,11 @@ def test_shear_advection_does_not_limit_dt():
     # move 10 nodes per step; the step stays stable and moves the particle at u(y_c)
     outcomes = {}
     for dt in (1.0, 10.0):
-        disc, state = small_system([[35, 120]], length=70, width=240, initial_radius=8.0)
-        step = stepper(disc, state, dt=dt, flow=linear_shear(1.0, 240.0))
+        domain, state = small_system([[35, 120]], length=70, width=240, initial_radius=8.0)
+        step = stepper(domain, state, dt=dt, flow=linear_shear(1.0, 240.0))
         for _ in range(int(200 / dt)):
             step.step(state)
-        outcomes[dt] = shape_observables(state, disc.operators)
+        outcomes[dt] = shape_observables(state)
         assert all(np.isfinite(f).all() and -0.05 < f.min() and f.max() < 1.1 for f in state.fields)
     for obs in outcomes.values():
         expected = (35 + 0.5 * 200) % 70
@@ -103,8 +103,8 @@ def test_shear_advection_does_not_limit_dt():
 def test_semi_lagrangian_general_flow_matches_the_exact_row_shift():
     finals = []
     for flow in (linear_shear(0.6, 40.0), python_flow(lambda x, y: (0.6 * y / 40.0, 0.0 * x))):
-        disc, state = small_system([[20, 20]], length=60, width=40, initial_radius=8.0)
-        step = stepper(disc, state, flow=flow)
+        domain, state = small_system([[20, 20]], length=60, width=40, initial_radius=8.0)
+        step = stepper(domain, state, flow=flow)
         for _ in range(50):
             step.step(state)
         finals.append(state.global_fields()[0])
@@ -113,7 +113,7 @@ def test_semi_lagrangian_general_flow_matches_the_exact_row_shift():
 
 def test_amg_and_direct_solvers_agree():
     grid = channel_grid(30, 20, 1.0)
-    ops = Discretisation.structured(grid).operators
+    ops = ChannelDomain(grid).operators
     matrix = (ops.mass + 0.12 * ops.stiffness).tocsr()
     rhs = np.random.default_rng(1).random((grid.n_nodes, 3))
     amg = AMGSolver(matrix, tol=1e-12)
@@ -124,8 +124,8 @@ def test_amg_and_direct_solvers_agree():
 def test_the_stepper_gives_the_same_result_with_either_solver():
     outcomes = []
     for solver in ("direct", "amg", "tensor"):
-        disc, state = small_system([[20, 20]], initial_radius=5.0)
-        step = stepper(disc, state, solver=solver, tolerance=1e-12)
+        domain, state = small_system([[20, 20]], initial_radius=5.0)
+        step = stepper(domain, state, solver=solver, tolerance=1e-12)
         for _ in range(20):
             step.step(state)
         outcomes.append(state.global_fields())
@@ -138,10 +138,12 @@ def test_the_stepper_gives_the_same_result_with_either_solver():
                          ids=["interior", "wall-and-seam", "wall-full-width", "whole-channel"])
 def test_the_tensor_solver_solves_every_kind_of_window_exactly(window):
     grid = channel_grid(30, 19, 1.0)
-    disc = Discretisation.structured(grid)
+    domain = ChannelDomain(grid)
     params = ModelParameters()
-    stabilisation, system, _ = relaxation_system(disc.operators, params, Numerics(), 0.7, None)
-    nodes = window.node_indices(grid)
+    step = Stepper(domain, params, Numerics(), 0.7)
+    stabilisation = step.scheme.stabilisation
+    system = step.system(1 / 0.7, stabilisation)[0]
+    nodes = domain.window_dofs(window)
     block = system[nodes][:, nodes]
     a = 1 / 0.7 + params.mobility * stabilisation
     solver = tensor_solver(block, window, grid, a, params.diffusivity)
@@ -155,20 +157,21 @@ def test_the_tensor_solver_solves_every_kind_of_window_exactly(window):
 
 def test_the_tensor_solver_refuses_alternating_diagonals_and_the_consistent_mass():
     grid = channel_grid(30, 20, 1.0)
-    disc = Discretisation.structured(grid, "alternating")
-    system = relaxation_system(disc.operators, ModelParameters(), Numerics(), 1.0, None)[1]
+    alternating = ChannelDomain(grid, "alternating")
+    step = Stepper(alternating, ModelParameters(), Numerics(diagonals="alternating"), 1.0)
+    system = step.system(1.0, step.scheme.stabilisation)[0]
     window = Window(3, 10, 4, 10)
-    nodes = window.node_indices(grid)
+    nodes = alternating.window_dofs(window)
     assert tensor_solver(system[nodes][:, nodes], window, grid, 1.0, ModelParameters().diffusivity) is None
-    disc, state = small_system([[20, 20]], initial_radius=5.0)
+    domain, state = small_system([[20, 20]], initial_radius=5.0)
     with pytest.raises(SceneError, match="tensor"):
-        stepper(disc, state, solver="tensor", mass="consistent").step(state)
+        stepper(domain, state, solver="tensor", mass="consistent").step(state)
 
 
 def test_the_default_mesh_file_gives_the_generated_operators():
     grid = channel_grid(70, 240, 1.0)
-    from_file = Discretisation.structured(grid, mesh=load_mesh("meshes/channel_70x240_h1.vtu")).operators
-    generated = Discretisation.structured(grid).operators
+    from_file = ChannelDomain(grid, mesh=load_mesh("meshes/channel_70x240_h1.vtu")).operators
+    generated = ChannelDomain(grid).operators
     assert abs(from_file.stiffness - generated.stiffness).max() < 1e-12
     assert np.allclose(from_file.lumped_mass, generated.lumped_mass)
 
@@ -177,11 +180,11 @@ def test_the_default_mesh_file_gives_the_generated_operators():
 def test_other_diagonal_patterns_relax_like_the_default(diagonals):
     areas = []
     for pattern in ("right", diagonals):
-        disc, state = small_system([[20, 20]], initial_radius=4.0, diagonals=pattern)
-        step = stepper(disc, state, diagonals=pattern)
+        domain, state = small_system([[20, 20]], initial_radius=4.0, diagonals=pattern)
+        step = stepper(domain, state, diagonals=pattern)
         for _ in range(100):
             step.step(state)
-        areas.append(shape_observables(state, disc.operators).area[0])
+        areas.append(shape_observables(state).area[0])
     if diagonals == "left":
         # the mirror-image mesh: same stiffness (5-point stencil), same lumped mass
         assert areas[0] == pytest.approx(areas[1], rel=1e-9)

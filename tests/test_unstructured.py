@@ -1,5 +1,5 @@
-"""Phase fields on meshed channels: reading meshes, periodic identification, the unstructured
-stepper against the structured one, Stokes-driven transport, obstacles."""
+"""Phase fields on meshed channels: reading meshes, periodic identification, the stepper on a
+mesh against the structured channel, Stokes-driven transport, obstacles."""
 
 import meshio
 import numpy as np
@@ -8,15 +8,14 @@ from skfem import MeshTri
 
 from femphase.analysis.shape import shape_observables
 from femphase.errors import BlowUpError, SceneError
-from femphase.flows import poiseuille, python_flow
+from femphase.flows import flow_from_spec, poiseuille, python_flow
+from femphase.io import load_checkpoint, save_checkpoint
+from femphase.meshed import MeshDomain, read_domain, write_domain
+from femphase.meshing import delaunay_channel, edge_for_spacing, structured_channel
 from femphase.model import ModelParameters
-from femphase.stepping import Numerics
-from femphase.unstructured import (
-    MeshDomain, UnstructuredStepper, load_mesh_checkpoint, mesh_discs_state, mesh_scene_from_dict,
-    mesh_shape_observables, read_domain, save_mesh_checkpoint, stokes_flow, write_domain,
-)
-from femphase.unstructured.meshing import delaunay_channel, edge_for_spacing, structured_channel
-from femphase.unstructured.windows import MeshWindowPolicy
+from femphase.scene import scene_from_dict
+from femphase.state import discs_state
+from femphase.stepping import Numerics, Stepper
 
 from helpers import small_system, stepper
 
@@ -35,8 +34,13 @@ def straight(length, height, seed=1):
 def discs(domain, centres, initial_radius=8.0, windows=True):
     centres = np.asarray(centres, dtype=float)
     n = len(centres)
-    return mesh_discs_state(domain, centres, np.full(n, 8.0), np.full(n, initial_radius), 2.0,
-                            MeshWindowPolicy.for_spacing(domain.spacing, enabled=windows))
+    return discs_state(domain, centres, np.full(n, 8.0), np.full(n, initial_radius), 2.0,
+                       domain.window_policy(Numerics(windows=windows)))
+
+
+def stokes_flow(domain, spec):
+    """The scene's Flow of a ``{type = "stokes", …}`` table on ``domain``."""
+    return flow_from_spec(spec, domain)
 
 
 def run(step, state, steps):
@@ -107,16 +111,16 @@ def test_unreadable_or_unnamed_files_raise_scene_errors(tmp_path):
         read_domain(tmp_path / "c.vtu", names={"left": 1, "right": 2})
 
 
-# -- the unstructured stepper against the structured one ----------------------------------
+# -- the stepper on a mesh against the structured channel ---------------------------------
 
-def test_on_the_structured_mesh_the_unstructured_stepper_is_the_structured_one():
+def test_on_the_structured_mesh_the_meshed_domain_steps_like_the_structured_one():
     # same mesh, same scheme: only the windows differ, which cut the tails (φ ~ 1e-4 at a
     # margin of 4 beyond the threshold 0.01) at slightly different places
     disc, grid_state = small_system([[20, 20]], length=40, width=40, initial_radius=4.0)
     run(stepper(disc, grid_state), grid_state, 60)
     domain = MeshDomain.from_mesh(*structured_channel(40.0, 40.0, 1.0))
     state = discs(domain, [[20, 20]], 4.0)
-    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 60)
+    run(Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 60)
     x, y = domain.coordinates
     on_grid = grid_state.global_field(0)[np.rint(y).astype(int) * 40 + np.rint(x).astype(int)]
     assert np.abs(state.global_field(0) - on_grid).max() < 1e-4
@@ -127,14 +131,14 @@ def relaxed_then_poiseuille(domain, rate, centre):
     if domain is None:
         disc, state = small_system([centre], length=40, width=60, initial_radius=8.0)
         run(stepper(disc, state), state, 80)
-        relaxed = shape_observables(state, disc.operators)
+        relaxed = shape_observables(state)
         run(stepper(disc, state, flow=poiseuille(rate, 60.0)), state, 100)
-        return relaxed, shape_observables(state, disc.operators)
+        return relaxed, shape_observables(state)
     state = discs(domain, [centre])
-    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 80)
-    relaxed = mesh_shape_observables(state)
-    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, poiseuille(rate, 60.0), state.radii), state, 100)
-    return relaxed, mesh_shape_observables(state)
+    run(Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 80)
+    relaxed = shape_observables(state)
+    run(Stepper(domain, PARAMS, Numerics(), 1.0, poiseuille(rate, 60.0), state.radii), state, 100)
+    return relaxed, shape_observables(state)
 
 
 def test_unstructured_channel_agrees_with_the_structured_one_relaxing_and_in_poiseuille_flow():
@@ -160,8 +164,8 @@ def test_windows_agree_with_the_full_mesh_on_an_unstructured_channel():
     results = []
     for windows in (True, False):
         state = discs(domain, [[10, 14], [22, 27]], 6.0, windows)
-        assert all(n.size < domain.n_dofs for n in state.nodes) == windows
-        run(UnstructuredStepper(domain, PARAMS, Numerics(windows=windows), 1.0, flow, state.radii), state, 40)
+        assert all(f.size < domain.n_dofs for f in state.fields) == windows
+        run(Stepper(domain, PARAMS, Numerics(windows=windows), 1.0, flow, state.radii), state, 40)
         results.append(state.global_fields())
     assert np.abs(results[0] - results[1]).max() < 1e-4
 
@@ -174,21 +178,22 @@ def test_stokes_flow_carries_a_particle_at_its_local_velocity():
     domain = MeshDomain.from_mesh(*delaunay_channel(40.0, EDGE, bump, lambda x: 40 - bump(x), seed=4))
     flow = stokes_flow(domain, {"type": "stokes", "max_velocity": 0.5})
     state = discs(domain, [[4.0, 20.0]])
-    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 30)
-    step = UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, flow, state.radii)
+    run(Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 30)
+    step = Stepper(domain, PARAMS, Numerics(), 1.0, flow, state.radii)
     moved, expected = [], []
     for _ in range(40):
-        before = mesh_shape_observables(state).x[0]
+        before = shape_observables(state).x[0]
         phi = state.fields[0]
-        u = step.velocity[0, state.nodes[0]]
-        weight = domain.operators.lumped_mass[state.nodes[0]] * phi**2
+        dofs = domain.window_dofs(state.windows[0])
+        u = step.advection.velocity(state.time)[0, dofs]
+        weight = domain.operators.lumped_mass[dofs] * phi**2
         expected.append(weight @ u / weight.sum())  # the particle's φ²-weighted velocity
         step.step(state)
-        moved.append((mesh_shape_observables(state).x[0] - before) % domain.period)
+        moved.append((shape_observables(state).x[0] - before) % domain.period)
     moved, expected = np.array(moved), np.array(expected)
     assert np.ptp(expected) > 0.05  # the local velocity varies along the path
     assert np.abs(moved - expected).max() < 0.03 * expected.max()
-    assert abs(mesh_shape_observables(state).y[0] - 20.0) < 0.1  # stays on the centre line
+    assert abs(shape_observables(state).y[0] - 20.0) < 0.1  # stays on the centre line
 
 
 def test_advection_does_not_limit_the_time_step():
@@ -198,10 +203,10 @@ def test_advection_does_not_limit_the_time_step():
     uniform = python_flow(lambda x, y: (np.ones_like(x), np.zeros_like(y)))
     for dt, tolerance in ((1.0, 0.003), (4.0, 0.015)):
         state = discs(domain, [[10.0, 15.0]])
-        run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 40)
-        start = mesh_shape_observables(state)
-        run(UnstructuredStepper(domain, PARAMS, Numerics(), dt, uniform, state.radii), state, round(32 / dt))
-        end = mesh_shape_observables(state)
+        run(Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 40)
+        start = shape_observables(state)
+        run(Stepper(domain, PARAMS, Numerics(), dt, uniform, state.radii), state, round(32 / dt))
+        end = shape_observables(state)
         assert (end.x[0] - start.x[0]) % 40.0 == pytest.approx(32.0, rel=tolerance)
         assert end.area[0] == pytest.approx(start.area[0], rel=0.01)
         assert end.elongation[0] - start.elongation[0] < 0.1
@@ -214,15 +219,15 @@ def test_a_particle_passes_an_obstacle_without_blowing_up():
                                                     obstacles=[(20.0, 24.0, 6.0)], seed=5))
     flow = stokes_flow(domain, {"type": "stokes", "max_velocity": 1.0})
     state = discs(domain, [[2.0, 36.0]])
-    run(UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 20)
-    shape = mesh_shape_observables(state)
+    run(Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 20)
+    shape = shape_observables(state)
     area, x, ys = shape.area[0], shape.x[0], [shape.y[0]]
     plateau = state.fields[0].max()  # the area constraint lifts φ slightly above 1
-    step = UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, flow, state.radii)
+    step = Stepper(domain, PARAMS, Numerics(), 1.0, flow, state.radii)
     travelled = 0.0
     while travelled < 36.0:  # from upstream of the obstacle to past it
         step.step(state)  # raises BlowUpError if φ leaves [−0.5, 1.5]
-        shape = mesh_shape_observables(state)
+        shape = shape_observables(state)
         travelled += (shape.x[0] - x) % 40.0
         x = shape.x[0]
         ys.append(shape.y[0])
@@ -245,29 +250,30 @@ def test_mesh_scene_validates_and_runs(tmp_path):
         "phases": [{"duration": 4.0, "dt": 1.0, "frame_interval": 2.0,
                     "flow": {"type": "stokes", "flux": 2.0}}],
     }
-    scene = mesh_scene_from_dict(data, tmp_path)
-    assert scene.scene.domain.Lx == pytest.approx(30.0) and scene.scene.domain.Ly == pytest.approx(40.0)
+    scene = scene_from_dict(data, tmp_path)
+    assert scene.domain.kind == "mesh"
+    assert scene.domain.period == pytest.approx(30.0) and scene.domain.width == pytest.approx(40.0)
     state = scene.initial_state()
     assert state.n_particles == 3
-    assert scene.flow(scene.scene.phases[0]).flux == pytest.approx(2.0)
+    assert scene.flow(scene.phases[0]).stokes.flux == pytest.approx(2.0)
     for key, value, message in [
         ("domain", {"kind": "mesh", "mesh": "c.vtu", "Lx": 20.0}, "domain.Lx"),
         ("domain", {"kind": "mesh", "mesh": "c.vtu", "size": 1}, "domain.size"),
         ("phases", [{"duration": 4.0, "dt": 1.0, "frame_interval": 2.0,
                      "flow": {"type": "stokes", "flux": 1.0, "max_velocity": 1.0}}], "exactly one of"),
-        ("particles", {"layout": "list", "centres": [[15.0, 20.0]]}, "inside the meshed domain"),
+        ("particles", {"layout": "list", "centres": [[15.0, 20.0]]}, "centres inside the domain"),  # the obstacle
     ]:
         with pytest.raises(SceneError, match=message):
-            mesh_scene_from_dict({**data, key: value}, tmp_path)
+            scene_from_dict({**data, key: value}, tmp_path)
 
 
 def test_checkpoint_round_trip(tmp_path):
     domain = straight(20.0, 20.0)
     state = discs(domain, [[5.0, 10.0], [15.0, 10.0]], 4.0)
     state.time, state.step = 3.5, 7
-    save_mesh_checkpoint(tmp_path / "c.npz", state)
-    back = load_mesh_checkpoint(tmp_path / "c.npz", domain)
-    assert back.boxes == state.boxes and back.time == 3.5 and back.step == 7
+    save_checkpoint(tmp_path / "c.h5", state)
+    back, observers = load_checkpoint(tmp_path / "c.h5", domain)
+    assert back.windows == state.windows and back.time == 3.5 and back.step == 7 and observers == {}
     assert np.array_equal(back.global_fields(), state.global_fields())
 
 
@@ -277,5 +283,5 @@ def test_a_blow_up_leaves_the_state_unchanged():
     before = state.global_fields()
     pump = lambda x, y, t: 1e3 + 0 * x  # noqa: E731  (a source that drives φ far above 1)
     with pytest.raises(BlowUpError):
-        UnstructuredStepper(domain, PARAMS, Numerics(), 1.0, None, state.radii, source=pump).step(state)
+        Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii, source=pump).step(state)
     assert np.array_equal(state.global_fields(), before)

@@ -10,8 +10,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from femphase.channel import ChannelDomain
 from femphase.mesh import channel_grid
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper
+from femphase.stepping import Numerics, Stepper
 from verification import equilibrium, flat_interface, mms
 
 
@@ -39,8 +40,8 @@ def test_mms_detects_a_model_term_the_solver_gets_wrong(monkeypatch):
     """A 10 % error in μ inside the solver (the source keeps the right one) must stall the
     convergence: the check can fail."""
     wrong = replace(mms.PARAMS, area_stiffness=0.9 * mms.PARAMS.area_stiffness)
-    stepper = mms.SemiImplicitStepper
-    monkeypatch.setattr(mms, "SemiImplicitStepper", lambda disc, params, *a, **k: stepper(disc, wrong, *a, **k))
+    stepper = mms.Stepper
+    monkeypatch.setattr(mms, "Stepper", lambda domain, params, *a, **k: stepper(domain, wrong, *a, **k))
     assert mms.spatial_study((1.0, 0.5))["orders_L2"][-1] < 1.0
 
 
@@ -50,16 +51,11 @@ def test_mms_error_norms_of_the_interpolant_have_the_interpolation_orders():
     accurate enough for this at the levels used)."""
     errors = []
     for h in (1.0, 0.5, 0.25):
-        grid = channel_grid(mms.LX, mms.LY, h)
-        errors.append(mms.error_norms(Discretisation.structured(grid), mms.exact(*_nodes(grid), 3.0), 3.0))
+        domain = ChannelDomain(channel_grid(mms.LX, mms.LY, h))
+        errors.append(mms.error_norms(domain, mms.exact(*domain.coordinates, 3.0), 3.0))
     l2, h1 = np.array(errors).T
     assert mms.observed_orders((1.0, 0.5, 0.25), l2) == pytest.approx([2.0, 2.0], abs=0.05)
     assert mms.observed_orders((1.0, 0.5, 0.25), h1) == pytest.approx([1.0, 1.0], abs=0.05)
-
-
-def _nodes(grid):
-    x, y = grid.coordinates()
-    return np.tile(x, grid.ny), np.repeat(y, grid.nx)
 
 
 # -- flat interface -------------------------------------------------------------------------
@@ -74,12 +70,11 @@ def test_flat_interface_converges_at_second_order():
 
 # -- isolated particle ------------------------------------------------------------------------
 def test_superlevel_area_is_exact_for_linear_fields():
-    grid = channel_grid(8.0, 6.0, 1.0)
-    disc = Discretisation.structured(grid)
-    _, y = _nodes(grid)
-    assert equilibrium.superlevel_area(disc, y / grid.width, 0.3) == pytest.approx(0.7 * 8.0 * 6.0, rel=1e-12)
+    domain = ChannelDomain(channel_grid(8.0, 6.0, 1.0))
+    _, y = domain.coordinates
+    assert equilibrium.superlevel_area(domain, y / domain.width, 0.3) == pytest.approx(0.7 * 8.0 * 6.0, rel=1e-12)
     # with the level between two rows, triangles with one and with two corners above occur
-    assert equilibrium.superlevel_area(disc, 1 - y / grid.width, 0.55) == pytest.approx(0.45 * 48.0, rel=1e-12)
+    assert equilibrium.superlevel_area(domain, 1 - y / domain.width, 0.55) == pytest.approx(0.45 * 48.0, rel=1e-12)
 
 
 def test_richardson_recovers_limit_and_order():
@@ -103,11 +98,11 @@ def test_equilibrium_area_converges_to_its_extrapolated_limit():
 def test_equilibrium_does_not_depend_on_dt():
     """The equilibrium reached with dt = 1 is a fixed point of the steps with dt = 10 and 0.1
     (compared through ∫φ² and ∫φ, blind to the particle's slow neutral drift)."""
-    disc, state = equilibrium.relaxed_state(2.0, 1.0)
-    area, mass = equilibrium.integrals_of(disc, state)
+    domain, state = equilibrium.relaxed_state(2.0, 1.0)
+    area, mass = equilibrium.integrals_of(domain, state)
     for dt in (10.0, 0.1):
         moved = state.copy()
-        stepper = SemiImplicitStepper(disc, equilibrium.PARAMS, Numerics(), dt, None, moved.radii)
+        stepper = Stepper(domain, equilibrium.PARAMS, Numerics(), dt, None, moved.radii)
         for _ in range(20):
             stepper.step(moved)
-        assert equilibrium.integrals_of(disc, moved) == pytest.approx((area, mass), rel=1e-10)
+        assert equilibrium.integrals_of(domain, moved) == pytest.approx((area, mass), rel=1e-10)

@@ -286,6 +286,21 @@ def lattice_angle(
     return float(np.nanmedian(angles))
 
 
+def frame_order(centroids: ArrayLike, orientation: ArrayLike, period_x: float) -> dict:
+    """One frame's order: per particle |ψ6| and |ψ2| ("psi6_abs", "psi2_abs"), and Ψ6, Ψ2^L
+    and the lattice angle (radians); NaN for fewer than 3 particles."""
+    centroids = _as_centroids(centroids)
+    n = len(centroids)
+    if n < 3:
+        nan = np.full(n, np.nan)
+        return {"psi6_abs": nan, "psi2_abs": nan, "Psi6": np.nan, "Psi2": np.nan, "lattice_angle": np.nan}
+    pairs = periodic_delaunay_pairs(centroids, period_x)
+    psi6 = bond_order(centroids, period_x, pairs)
+    psi2 = nematic_order(orientation, pairs, n)
+    return {"psi6_abs": np.abs(psi6), "psi2_abs": np.abs(psi2), "Psi6": global_order(psi6),
+            "Psi2": global_order(psi2), "lattice_angle": lattice_angle(centroids, period_x, pairs)}
+
+
 def t1_events(
     pairs_before: ArrayLike, pairs_after: ArrayLike
 ) -> tuple[np.ndarray, np.ndarray]:

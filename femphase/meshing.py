@@ -17,7 +17,7 @@ y = bottom(x) and a top wall y = top(x), optionally around circular obstacles:
 The lattice's node density equals the structured grid's at spacing h when the edge length is
 ``h·sqrt(2/√3)`` (:func:`edge_for_spacing`), so "h = 1" meshes have one node per unit area
 like the structured channel. Boundary names: ``left``, ``right``, ``bottom``, ``top``,
-``obstacle`` (:data:`femphase.unstructured.domain.BOUNDARY_TAGS`).
+``obstacle`` (:data:`femphase.meshed.BOUNDARY_TAGS`).
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ import numpy as np
 from scipy.spatial import Delaunay, cKDTree
 from skfem import MeshTri
 
-from ..mesh import channel_grid, structured_channel_mesh
-from .domain import channel_sides, facet_indices
+from .mesh import channel_grid, structured_channel_mesh
+from .meshed import channel_sides, facet_indices
 
 Wall = Callable[[np.ndarray], np.ndarray]
 

@@ -26,19 +26,30 @@ with its left-side partner; a dof's coordinates are its left-side node's, so x l
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import hashlib
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
 
 import meshio
 import numpy as np
+import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from skfem import MeshTri
 
-from ..discretisation import P1Operators, assemble_operators, element_gradients
-from ..errors import SceneError
-from ..mesh import read_meshio
-from ..periodic import fold_matrix, periodic_dof_map
+from .advection import GalerkinPade
+from .analysis.shape import shape_tensors
+from .discretisation import P1Operators, assemble_operators, element_gradients
+from .domain import DOMAINS, Domain
+from .errors import SceneError
+from .mesh import read_meshio
+from .periodic import fold_matrix, periodic_dof_map
+from .windows import Box, BoxPolicy, Layout, circular_extent, local_x
+
+if TYPE_CHECKING:
+    from .flows import Flow
+    from .stepping import Numerics
 
 #: Tag numbers of the boundary names when a file cannot store names (``.vtu``, ``.xdmf``).
 BOUNDARY_TAGS = {"left": 1, "right": 2, "bottom": 3, "top": 4, "obstacle": 5, "wall": 6}
@@ -48,17 +59,29 @@ PERIODIC_PAIR = ("left", "right")
 TAG_KEYS = ("gmsh:physical", "boundary", "medit:ref", "cell_tags")
 
 
-@dataclass(frozen=True)
-class MeshDomain:
-    """A channel on a triangular mesh, periodic in x, with its P1 operators.
+#: Keys of a ``[domain]`` table of kind "mesh".
+MESH_KEYS = ("kind", "mesh", "h", "periodic", "boundaries", "Lx", "Ly")
+
+
+@DOMAINS.register("mesh")
+@dataclass(frozen=True, eq=False)
+class MeshDomain(Domain):
+    """Any triangle mesh meshio reads, periodic in x (keys: `mesh`, the file, relative to the
+    scene; `periodic`, the periodic pair of boundary names, default ["left", "right"];
+    `boundaries`, names of the file's integer tags; `h`, the nominal spacing, default the
+    median edge; `Lx`, `Ly`, if given, must match the mesh).
+
+    A channel on a triangular mesh, periodic in x, with its P1 operators.
 
     mesh        the non-periodic mesh as read (what output files are written on)
     boundaries  name → indices into ``mesh.facets`` of the boundary facets with that name
     periodic    the names of the periodic pair (min side, max side)
     period      the length of the periodic cell in x
     dof_map     (n_nodes,) the periodic dof of every mesh node (``dof_map`` of
-                :class:`femphase.stepping.Discretisation`, so output code serves both)
+                every :class:`femphase.domain.Domain`, so output code serves both)
     operators   P1 mass, stiffness, lumped mass and element gradients on the dofs
+    source      the mesh file it was read from ("" if built in memory; Stokes caches sit beside it)
+    nominal_spacing  the scene's ``h`` if it gave one (else :attr:`spacing` is the median edge)
     """
 
     mesh: MeshTri
@@ -67,6 +90,9 @@ class MeshDomain:
     period: float
     dof_map: np.ndarray
     operators: P1Operators
+    source: str = ""
+    nominal_spacing: float | None = None
+    kind = "mesh"
 
     @classmethod
     def from_mesh(
@@ -118,11 +144,32 @@ class MeshDomain:
         operators = assemble_operators(mesh, dof_map, int(dof_map.max()) + 1)
         return cls(mesh, boundaries, tuple(periodic), period, dof_map, operators)
 
-    # -- geometry of the dofs --------------------------------------------------------------
-    @property
-    def n_dofs(self) -> int:
-        return self.operators.lumped_mass.size
+    @classmethod
+    def from_table(cls, table: dict, base_dir: Path, numerics: "Numerics") -> "MeshDomain":
+        for key, value in table.items():
+            if key not in MESH_KEYS:
+                raise SceneError(f"domain.{key}", value, f"not a key of a mesh domain; valid: {', '.join(MESH_KEYS)}")
+        if not table.get("mesh"):
+            raise SceneError("domain.mesh", table.get("mesh"), "the mesh file of a mesh domain")
+        periodic = table.get("periodic", list(PERIODIC_PAIR))
+        if not isinstance(periodic, (list, tuple)) or len(periodic) != 2:
+            raise SceneError("domain.periodic", periodic, "two boundary names [min side, max side]")
+        path = (base_dir / table["mesh"]).resolve()
+        domain = read_domain(path, periodic=tuple(periodic), names=table.get("boundaries"))
+        h = table.get("h")
+        if h is not None and not (isinstance(h, (int, float)) and not isinstance(h, bool) and h > 0):
+            raise SceneError("domain.h", h, "a number > 0 (the nominal spacing)")
+        domain = replace(domain, source=str(path), nominal_spacing=None if h is None else float(h))
+        for key, value in (("Lx", domain.period), ("Ly", domain.width)):
+            if key in table and not np.isclose(table[key], value, rtol=1e-6):
+                raise SceneError(f"domain.{key}", table[key], f"the mesh's value {value:g} (or leave it out)")
+        return domain
 
+    def describe(self) -> dict:
+        return {"kind": self.kind, "n_dofs": self.n_dofs, "n_elements": int(self.mesh.t.shape[1]),
+                "period": self.period, "mesh_checksum": mesh_checksum(self.mesh)}
+
+    # -- geometry of the dofs --------------------------------------------------------------
     @cached_property
     def x0(self) -> float:
         """The x of the min periodic side; dof x lies in [x0, x0 + period)."""
@@ -144,13 +191,18 @@ class MeshDomain:
 
     @cached_property
     def spacing(self) -> float:
-        """Median edge length: the mesh spacing h of window margins and tolerances."""
+        """The scene's nominal spacing ``h``, else the median edge length: the spacing of
+        window margins and tolerances."""
+        if self.nominal_spacing is not None:
+            return self.nominal_spacing
         ends = self.mesh.p[:, self.mesh.facets]
         return float(np.median(np.hypot(*(ends[:, 1] - ends[:, 0]))))
 
-    @property
-    def area(self) -> float:
-        return float(self.operators.element_area.sum())
+    @cached_property
+    def median_edge(self) -> float:
+        """The median edge length (the window policy's spacing)."""
+        ends = self.mesh.p[:, self.mesh.facets]
+        return float(np.median(np.hypot(*(ends[:, 1] - ends[:, 0]))))
 
     @cached_property
     def wall_facets(self) -> np.ndarray:
@@ -167,6 +219,115 @@ class MeshDomain:
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
         x = self.x0 + np.mod(x - self.x0, self.period)
         return locate(self.mesh, np.vstack([x.ravel(), y.ravel()])).reshape(x.shape) >= 0
+
+    def wall_points(self) -> np.ndarray:
+        return self.mesh.p[:, np.unique(self.mesh.facets[:, self.wall_facets])]
+
+    # -- windows: the dofs inside boxes -----------------------------------------------------
+    @cached_property
+    def _cache(self) -> dict:
+        return {"dofs": {}, "layout": None}
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        low, high = self.y_range
+        return (self.x0, self.period, low, high)
+
+    def window_policy(self, numerics: "Numerics") -> BoxPolicy:
+        return BoxPolicy.for_spacing(self.median_edge, threshold=numerics.threshold, margin=numerics.margin,
+                                     enabled=numerics.windows)
+
+    def full_window(self) -> Box:
+        low, high = self.y_range
+        return Box(self.x0, self.period, low, high)
+
+    def disc_window(self, centre, reach: float, policy: BoxPolicy) -> Box:
+        cx, cy = centre
+        return policy.cover((cx - reach, cx + reach), (cy - reach, cy + reach), self.extent)
+
+    def window_dofs(self, window: Box) -> np.ndarray:
+        """The dofs inside the box, sorted (cached: boxes last many steps)."""
+        dofs = self._cache["dofs"]
+        if window not in dofs:
+            if len(dofs) > 4096:
+                dofs.clear()
+            x, y = self.coordinates
+            dofs[window] = np.flatnonzero(window.contains(x, y, self.period))
+        return dofs[window]
+
+    def layout(self, windows: Sequence[Box]) -> Layout:
+        last = self._cache["layout"]
+        if last is None or last.windows != tuple(windows):
+            last = self._cache["layout"] = Layout(
+                windows, lambda box: box, lambda boxes: np.stack([self.window_dofs(b) for b in boxes]),
+                lambda box: (self.window_dofs(box).size,), self.operators.lumped_mass)
+        return last
+
+    def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
+              motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
+        """Boxes refitted to the field and to the coming step's motion (see BoxPolicy)."""
+        boxes, fields = list(layout.windows), layout.scatter(phi)
+        steps = np.zeros((len(boxes), 2)) if motion is None else motion()
+        occupied = phi > policy.threshold
+        x, y = self.coordinates[:, layout.node_index]
+        lx = local_x(x, np.array([b.x0 for b in boxes])[layout.owner], self.period)
+        extents = np.empty((len(boxes), 4))
+        extents[layout.order] = np.stack([
+            layout.reduce(np.minimum, np.where(occupied, lx, np.inf)),
+            layout.reduce(np.maximum, np.where(occupied, lx, -np.inf)),
+            layout.reduce(np.minimum, np.where(occupied, y, np.inf)),
+            layout.reduce(np.maximum, np.where(occupied, y, -np.inf)),
+        ], axis=1)
+        extents[~np.isfinite(extents[:, 0])] = np.nan
+        slot = np.empty(len(boxes), dtype=int)
+        slot[layout.order] = np.arange(len(boxes))
+        scratch = np.zeros(self.n_dofs)
+        for i in np.flatnonzero(policy.misfits(extents, boxes, self.extent, steps)):
+            box = boxes[i]
+            if box.width >= self.period:
+                part = slice(layout.offsets[slot[i]], layout.offsets[slot[i] + 1])
+                x_range = circular_extent(x[part][occupied[part]], self.period)
+            else:
+                x_range = (box.x0 + extents[i, 0], box.x0 + extents[i, 1])
+            fitted = policy.cover(x_range, tuple(extents[i, 2:]), self.extent, tuple(steps[i]))
+            if fitted == box:
+                continue
+            old, new = self.window_dofs(box), self.window_dofs(fitted)
+            scratch[old] = fields[i]
+            fields[i] = scratch[new]
+            scratch[old] = 0.0
+            boxes[i] = fitted
+        return boxes, fields
+
+    def windows_to_array(self, windows: Sequence[Box]) -> np.ndarray:
+        return np.array([[b.x0, b.width, b.y0, b.y1] for b in windows], dtype=float).reshape(-1, 4)
+
+    def windows_from_array(self, array: np.ndarray) -> list[Box]:
+        return [Box(*map(float, row)) for row in array]
+
+    # -- fast paths and flows ---------------------------------------------------------------
+    def advection(self, flow: "Flow", dt: float, numerics: "Numerics") -> GalerkinPade:
+        return GalerkinPade(self, flow, dt, numerics)
+
+    def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Area with the nodal quadrature; shape tensor the exact integral of the P1 element
+        gradients (on an irregular mesh its O(h²) bias varies with position)."""
+        fields = sp.csc_matrix((phi, (layout.node_index, layout.owner)), shape=(self.n_dofs, len(layout.windows)))
+        area = np.empty(len(layout.windows))
+        area[layout.order] = layout.reduce(np.add, layout.mass * phi**2)
+        return area, self.centroids(layout, phi), shape_tensors(fields, self.operators)
+
+    def stokes_flow(self, spec: dict):
+        """The Stokes flow of a ``{type = "stokes", …}`` table on this mesh (unit solutions
+        cached next to the mesh file as ``<mesh>.stokes.npz``)."""
+        from .stokes import stokes_drive, stokes_flow, unit_stokes_flow
+
+        _, _, viscosity = stokes_drive(spec)
+        units = self._cache.setdefault("stokes", {})
+        if viscosity not in units:
+            cache = Path(self.source + ".stokes.npz") if self.source else None
+            units[viscosity] = unit_stokes_flow(self, viscosity, cache)
+        return stokes_flow(self, spec, units[viscosity])
 
 
 def locate(mesh: MeshTri, points: np.ndarray, candidates: int = 12) -> np.ndarray:
@@ -332,3 +493,11 @@ def write_domain(path: str | Path, mesh: MeshTri, boundaries: dict[str, np.ndarr
     else:
         meshio.write(path, meshio.Mesh(points, cells, cell_data={"boundary": tag_data},
                                        field_data=field_data))
+
+
+def mesh_checksum(mesh: MeshTri) -> str:
+    """A short digest of a mesh's nodes and triangles (checkpoints record it)."""
+    digest = hashlib.sha256()
+    for array in (mesh.p, mesh.t):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()[:16]

@@ -1,0 +1,223 @@
+"""The structured periodic channel: the Domain with fast paths.
+
+The channel [0, Lx) × [0, Ly] is a lattice of nx × ny nodes of spacing h (:mod:`femphase.mesh`),
+triangulated with right isosceles triangles. Dof (iy, ix) is ``iy * nx + ix`` ("grid order").
+Its fast paths, all exact or checked against the general ones:
+
+* windows are rectangular node blocks (:class:`femphase.windows.Window`); windows of one
+  shape share one system matrix, one solver and one multi-right-hand-side solve;
+* with one diagonal direction and the lumped mass, a window's matrix is the tensor product
+  a My⊗Mx + b (Ky⊗Mx + My⊗Kx) of 1D P1 operators, solved exactly by
+  :class:`femphase.solvers.TensorSolver` (used only after checking the assembled block
+  entry by entry);
+* row flows (u(y, t), 0) are advected by an exact shift of every row
+  (:class:`femphase.advection.RowShift`); other flows semi-Lagrangian;
+* shape tensors use nodal central differences, which have the lattice's square symmetry
+  (a centred disc has elongation exactly 0).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from .advection import RowShift, SemiLagrangian
+from .discretisation import assemble_operators, line_operators
+from .domain import DOMAINS, Domain
+from .errors import SceneError
+from .mesh import ChannelGrid, channel_grid, grid_dof_map, load_mesh, structured_channel_mesh
+from .placement import random_centres
+from .solvers import TensorSolver
+from .windows import Layout, Window, WindowPolicy, pad_window, transfer
+
+if TYPE_CHECKING:
+    from .flows import Flow
+    from .stepping import Numerics
+
+#: ``solver = "auto"`` uses the tensor solver for windows up to this ny + nx (nodes):
+#: benchmarks/solver_crossover.py measured it 1.5–3.7× faster than the cached LU up to
+#: 256 × 256 nodes (ny + nx = 512) and 0.8–1.0× from ny + nx = 621 on (its dense products
+#: grow as (ny + nx)·ny·nx, the LU's triangular solves slower).
+TENSOR_MAX_SIDES = 512
+
+#: Keys of a ``[domain]`` table of kind "grid".
+GRID_KEYS = ("kind", "Lx", "Ly", "h", "mesh")
+
+
+@DOMAINS.register("grid")
+class ChannelDomain(Domain):
+    """The structured channel (keys: `Lx`, `Ly` lengths, multiples of the spacing `h`, lattice
+    units; optional `mesh`, a meshio file of the same lattice's triangulation)."""
+
+    kind = "grid"
+
+    def __init__(self, grid: ChannelGrid, diagonals: str = "right", mesh=None) -> None:
+        """``mesh``: a non-periodic MeshTri whose nodes are the grid's (e.g. read from a
+        file); by default the structured triangulation with ``diagonals``."""
+        self.grid = grid
+        self.mesh = structured_channel_mesh(grid, diagonals) if mesh is None else mesh
+        self.dof_map = grid_dof_map(self.mesh, grid)
+        self.operators = assemble_operators(self.mesh, self.dof_map, grid.n_nodes)
+        self.alternating = _has_alternating_diagonals(self.mesh, grid)
+        self.period, self.spacing = grid.length, grid.h
+        self.lattice = (grid.ny, grid.nx)
+        self._layout: Layout | None = None
+
+    @classmethod
+    def from_table(cls, table: dict, base_dir: Path, numerics: "Numerics") -> "ChannelDomain":
+        for key, value in table.items():
+            if key not in GRID_KEYS:
+                raise SceneError(f"domain.{key}", value, f"not a key of a grid domain; valid: {', '.join(GRID_KEYS)}")
+        sizes = {key: table.get(key, default) for key, default in (("Lx", 70.0), ("Ly", 240.0), ("h", 1.0))}
+        for key, value in sizes.items():
+            if not (isinstance(value, (int, float)) and not isinstance(value, bool) and np.isfinite(value) and value > 0):
+                raise SceneError(f"domain.{key}", value, "a finite number > 0 (lattice units)")
+        grid = channel_grid(sizes["Lx"], sizes["Ly"], sizes["h"])
+        mesh = load_mesh(base_dir / table["mesh"]) if table.get("mesh") else None
+        return cls(grid, numerics.diagonals, mesh)
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "nx": self.grid.nx, "ny": self.grid.ny, "h": self.grid.h,
+                "n_dofs": self.n_dofs, "alternating": self.alternating}
+
+    # -- geometry -------------------------------------------------------------------------
+    @property
+    def coordinates(self) -> np.ndarray:
+        x, y = self.grid.coordinates()
+        return np.stack([np.tile(x, self.grid.ny), np.repeat(y, self.grid.nx)])
+
+    @property
+    def y_range(self) -> tuple[float, float]:
+        return 0.0, self.grid.width
+
+    @property
+    def x0(self) -> float:
+        return 0.0
+
+    def inside(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        return (np.asarray(y) >= 0) & (np.asarray(y) <= self.grid.width) & np.isfinite(x)
+
+    def random_centres(self, n: int, radius: float, seed: int) -> np.ndarray:
+        """The rectangle's own sampler (x uniform in [0, Lx), y in [radius, Ly − radius]),
+        whose seeded layouts the verification runs use."""
+        return random_centres(n, self.grid.length, self.grid.width, radius, seed)
+
+    def wall_points(self) -> np.ndarray:
+        x, _ = self.grid.coordinates()
+        return np.stack([np.concatenate([x, x]), np.concatenate([np.zeros_like(x), np.full_like(x, self.grid.width)])])
+
+    # -- windows --------------------------------------------------------------------------
+    def window_policy(self, numerics: "Numerics") -> WindowPolicy:
+        return WindowPolicy.for_spacing(self.grid.h, threshold=numerics.threshold, margin=numerics.margin,
+                                        enabled=numerics.windows)
+
+    def full_window(self) -> Window:
+        return Window(0, self.grid.ny, 0, self.grid.nx)
+
+    def disc_window(self, centre, reach: float, policy: WindowPolicy) -> Window:
+        grid, (cx, cy) = self.grid, centre
+        rows = (max(0, int(np.floor((cy - reach) / grid.h))), min(grid.ny - 1, int(np.ceil((cy + reach) / grid.h))))
+        cols = (int(np.floor((cx - reach) / grid.h)), int(np.ceil((cx + reach) / grid.h)))
+        return policy.cover(rows, cols, self.lattice)
+
+    def window_dofs(self, window: Window) -> np.ndarray:
+        return (window.rows()[:, None] * self.grid.nx + window.columns(self.grid.nx)[None, :]).ravel()
+
+    def window_key(self, window: Window) -> tuple:
+        return window.key(self.grid.ny, self.grid.nx, self.alternating)
+
+    def _group_dofs(self, windows: list[Window]) -> np.ndarray:
+        w = windows[0]
+        iy0 = np.array([v.iy0 for v in windows])
+        ix0 = np.array([v.ix0 for v in windows])
+        rows = iy0[:, None, None] + np.arange(w.ny)[None, :, None]
+        cols = (ix0[:, None, None] + np.arange(w.nx)[None, None, :]) % self.grid.nx
+        return (rows * self.grid.nx + cols).reshape(len(windows), -1)
+
+    def layout(self, windows: Sequence[Window]) -> Layout:
+        # the last layout is reused while the windows do not change (most steps)
+        if self._layout is None or self._layout.windows != tuple(windows):
+            self._layout = Layout(windows, self.window_key, self._group_dofs, lambda w: w.shape,
+                                  self.operators.lumped_mass)
+        return self._layout
+
+    def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
+              motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
+        windows, fields = list(layout.windows), layout.scatter(phi)
+        for group, (_, members, *_) in enumerate(layout.groups):
+            block = layout.group_block(phi, group)
+            for i in members[policy.misfits(block, [windows[i] for i in members], self.lattice)]:
+                w = windows[i]
+                fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice)
+                if fitted != w:
+                    fields[i] = transfer(fields[i].reshape(w.shape), w, fitted, self.grid.nx).ravel()
+                    windows[i] = fitted
+        return windows, fields
+
+    def windows_to_array(self, windows: Sequence[Window]) -> np.ndarray:
+        return np.array([[w.iy0, w.ny, w.ix0, w.nx] for w in windows], dtype=np.int64).reshape(-1, 4)
+
+    def windows_from_array(self, array: np.ndarray) -> list[Window]:
+        return [Window(*map(int, row)) for row in array]
+
+    # -- fast paths -----------------------------------------------------------------------
+    def solver(self, window: Window, block: sp.csr_matrix, a: float, b: float, lumped: bool,
+               method: str, tolerance: float):
+        if lumped and (method == "tensor" or (method == "auto" and window.ny + window.nx <= TENSOR_MAX_SIDES)):
+            solver = tensor_solver(block, window, self.grid, a, b)
+            if solver is not None:
+                return solver
+        return super().solver(window, block, a, b, lumped, method, tolerance)
+
+    def advection(self, flow: "Flow", dt: float, numerics: "Numerics"):
+        if flow.row_velocity is not None:
+            return RowShift(self, flow, dt)
+        return SemiLagrangian(self, flow, dt)
+
+    def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Area, centroid and shape tensor with the nodal quadrature; the shape tensor
+        R_i = −Σ_k m_k ∇_h φ_ik ∇_h φ_ikᵀ with central differences ∇_h, the field mirrored at
+        the walls (∂yφ = 0) and zero beyond a window's edge."""
+        h = self.grid.h
+        n = len(layout.windows)
+        area, tensors = np.empty(n), np.empty((n, 2, 2))
+        for group, (_, members, start, stop, _) in enumerate(layout.groups):
+            w = layout.representative(group)
+            block = layout.group_block(phi, group)  # (k, ny, nx)
+            mass = layout.mass[start:stop].reshape(block.shape)[0]
+            area[members] = np.einsum("kij,ij,kij->k", block, mass, block)
+            padded = pad_window(block, w, self.lattice, 1)
+            dx = (padded[:, 1:-1, 2:] - padded[:, 1:-1, :-2]) / (2 * h)
+            dy = (padded[:, 2:, 1:-1] - padded[:, :-2, 1:-1]) / (2 * h)
+            xx, yy, xy = (-np.einsum("kij,ij,kij->k", a, mass, b) for a, b in ((dx, dx), (dy, dy), (dx, dy)))
+            tensors[members] = np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2)
+        return area, self.centroids(layout, phi), tensors
+
+
+def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:
+    """True unless every cell is split along the same diagonal (then windows of a shape share
+    one submatrix regardless of position)."""
+    p = mesh.p[:, mesh.t] / grid.h
+    spans = np.ptp(p[0], axis=0) + np.ptp(p[1], axis=0)  # 2 for the right-angle triangles
+    corner_sum = np.rint(p[0] + p[1]).astype(int)
+    rising = (np.ptp(corner_sum, axis=0) == 2) & (spans == 2)
+    return bool(rising.any() and not rising.all())
+
+
+def tensor_solver(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: float, b: float) -> TensorSolver | None:
+    """A :class:`TensorSolver` for ``block`` = a M_L + b K on ``window``'s nodes, or None when
+    the block is not that tensor product (alternating diagonals, a file mesh, a consistent
+    mass), checked entry by entry against the assembled block."""
+    rows, columns = window.rows(), window.columns(grid.nx)
+    factors = []
+    for n_nodes, periodic, keep in ((grid.ny, False, rows), (grid.nx, True, columns)):
+        mass, stiffness = line_operators(n_nodes, grid.h, periodic)
+        factors.append(tuple(m[keep][:, keep] for m in (mass, stiffness)))
+    (my, ky), (mx, kx) = factors
+    candidate = a * sp.kron(my, mx) + b * (sp.kron(ky, mx) + sp.kron(my, kx))
+    if abs(candidate - block).max() > 1e-12 * abs(block).max():
+        return None
+    return TensorSolver(a, b, (my.toarray(), ky.toarray()), (mx.toarray(), kx.toarray()))

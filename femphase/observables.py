@@ -1,0 +1,147 @@
+"""Frame observables, by name: what a run computes and writes at every frame.
+
+An observable is a class registered in :data:`OBSERVABLES`; a scene lists the names it wants
+in ``output.observables`` ("shape" and "energy" are always computed). At a frame the
+simulation calls each observable once, in the order of its ``requires``, with the state and
+the values computed so far; it returns its columns:
+
+* ``particle_columns``: arrays of length N, one row per particle in ``particles.csv``;
+* ``global_columns``: numbers, one row per frame in ``global.csv``.
+
+An observable that keeps a running state across frames (the T1 counter) returns it from
+:meth:`Observable.snapshot`; checkpoints store it and a resumed run restores it. A new
+observable is one subclass (``docs/architecture.md``).
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from .analysis.lattice import T1Counter, frame_order
+from .analysis.shape import shape_observables
+from .energy import WindowedFields
+from .registry import Registry
+
+if TYPE_CHECKING:
+    from .simulation import Simulation
+    from .state import State
+
+
+class Observable(ABC):
+    """A frame observable.
+
+    particle_columns  names of its per-particle values (arrays of length N)
+    global_columns    names of its per-frame values (numbers)
+    requires          observables whose values it reads (computed before it)
+    """
+
+    name: ClassVar[str]
+    particle_columns: ClassVar[tuple[str, ...]] = ()
+    global_columns: ClassVar[tuple[str, ...]] = ()
+    requires: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, simulation: "Simulation") -> None:
+        self.simulation = simulation
+
+    @abstractmethod
+    def __call__(self, state: "State", values: dict) -> dict:
+        """Its columns at this frame (name → value)."""
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        """Running state for a checkpoint (names must be unique across observables)."""
+        return {}
+
+    def restore(self, snapshot: dict[str, np.ndarray]) -> None:
+        """Continue from a checkpoint's snapshot (all observables' arrays are passed)."""
+
+
+OBSERVABLES: Registry[type[Observable]] = Registry("Observables", "output.observables")
+
+
+@OBSERVABLES.register("shape")
+class Shape(Observable):
+    """Per particle: φ-weighted centroid x, y (lattice units), area ∫φ² (lattice units²),
+    elongation r = λ1/λ2 − 1 and orientation θ ∈ (−π/2, π/2] (radians) of the shape tensor
+    −∫∇φ∇φᵀ."""
+
+    name = "shape"
+    particle_columns = ("x", "y", "area", "elongation", "orientation")
+
+    def __call__(self, state: "State", values: dict) -> dict:
+        shape = shape_observables(state)
+        return {column: getattr(shape, column) for column in self.particle_columns}
+
+
+@OBSERVABLES.register("energy")
+class Energy(Observable):
+    """The free energy and one column per term (energy units), computed window by window."""
+
+    name = "energy"
+
+    def __init__(self, simulation: "Simulation") -> None:
+        super().__init__(simulation)
+        self.energy = simulation.energy
+
+    @property
+    def global_columns(self) -> tuple[str, ...]:  # type: ignore[override]
+        return self.energy.columns
+
+    def __call__(self, state: "State", values: dict) -> dict:
+        layout, phi = state.flat()
+        fields = WindowedFields(phi, layout, state.radii, state.domain.stiffness_apply(layout))
+        parts = self.energy.parts(fields)
+        return {"free_energy": parts.total, **parts}
+
+
+@OBSERVABLES.register("order")
+class Order(Observable):
+    """Ψ6 (bond order) and Ψ2^L (nematic order of the elongation axes, e^{2iθ}) per particle
+    (|ψ6|, |ψ2|) and per frame (|mean ψ|), the lattice angle (radians) and the running count
+    of T1 events, from periodic-Delaunay neighbours of the centroids."""
+
+    name = "order"
+    particle_columns = ("psi6_abs", "psi2_abs")
+    global_columns = ("Psi6", "Psi2", "lattice_angle", "t1_count")
+    requires = ("shape",)
+
+    def __init__(self, simulation: "Simulation") -> None:
+        super().__init__(simulation)
+        self.period = simulation.domain.period
+        self.t1: T1Counter | None = None
+
+    def snapshot(self) -> dict[str, np.ndarray]:
+        return self.t1.snapshot() if self.t1 is not None else {}
+
+    def restore(self, snapshot: dict[str, np.ndarray]) -> None:
+        mine = {k: v for k, v in snapshot.items() if k.startswith("t1_")}
+        if mine:
+            self.t1 = T1Counter.restore(mine, self.period)
+
+    def __call__(self, state: "State", values: dict) -> dict:
+        centroids = np.stack([values["x"], values["y"]], axis=1)
+        order = frame_order(centroids, values["orientation"], self.period)
+        if len(centroids) >= 3:
+            if self.t1 is None:
+                self.t1 = T1Counter(centroids, self.period)
+            else:
+                self.t1.update(centroids)
+        return {**order, "t1_count": self.t1.count if self.t1 is not None else 0}
+
+
+def resolve(names: tuple[str, ...] | list[str]) -> list[str]:
+    """``names`` with everything they require, each after its requirements."""
+    ordered: list[str] = []
+
+    def visit(name: str) -> None:
+        if name in ordered:
+            return
+        for required in OBSERVABLES.get(name).requires:
+            visit(required)
+        ordered.append(name)
+
+    for name in names:
+        visit(name)
+    return ordered

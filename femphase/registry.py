@@ -1,0 +1,107 @@
+"""Registries: the names a scene may use for domains, flows, time schemes and observables.
+
+A registry maps a name to a class or builder. Scenes name entries (``[domain] kind = "mesh"``,
+``flow = {type = "shear", …}``, ``numerics.scheme = "euler"``, ``output.observables``); an
+unknown name raises :class:`~femphase.errors.SceneError` listing the registered ones, and
+``docs/scenes.md`` lists every registry from the entries' docstrings
+(:func:`femphase.registry.markdown`, checked by ``tests/test_docs.py``).
+
+Adding an entry is one decorated definition::
+
+    @FLOWS.register("vortex")
+    def vortex(spec, domain): ...
+"""
+
+from __future__ import annotations
+
+import inspect
+from typing import Callable, Generic, TypeVar
+
+from .errors import SceneError
+
+T = TypeVar("T")
+
+
+class Registry(Generic[T]):
+    """Name → entry, with the scene key that names it (for error messages)."""
+
+    def __init__(self, title: str, key: str) -> None:
+        self.title, self.key = title, key
+        self._entries: dict[str, T] = {}
+
+    def register(self, name: str) -> Callable[[T], T]:
+        """Decorator: register the decorated class or function under ``name``."""
+        def decorate(entry: T) -> T:
+            if name in self._entries:
+                raise ValueError(f"{self.title}: {name!r} is registered twice")
+            self._entries[name] = entry
+            return entry
+        return decorate
+
+    def unregister(self, name: str) -> None:
+        """Remove an entry (for tests and notebooks that register temporary entries)."""
+        del self._entries[name]
+
+    def get(self, name: object, key: str | None = None) -> T:
+        """The entry called ``name``; SceneError (naming ``key``) if there is none."""
+        if not isinstance(name, str) or name not in self._entries:
+            raise SceneError(key or self.key, name, f"one of {self.names()}")
+        return self._entries[name]
+
+    def names(self) -> tuple[str, ...]:
+        return tuple(self._entries)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._entries
+
+    def summary(self, name: str) -> str:
+        """The first paragraph of the entry's docstring, on one line."""
+        doc = inspect.getdoc(self._entries[name]) or ""
+        return " ".join(doc.split("\n\n")[0].split())
+
+
+def builtin() -> tuple[Registry, ...]:
+    """femphase's registries, each filled with its built-in entries."""
+    from . import channel, meshed  # noqa: F401  (register the domain kinds)
+    from .domain import DOMAINS
+    from .flows import FLOWS
+    from .observables import OBSERVABLES
+    from .stepping import SCHEMES, _load_schemes
+
+    _load_schemes()
+    return DOMAINS, FLOWS, SCHEMES, OBSERVABLES
+
+
+def markdown(*registries: Registry) -> str:
+    """One markdown table per registry: name and summary of every entry."""
+    blocks = []
+    for registry in registries or builtin():
+        lines = [f"### {registry.title} (`{registry.key}`)", "", "| name | what it is |", "|---|---|"]
+        lines += [f"| `{name}` | {registry.summary(name).replace('|', chr(92) + '|')} |" for name in registry.names()]
+        blocks.append("\n".join(lines))
+    return "\n\n".join(blocks)
+
+
+MARKERS = ("<!-- registries -->", "<!-- /registries -->")
+
+
+def with_registries(document: str) -> str:
+    """``document`` with the text between its :data:`MARKERS` replaced by :func:`markdown`."""
+    begin, end = MARKERS
+    head, _, rest = document.partition(begin)
+    _, _, tail = rest.partition(end)
+    return f"{head}{begin}\n{markdown()}\n{end}{tail}"
+
+
+if __name__ == "__main__":
+    import argparse
+    from pathlib import Path
+
+    parser = argparse.ArgumentParser(description="Print (or write into a document) femphase's registries.")
+    parser.add_argument("--write", metavar="FILE", help="replace the section between the markers of FILE")
+    args = parser.parse_args()
+    if args.write:
+        path = Path(args.write)
+        path.write_text(with_registries(path.read_text()))
+    else:
+        print(markdown())

@@ -1,0 +1,56 @@
+"""Flows that depend on time: v(x, y, t), on the structured channel and on a mesh.
+
+In oscillatory shear u = γ̇ sin(ωt) y/Ly a particle at height y0 moves by
+x(t) − x(0) = γ̇ y0 (1 − cos ωt)/(Ly ω): 2γ̇ y0/(Ly ω) at half a period, back to zero after a
+whole one. Both advections take the velocity at each step's midpoint, an O((ω dt)²) error
+(~1e-3 here).
+"""
+
+import numpy as np
+import pytest
+
+from femphase.meshed import write_domain
+from femphase.meshing import structured_channel
+from femphase.scene import scene_from_dict
+from femphase.simulation import FrameRecorder, Simulation
+
+RATE, PERIOD, LX, LY = 0.4, 40.0, 60.0, 40.0
+
+
+def _displacements(domain: dict) -> np.ndarray:
+    scene = scene_from_dict({
+        "domain": domain,
+        "particles": {"layout": "list", "centres": [[30.0, 20.0]], "initial_radius": 8.0},
+        "output": {"fields": False},
+        "phases": [{"duration": PERIOD, "dt": 1.0, "frame_interval": PERIOD / 2,
+                    "flow": {"type": "oscillating_shear", "rate": RATE, "frequency": 2 * np.pi / PERIOD}}],
+    })
+    recorder = FrameRecorder()
+    Simulation(scene).run(scene.initial_state(), [recorder])
+    x = recorder.series("x")[:, 0]
+    return x - x[0]
+
+
+def test_oscillating_shear_moves_a_particle_there_and_back_on_the_grid():
+    half = 2 * RATE * 20.0 / (LY * 2 * np.pi / PERIOD)
+    moved = _displacements({"Lx": LX, "Ly": LY})
+    assert moved[1] == pytest.approx(half, rel=1e-2)
+    assert abs(moved[2]) < 1e-2 * half
+
+
+def test_oscillating_shear_on_a_mesh_reassembles_its_advection_every_step(tmp_path):
+    mesh, boundaries = structured_channel(LX, LY, 1.0)
+    write_domain(tmp_path / "channel.vtu", mesh, boundaries)
+    half = 2 * RATE * 20.0 / (LY * 2 * np.pi / PERIOD)
+    moved = _displacements({"kind": "mesh", "mesh": str(tmp_path / "channel.vtu")})
+    assert moved[1] == pytest.approx(half, rel=3e-2)
+    assert abs(moved[2]) < 3e-2 * half
+
+
+def test_a_time_dependent_flow_is_rejected_with_its_key_when_a_key_is_missing():
+    from femphase.errors import SceneError
+
+    with pytest.raises(SceneError, match="phases.0.flow.frequency"):
+        scene_from_dict({"domain": {"Lx": LX, "Ly": LY}, "particles": {"layout": "single"},
+                         "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0,
+                                     "flow": {"type": "oscillating_shear", "rate": 0.1}}]})
