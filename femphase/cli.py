@@ -1,9 +1,14 @@
 """The ``femphase`` command line.
 
-    femphase run SCENE.toml -o DIR [--set key=value ...] [--resume] [--method fem|fd]
+    femphase run SCENE.toml -o DIR [--set key=value ...] [--resume | --overwrite] [--method fem|fd]
 
-Errors in a scene or a run (bad keys or values, a blown-up run) print one message and exit
-with status 2 (scene) or 3 (run failed); nothing already written is removed.
+Exit codes: 0 done; 2 bad input (a scene key or value, a command-line value, a run directory
+that cannot be used: one message naming the key, the value and what is valid); 3 the run
+blew up (the last good checkpoint is kept); 130 interrupted by SIGINT (Ctrl-C), 143 by
+SIGTERM (``timeout``, Slurm, ``docker stop``): the run stops after the current step, keeps a
+checkpoint of it, marks run.json "interrupted" and can be continued with ``--resume``;
+1 an internal error (a bug: rerun with ``--traceback`` and report it). Nothing already
+computed is removed by any error.
 """
 
 from __future__ import annotations
@@ -11,10 +16,11 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+import traceback
 import warnings
 
 from . import __version__
-from .errors import BlowUpError, FemphaseError
+from .errors import BlowUpError, FemphaseError, Interrupted
 
 
 def _run(args: argparse.Namespace) -> int:
@@ -25,7 +31,8 @@ def _run(args: argparse.Namespace) -> int:
 
     scene = scene_from_dict(read_scene_data(args.scene, args.set), Path(args.scene).parent)
     progress = False if args.quiet else None
-    state = run_scene(scene, args.output, resume=args.resume, method=args.method, progress=progress)
+    state = run_scene(scene, args.output, resume=args.resume, overwrite=args.overwrite, method=args.method,
+                      progress=progress, argv=sys.argv[1:] if args.argv is None else args.argv)
     print(f"femphase: {scene.name}: reached t = {state.time:g} after {state.step} steps; output in {args.output}")
     return 0
 
@@ -33,18 +40,23 @@ def _run(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="femphase", description=__doc__.split("\n\n")[0])
     parser.add_argument("--version", action="version", version=f"femphase {__version__}")
+    parser.add_argument("--traceback", action="store_true", help="show the Python traceback of an error (for bug reports)")
     commands = parser.add_subparsers(dest="command", required=True)
     run = commands.add_parser("run", help="run a scene into a run directory")
     run.add_argument("scene", help="scene file (TOML), e.g. examples/single.toml")
     run.add_argument("-o", "--output", required=True, help="run directory to write")
     run.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                      help="override a scene value, e.g. --set model.mu=10 --set phases.1.flow.rate=0.3")
-    run.add_argument("--resume", action="store_true", help="continue from DIR/checkpoint.h5")
+    mode = run.add_mutually_exclusive_group()
+    mode.add_argument("--resume", action="store_true",
+                      help="continue DIR from its checkpoint (the scene may extend durations, change later "
+                           "phases' dt or the output cadence)")
+    mode.add_argument("--overwrite", action="store_true", help="replace the run in DIR (deletes femphase's files there)")
     run.add_argument("--method", default="fem", choices=["fem", "fd"],
                      help="fem: the finite-element solver with the scene's numerics.scheme; fd: the paper's "
                           "finite-difference scheme (numerics.scheme = \"fd-heun\")")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    run.set_defaults(func=_run)
+    run.set_defaults(func=_run, argv=None)
     from . import compare, ode, plot
 
     for module in (ode, compare, plot):
@@ -62,17 +74,34 @@ def main(argv: list[str] | None = None) -> int:
         os.environ.setdefault(name, "1")
     warnings.showwarning = _show_warning
     args = build_parser().parse_args(argv)
+    if argv is not None:
+        args.argv = list(argv)
     try:
         return args.func(args)
-    except BlowUpError as exc:
-        print(f"femphase: error: {exc}. The last good checkpoint is kept.", file=sys.stderr)
-        return 3
-    except (FemphaseError, ValueError) as exc:
-        print(f"femphase: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print("femphase: interrupted; the last checkpoint is kept (continue with --resume)", file=sys.stderr)
-        return 130
+    except BaseException as exc:  # every error ends in one message and a documented code
+        if args.traceback:
+            traceback.print_exc()
+        code, message = _report(exc)
+        if code is None:
+            raise
+        print(f"femphase: {message}", file=sys.stderr)
+        return code
+
+
+def _report(exc: BaseException) -> tuple[int | None, str]:
+    """(exit code, message) for an error; code None: let it propagate (SystemExit)."""
+    if isinstance(exc, SystemExit):
+        return None, ""
+    if isinstance(exc, Interrupted):
+        return exc.exit_code, f"{exc}; the checkpoint of that step is kept (continue with --resume)"
+    if isinstance(exc, KeyboardInterrupt):
+        return 130, "interrupted; the last checkpoint is kept (continue with --resume)"
+    if isinstance(exc, BlowUpError):
+        return 3, f"error: {exc}. The last good checkpoint is kept."
+    if isinstance(exc, FemphaseError):
+        return 2, f"error: {exc}"
+    return 1, (f"internal error ({type(exc).__name__}: {exc}); this is a bug: rerun with --traceback and "
+               "report the output")
 
 
 if __name__ == "__main__":

@@ -54,6 +54,7 @@ import numpy as np
 
 from .analysis.shape import shape_observables
 from .domain import Domain
+from .errors import InputError
 from .io import read_csv
 from .mesh import ChannelGrid
 from .state import State
@@ -563,7 +564,10 @@ def default_output(b: str | Path) -> Path:
 
 
 def run_cli(args: argparse.Namespace) -> int:
-    result = compare_runs(args.a, args.b, fields=args.fields)
+    try:
+        result = compare_runs(args.a, args.b, fields=args.fields)
+    except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
+        raise InputError(str(exc)) from None
     out = write_comparison(result, args.output or default_output(args.b))
     print(format_table(result))
     print(f"\nper-frame differences in {out / 'compare.csv'}, {out / 'compare.json'}, plot {out / 'compare.png'}")

@@ -15,12 +15,25 @@ class SceneError(FemphaseError, ValueError):
         super().__init__(f"scene key '{key}' = {value!r} is invalid: {valid}")
 
 
+class InputError(FemphaseError, ValueError):
+    """Bad input that is not a scene key (a file given to ``femphase compare`` or ``plot``)."""
+
+
 class BlowUpError(FemphaseError, RuntimeError):
     """The time stepping produced NaN or φ far outside [0, 1]."""
 
     def __init__(self, step: int, time: float, reason: str) -> None:
         self.step, self.time, self.reason = step, time, reason
         super().__init__(f"the run blew up at step {step} (t = {time:g}): {reason}")
+
+
+class Interrupted(FemphaseError, RuntimeError):
+    """The run was stopped by a signal (SIGINT, SIGTERM) between two steps; a checkpoint of
+    that step is kept. ``exit_code`` is the shell's convention, 128 + the signal number."""
+
+    def __init__(self, signal_name: str, exit_code: int, step: int, time: float) -> None:
+        self.signal_name, self.exit_code, self.step, self.time = signal_name, exit_code, step, time
+        super().__init__(f"interrupted by {signal_name} after step {step} (t = {time:g})")
 
 
 class ResolutionWarning(UserWarning):

@@ -1,19 +1,6 @@
-"""Run directories: what ``femphase run`` writes, and reading it back.
-
-DIR/
-  scene.toml      the resolved scene (every default filled in)
-  fields.xdmf     fields per frame on the non-periodic mesh (+ fields.h5; opens in ParaView):
-                  phi_sum = Σ_i φ_i, phi_max = max_i φ_i, label = argmax_i φ_i where it
-                  exceeds 1/2 else −1, and phi_000 … when output.per_particle_fields
-  particles.csv   one row per particle per frame: time, id, x, y, area, elongation,
-                  orientation (+ psi6_abs, psi2_abs with output.observables = ["order"])
-  global.csv      one row per frame: time, step, free_energy and one column per energy term
-                  (interface, area, repulsion) (+ Psi6, Psi2, lattice_angle, t1_count with "order")
-  checkpoint.h5   the last frame's complete state (HDF5, :func:`save_checkpoint`);
-                  ``femphase run --resume`` continues from it
-  run.json        version, method, settings, steps, wall time, status and message
-
-The columns of the CSVs are the observables' (:mod:`femphase.observables`).
+"""Files of femphase: the resolved scene as TOML, HDF5 checkpoints, field frames on the
+output mesh, JSON and CSV helpers. What a run directory holds, and its guarantees, is in
+:mod:`femphase.rundir`; the CSV columns are in ``docs/outputs.md``.
 """
 
 from __future__ import annotations
@@ -23,7 +10,6 @@ import json
 import os
 from pathlib import Path
 
-import meshio
 import numpy as np
 
 from .domain import Domain
@@ -59,7 +45,8 @@ def to_toml(data: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] | None = None) -> None:
+def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] | None = None,
+                    metadata: dict | None = None) -> None:
     """Write the complete state to an HDF5 file, atomically (written beside it, then renamed
     over it: a crash mid-write leaves the old file intact).
 
@@ -67,7 +54,8 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
     :meth:`Domain.describe`, checked on resume), ``time``, ``step``, ``phase``, ``phase_step``.
     Datasets: ``windows`` (N, 4, the domain's encoding), ``sizes`` (N,), ``values`` (all
     fields concatenated in particle order), ``radii`` (N,); group ``observers``: the
-    observables' running state (the T1 counter's)."""
+    observables' running state (the T1 counter's). ``metadata`` (JSON-able values) is kept
+    as JSON attributes ``meta_<name>`` (:func:`read_checkpoint_metadata`)."""
     import h5py
 
     path = Path(path)
@@ -85,7 +73,20 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
         group = handle.create_group("observers")
         for name, values in (observers or {}).items():
             group[name] = values
+        for name, value in (metadata or {}).items():
+            handle.attrs[f"meta_{name}"] = json.dumps(value)
     os.replace(tmp, path)
+
+
+def read_checkpoint_metadata(path: Path) -> dict:
+    """The ``metadata`` a checkpoint was saved with (name → value)."""
+    import h5py
+
+    try:
+        with h5py.File(path, "r") as handle:
+            return {name[5:]: json.loads(value) for name, value in handle.attrs.items() if name.startswith("meta_")}
+    except (OSError, ValueError) as exc:
+        raise SceneError("--resume", str(path), f"a readable checkpoint ({exc})") from None
 
 
 def load_checkpoint(path: Path, domain: Domain) -> tuple[State, dict[str, np.ndarray]]:
@@ -137,63 +138,19 @@ def point_data(state: State, per_particle: bool) -> dict[str, np.ndarray]:
     return {name: values[domain.dof_map] for name, values in data.items()}
 
 
-class FieldWriter:
-    """fields.xdmf + fields.h5 through meshio; on resume keeps the frames up to t_keep."""
-
-    def __init__(self, directory: Path, mesh, keep_until: float | None = None) -> None:
-        self.path = directory / "fields.xdmf"
-        kept = []
-        if keep_until is not None and self.path.exists():
-            with meshio.xdmf.TimeSeriesReader(str(self.path.resolve())) as reader:
-                reader.read_points_cells()
-                for k in range(reader.num_steps):
-                    t, data, _ = reader.read_data(k)
-                    if t <= keep_until + 1e-9:
-                        kept.append((t, {name: np.array(v) for name, v in data.items()}))
-        self._writer = meshio.xdmf.TimeSeriesWriter(str(self.path.resolve()))
-        # meshio opens the .h5 file relative to the working directory, not to the .xdmf
-        cwd = os.getcwd()
-        os.chdir(directory)
-        try:
-            self._writer.__enter__()
-        finally:
-            os.chdir(cwd)
-        points = np.vstack([mesh.p, np.zeros(mesh.p.shape[1])]).T
-        self._writer.write_points_cells(points, [("triangle", mesh.t.T)])
-        for t, data in kept:
-            self._writer.write_data(t, point_data=data)
-
-    def write(self, time: float, data: dict[str, np.ndarray]) -> None:
-        self._writer.write_data(time, point_data=data)
-
-    def close(self) -> None:
-        self._writer.__exit__(None, None, None)
-
-
-class CsvWriter:
-    """A CSV file with a header; on resume keeps the rows whose time ≤ t_keep."""
-
-    def __init__(self, path: Path, columns: list[str], keep_until: float | None = None) -> None:
-        rows = []
-        if keep_until is not None and path.exists():
-            with path.open() as handle:
-                rows = [r for r in csv.reader(handle)][1:]
-            rows = [r for r in rows if float(r[0]) <= keep_until + 1e-9]
-        self._handle = path.open("w", newline="")
-        self._csv = csv.writer(self._handle)
-        self._csv.writerow(columns)
-        self._csv.writerows(rows)
-
-    def write_rows(self, rows) -> None:
-        self._csv.writerows(rows)
-        self._handle.flush()
-
-    def close(self) -> None:
-        self._handle.close()
+def atomic_write(path: Path, data: bytes | str) -> None:
+    """Replace ``path`` by ``data`` atomically (a temporary file beside it, then a rename):
+    a kill at any instant leaves either the old or the new file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as handle:
+        handle.write(data.encode() if isinstance(data, str) else data)
+    os.replace(tmp, path)
 
 
 def write_json(path: Path, data: dict) -> None:
-    path.write_text(json.dumps(data, indent=2, default=_jsonable) + "\n")
+    """``data`` as indented JSON, replaced atomically (numpy values become numbers/lists)."""
+    atomic_write(path, json.dumps(data, indent=2, default=_jsonable) + "\n")
 
 
 def _jsonable(value):

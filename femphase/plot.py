@@ -43,6 +43,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .errors import InputError
+
 if sys.version_info >= (3, 11):
     import tomllib
 else:  # pragma: no cover
@@ -307,7 +309,7 @@ class Snapshot:
 def _last_fields(run: RunData) -> Snapshot:
     """The last frame: from checkpoint.h5 (on the run's domain, rebuilt from scene.toml),
     else from the last step of fields.xdmf (node arrays on its mesh)."""
-    from .simulation import CHECKPOINT
+    from .rundir import CHECKPOINT
 
     checkpoint = run.directory / CHECKPOINT
     xdmf = run.directory / "fields.xdmf"
@@ -559,8 +561,8 @@ def run_cli(args: argparse.Namespace) -> int:
     """`femphase plot DIR`: write the four figures and list them."""
     try:
         paths = plot_run(args.directory, args.output, ode_rate=args.ode_rate, ode_k=args.ode_k, fmt=args.format)
-    except FileNotFoundError as exc:
-        raise ValueError(str(exc)) from None
+    except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
+        raise InputError(str(exc)) from None
     for path in paths.values():
         print(path)
     return 0

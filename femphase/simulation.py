@@ -8,18 +8,22 @@ frames in memory, and are composed by the caller.
 
 from __future__ import annotations
 
-import time as wallclock
+import signal
+import threading
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
 from . import __version__
 from .analysis.shape import ShapeObservables
 from .energy import FreeEnergy
-from .errors import SceneError
-from .io import CsvWriter, FieldWriter, load_checkpoint, point_data, save_checkpoint, to_toml, write_json
+from .errors import Interrupted, SceneError
+from .io import atomic_write, load_checkpoint, point_data, read_checkpoint_metadata, save_checkpoint, to_toml
 from .observables import OBSERVABLES, Observable, resolve
+from .rundir import CHECKPOINT, Outputs, Status, prepare_directory, resume_position
 from .scene import Phase, Scene
 from .state import State
 from .stepping import Stepper
@@ -106,16 +110,22 @@ class Simulation:
     def steps_done(self, state: State) -> int:
         return sum(p.n_steps for p in self.scene.phases[: state.phase]) + state.phase_step
 
-    def run(self, state: State, trackers: list[Tracker] = ()) -> State:
-        """Step ``state`` (in place) through the remaining phases; returns it."""
+    def run(self, state: State, trackers: list[Tracker] = (), *, initial_frame: bool | None = None,
+            stop: Callable[[], int | None] | None = None) -> State:
+        """Step ``state`` (in place) through the remaining phases; returns it.
+
+        ``initial_frame``: emit a frame of the state before the first step (default: when
+        it is at step 0; a resumed run has it already). ``stop()`` is asked after every step
+        (a consistent state); a signal number from it stops the run with
+        :class:`~femphase.errors.Interrupted`."""
         trackers = list(trackers)
         needs = frozenset().union(*(t.needs for t in trackers)) if trackers else frozenset()
         error = None
         for tracker in trackers:
             tracker.start(self, state)
         try:
-            if state.step == 0:
-                self._frame(state, self.scene.phases[0], trackers, needs)
+            if (state.step == 0 if initial_frame is None else initial_frame):
+                self._frame(state, self.scene.phases[min(state.phase, len(self.scene.phases) - 1)], trackers, needs)
             while state.phase < len(self.scene.phases):
                 phase = self.scene.phases[state.phase]
                 stepper = self.stepper(phase, state.radii)
@@ -130,6 +140,9 @@ class Simulation:
                         state.phase, state.phase_step = state.phase + 1, 0
                     if finished or state.phase_step % phase.steps_per_frame == 0:
                         self._frame(state, phase, trackers, needs)
+                    number = stop() if stop is not None else None
+                    if number is not None:
+                        raise Interrupted(signal.Signals(number).name, 128 + number, state.step, state.time)
                     if finished:
                         break
         except BaseException as exc:  # interrupted runs are recorded as failed too
@@ -200,76 +213,128 @@ class FrameRecorder(Tracker):
 
 
 class RunDirectory(Tracker):
-    """Writes the run directory described in :mod:`femphase.io`."""
+    """Writes a run directory (:mod:`femphase.rundir`): appends every frame's rows and field
+    frame, then its checkpoint; keeps run.json's status current.
 
-    def __init__(self, directory: str | Path, resume: bool = False) -> None:
+    ``resume_from``: the checkpoint's record of the outputs (a resumed run cuts them back to
+    it); ``changes``: what the resumed scene changed (run.json's segment records them);
+    ``overwrite``: replace a run already in the directory (else it is refused,
+    :func:`femphase.rundir.prepare_directory`)."""
+
+    def __init__(self, directory: str | Path, resume_from: dict | None = None, changes: list[str] | None = None,
+                 argv: list[str] | None = None, overwrite: bool = False) -> None:
         self.directory = Path(directory)
-        self.resume = resume
+        self.resume_from, self.changes, self.argv, self.overwrite = resume_from, list(changes or []), argv, overwrite
         self.needs = frozenset(OBSERVABLES.names())
 
     def start(self, simulation: Simulation, state: State) -> None:
         scene = simulation.scene
         self.simulation = simulation
-        self.directory.mkdir(parents=True, exist_ok=True)
-        keep = state.time if self.resume else None
-        (self.directory / "scene.toml").write_text(to_toml(scene.to_dict()))
-        self.particle_columns, self.global_columns = simulation.columns()
-        self.particles = CsvWriter(self.directory / "particles.csv", ["time", "id"] + self.particle_columns, keep)
-        self.globals = CsvWriter(self.directory / "global.csv", ["time", "step"] + self.global_columns, keep)
-        self.fields = FieldWriter(self.directory, simulation.domain.mesh, keep) if scene.output.fields else None
-        self.started = wallclock.perf_counter()
+        prepare_directory(self.directory, resume=self.resume_from is not None, overwrite=self.overwrite)
+        atomic_write(self.directory / "scene.toml", to_toml(scene.to_dict()))
+        particle_columns, global_columns = simulation.columns()
+        self.outputs = Outputs(self.directory, particle_columns, global_columns, scene.output.fields)
+        self.particle_columns, self.global_columns = particle_columns, global_columns
+        mesh = simulation.domain.mesh
+        if self.resume_from is None:
+            self.outputs.start_new(mesh)
+        else:
+            self.outputs.start_from(self.resume_from, mesh)
+        self.status = Status(self.directory, {
+            "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
+            "settings": scene.to_dict(),
+        }, Status.read(self.directory) if self.resume_from is not None else None)
+        self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
+                                   "from_step": state.step, "changes": self.changes, "argv": self.argv})
         self.first_step = state.step
+        self.status.update(status="running", message="", time=state.time, steps=state.step)
 
     def frame(self, frame: Frame) -> None:
         state = frame.state
         columns = np.column_stack([np.full(state.n_particles, state.time), np.arange(state.n_particles)]
                                   + [np.asarray(frame.particle[c], dtype=float) for c in self.particle_columns])
-        self.particles.write_rows([[row[0], int(row[1]), *row[2:]] for row in columns.tolist()])
-        self.globals.write_rows([[state.time, state.step] + [frame.globals[c] for c in self.global_columns]])
+        self.outputs.append_rows("particles.csv", ([row[0], int(row[1]), *row[2:]] for row in columns.tolist()))
+        self.outputs.append_rows("global.csv", [[state.time, state.step] + [frame.globals[c] for c in self.global_columns]])
         output = self.simulation.scene.output
-        if self.fields is not None:
-            self.fields.write(state.time, point_data(state, output.per_particle_fields))
+        if output.fields:
+            self.outputs.append_fields(state.time, point_data(state, output.per_particle_fields), self.simulation.domain.mesh)
         if output.checkpoint:
-            save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state())
+            self._checkpoint(state)
+        self.status.update(time=state.time, steps=state.step)
 
-    def finish(self, state: State, error: Exception | None) -> None:
-        for writer in (self.particles, self.globals, self.fields):
-            if writer is not None:
-                writer.close()
-        scene = self.simulation.scene
-        write_json(self.directory / "run.json", {
-            "femphase_version": __version__,
+    def _checkpoint(self, state: State) -> None:
+        save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {
+            "scene": self.simulation.scene.to_dict(), "outputs": self.outputs.record(),
             "method": self.simulation.method,
-            "scene": scene.name,
-            "settings": scene.to_dict(),
-            "steps": state.step,
-            "steps_this_session": state.step - self.first_step,
-            "time": state.time,
-            "wall_time_s": wallclock.perf_counter() - self.started,
-            "status": "completed" if error is None else "failed",
-            "message": "" if error is None else (str(error) or type(error).__name__),
-            "resumed": self.resume,
         })
 
+    def finish(self, state: State, error: Exception | None) -> None:
+        if isinstance(error, Interrupted) and self.simulation.scene.output.checkpoint:
+            self._checkpoint(state)  # a consistent state between two steps: keep it
+        self.outputs.close()
+        if error is None:
+            status, message = "completed", ""
+        elif isinstance(error, (Interrupted, KeyboardInterrupt)):
+            status, message = "interrupted", str(error) or "interrupted (KeyboardInterrupt)"
+        else:
+            status, message = "failed", str(error) or type(error).__name__
+        self.status.update(status=status, message=message, time=state.time, steps=state.step,
+                           steps_this_segment=state.step - self.first_step)
 
-#: The checkpoint's file name in a run directory.
-CHECKPOINT = "checkpoint.h5"
+
+@contextmanager
+def stop_on_signals():
+    """While active, SIGINT and SIGTERM (what Ctrl-C, ``timeout``, Slurm and ``docker stop``
+    send) ask the run to stop after the current step: yields the ``stop`` callable of
+    :meth:`Simulation.run`. A second signal interrupts at once. Outside the main thread
+    signals cannot be caught, and ``stop`` never fires."""
+    received: list[int] = []
+
+    def handler(number, frame):
+        if received:
+            raise KeyboardInterrupt
+        received.append(number)
+
+    def stop() -> int | None:
+        return received[0] if received else None
+
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    previous = {number: signal.signal(number, handler) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for number, old in previous.items():
+            signal.signal(number, old)
 
 
-def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, method: str = "fem",
-              progress: bool | None = None) -> State:
-    """Run a scene into a run directory (what ``femphase run`` does), on any domain."""
+def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, overwrite: bool = False,
+              method: str = "fem", progress: bool | None = None, argv: list[str] | None = None) -> State:
+    """Run a scene into a run directory (what ``femphase run`` does), on any domain.
+
+    A directory that already holds a run is refused unless ``resume`` (continue from its
+    checkpoint; the scene may change only compatibly, :func:`femphase.rundir.resume_position`)
+    or ``overwrite``. Nothing in the directory is touched before every check has passed."""
     directory = Path(directory)
+    prepare_directory(directory, resume=resume, overwrite=overwrite)
     simulation = Simulation(scene, method)
+    record, changes = None, []
     if resume:
         checkpoint = directory / CHECKPOINT
-        if not checkpoint.exists():
-            raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}")
+        metadata = read_checkpoint_metadata(checkpoint)
+        if "scene" not in metadata or "outputs" not in metadata:
+            raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
+        if metadata.get("method", "fem") != method:
+            raise SceneError("--method", method, f"{metadata.get('method')!r}, the method the run was started with")
         state, observers = load_checkpoint(checkpoint, simulation.domain)
+        state.phase, state.phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), state.time)
         simulation.restore_observers(observers)
+        record = metadata["outputs"]
     else:
         state = scene.initial_state()
-    trackers: list[Tracker] = [RunDirectory(directory, resume)]
+    trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite)]
     if progress is not False:
         trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))
-    return simulation.run(state, trackers)
+    with stop_on_signals() as stop:
+        return simulation.run(state, trackers, initial_frame=not resume, stop=stop)

@@ -86,7 +86,8 @@ def test_run_directory_holds_every_output(tmp_path):
     path = write_scene(tmp_path / "scene.toml")
     assert main(["run", str(path), "-o", str(tmp_path / "run"), "-q"]) == 0
     run = tmp_path / "run"
-    for name in ("scene.toml", "fields.xdmf", "fields.h5", "particles.csv", "global.csv", CHECKPOINT, "run.json"):
+    for name in ("scene.toml", "fields.xdmf", "fields/mesh.h5", "fields/frame_000000.h5", "particles.csv",
+                 "global.csv", CHECKPOINT, "run.json"):
         assert (run / name).exists(), name
     particles = read_csv(run / "particles.csv")
     assert set(particles) >= {"time", "id", "x", "y", "area", "elongation", "orientation"}
@@ -114,7 +115,7 @@ def test_resume_continues_to_the_same_state_as_an_uninterrupted_run(tmp_path):
     interrupted_dir = tmp_path / "interrupted"
     with pytest.raises(KeyboardInterrupt):
         Simulation(scene).run(scene.initial_state(), [RunDirectory(interrupted_dir), StopAt(33)])
-    assert json.loads((interrupted_dir / "run.json").read_text())["status"] == "failed"
+    assert json.loads((interrupted_dir / "run.json").read_text())["status"] == "interrupted"
     assert load_checkpoint(interrupted_dir / CHECKPOINT, scene.domain)[0].step == 30  # last frame
     resumed = run_scene(scene, interrupted_dir, resume=True, progress=False)
     assert resumed.step == straight.step
@@ -196,11 +197,13 @@ def test_resume_of_a_mesh_run_continues_to_the_same_rows_as_an_uninterrupted_run
     cut = tmp_path / "cut"
     with pytest.raises(KeyboardInterrupt):
         Simulation(scene).run(scene.initial_state(), [RunDirectory(cut), StopAt(18)])
-    assert json.loads((cut / "run.json").read_text())["status"] == "failed"
+    assert json.loads((cut / "run.json").read_text())["status"] == "interrupted"
     assert load_checkpoint(cut / CHECKPOINT, scene.domain)[0].step == 15  # last frame, in the flow phase
     assert main(["run", str(path), "-o", str(cut), "--resume", "-q"]) == 0
     info = json.loads((cut / "run.json").read_text())
-    assert info["resumed"] and info["steps"] == 30 and info["steps_this_session"] == 15  # continued from step 15
+    segment = info["segments"][-1]
+    assert len(info["segments"]) == 2 and segment["resumed"] and segment["from_step"] == 15  # continued from 15
+    assert info["steps"] == 30 and info["steps_this_segment"] == 15
     # bitwise: the checkpoint holds the complete state, and the resumed run steps it exactly
     # as the uninterrupted one did (CSVs hold floats by repr)
     for name in ("particles.csv", "global.csv"):
