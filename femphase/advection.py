@@ -48,6 +48,7 @@ from skfem import Basis, BilinearForm, ElementTriP1
 from skfem.helpers import dot, grad
 
 from .discretisation import fold_matrix
+from .domain import window_block
 from .flows import Flow
 from .solvers import make_solver
 from .windows import Layout, Window, pad_window
@@ -249,8 +250,8 @@ class GalerkinPade(StepAdvection):
             if key not in self._solvers:
                 dofs = self.domain.window_dofs(layout.representative(group))
                 self._solvers[key] = (
-                    make_solver(self._system[dofs][:, dofs].tocsr(), self.numerics.solver, self.numerics.tolerance),
-                    self._mass[dofs][:, dofs].tocsr(),
+                    make_solver(window_block(self._system, dofs), self.numerics.solver, self.numerics.tolerance),
+                    window_block(self._mass, dofs),
                 )
             solver, mass = self._solvers[key]
             current_phi = phi[start:stop].reshape(members.size, size).T

@@ -199,7 +199,7 @@ class Domain(ABC):
                 block = self._stiffness_blocks.get(key)
                 if block is None:
                     dofs = self.window_dofs(layout.representative(group))
-                    block = self._stiffness_blocks[key] = self.operators.stiffness[dofs][:, dofs].tocsr()
+                    block = self._stiffness_blocks[key] = window_block(self.operators.stiffness, dofs)
                 out[start:stop].reshape(members.size, size).T[...] = block @ phi[start:stop].reshape(members.size, size).T
             if len(self._stiffness_blocks) > 4096:  # windows come and go: keep the cache bounded
                 self._stiffness_blocks.clear()
@@ -208,6 +208,20 @@ class Domain(ABC):
 
 
 DOMAINS: Registry[type] = Registry("Domains", "domain.kind")
+
+
+def window_block(matrix: sp.spmatrix, dofs: np.ndarray) -> sp.csr_matrix:
+    """The principal submatrix of ``matrix`` on ``dofs``, in canonical form (sorted indices).
+
+    Canonical, because windows of one key share the block of whichever window was seen
+    first: a window across the periodic seam would otherwise store its rows' entries in
+    another order, and the sums in products and factorisations would differ in the last
+    bit between runs that met the windows in another order (a resumed run would then not
+    be bit-identical to an uninterrupted one)."""
+    block = sp.csr_matrix(matrix[dofs][:, dofs])
+    block.sum_duplicates()
+    block.sort_indices()
+    return block
 
 
 def domain_from_table(table: dict, base_dir: str | Path, numerics: "Numerics") -> Domain:

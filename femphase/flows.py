@@ -125,8 +125,10 @@ def _shear(spec: dict, domain: "Domain") -> Flow:
     "wall_velocity" (default) or "shear_rate" for the plain u = γ̇ y)."""
     check_keys(spec, {"type", "rate", "scale"})
     y0, width = _walls(domain)
-    return linear_shear(number(spec, "rate", "the velocity scale γ̇"), width,
-                        spec.get("scale", "wall_velocity"), y0)
+    scale = spec.get("scale", "wall_velocity")
+    if not isinstance(scale, str) or scale not in SHEAR_SCALES:
+        raise SceneError("flow.scale", scale, f"one of {SHEAR_SCALES}")
+    return linear_shear(number(spec, "rate", "the velocity scale γ̇"), width, scale, y0)
 
 
 @FLOWS.register("poiseuille")
@@ -155,13 +157,42 @@ def _python(spec: dict, domain: "Domain") -> Flow:
     """Any importable callable (keys: `function` = "module:name"; `row_flow` = true for u(y);
     `steady` = false to pass the time t as the last argument)."""
     check_keys(spec, {"type", "function", "row_flow", "steady"})
-    target = spec.get("function", "")
-    module, _, attribute = str(target).partition(":")
+    for key in ("row_flow", "steady"):
+        if key in spec and not isinstance(spec[key], bool):
+            raise SceneError(f"flow.{key}", spec[key], "true or false")
+    target = spec.get("function")
+    module, _, attribute = target.partition(":") if isinstance(target, str) else ("", "", "")
+    if not module or not attribute:
+        raise SceneError("flow.function", target, "a string 'module:function' naming an importable callable, "
+                         "e.g. 'mypackage.flows:vortex'")
     try:
         function = getattr(importlib.import_module(module), attribute)
-    except (ImportError, AttributeError, ValueError):
-        raise SceneError("flow.function", target, "an importable 'module:function'") from None
-    return python_flow(function, bool(spec.get("row_flow", False)), bool(spec.get("steady", True)))
+    except (Exception, SystemExit) as exc:  # importing runs the module: it may raise anything
+        raise SceneError("flow.function", target, f"an importable 'module:function' ({type(exc).__name__}: "
+                         f"{exc})") from None
+    if not callable(function):
+        raise SceneError("flow.function", target, f"a callable; {target} is a {type(function).__name__}")
+    flow = python_flow(function, spec.get("row_flow", False), spec.get("steady", True))
+    _try_flow(flow, spec, domain)
+    return flow
+
+
+def _try_flow(flow: Flow, spec: dict, domain: "Domain") -> None:
+    """Evaluate a python flow at a few dofs at t = 0 (when the scene is checked, not at the
+    first step): SceneError naming flow.function when it fails or returns no (u, v)."""
+    row, steady = spec.get("row_flow", False), spec.get("steady", True)
+    signature = ("u(y)" if steady else "u(y, t)") if row else ("(u, v)(x, y)" if steady else "(u, v)(x, y, t)")
+    x, y = np.asarray(domain.coordinates)[:, :: max(1, domain.n_dofs // 7)][:, :8]
+    try:
+        with np.errstate(all="ignore"):
+            u, v = flow.velocity(x, y, 0.0)
+            u, v = (np.broadcast_to(np.asarray(w, dtype=float), x.shape) for w in (u, v))
+    except Exception as exc:  # the user's code: any failure is a bad flow.function
+        raise SceneError("flow.function", spec.get("function"), f"a callable computing {signature} for arrays "
+                         f"(calling it failed: {type(exc).__name__}: {exc})") from None
+    if not (np.isfinite(u).all() and np.isfinite(v).all()):
+        raise SceneError("flow.function", spec.get("function"), f"a callable computing a finite {signature} "
+                         "(it gave NaN or inf)")
 
 
 @FLOWS.register("stokes")

@@ -8,6 +8,7 @@ from __future__ import annotations
 import csv
 import json
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -75,6 +76,7 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
             group[name] = values
         for name, value in (metadata or {}).items():
             handle.attrs[f"meta_{name}"] = json.dumps(value)
+    failpoint("checkpoint")
     os.replace(tmp, path)
 
 
@@ -138,6 +140,24 @@ def point_data(state: State, per_particle: bool) -> dict[str, np.ndarray]:
     return {name: values[domain.dof_map] for name, values in data.items()}
 
 
+_FAILPOINT_PASSES: dict[str, int] = {}
+
+
+def failpoint(name: str) -> None:
+    """Fault injection for the kill tests (:mod:`femphase.faults`): with the environment
+    variable FEMPHASE_FAILPOINT = "name:n", the n-th time the run passes the point ``name``
+    the process kills itself with SIGKILL, as a scheduler or the OOM killer would. Points:
+    "csv" (half of a frame's rows written), "fields" (a field frame written, not yet
+    renamed), "checkpoint" (written, not yet renamed), and every atomically replaced file by
+    its name ("fields.xdmf", "run.json", "scene.toml") between writing and renaming."""
+    spec = os.environ.get("FEMPHASE_FAILPOINT")
+    if not spec or spec.partition(":")[0] != name:
+        return
+    _FAILPOINT_PASSES[name] = _FAILPOINT_PASSES.get(name, 0) + 1
+    if _FAILPOINT_PASSES[name] == int(spec.partition(":")[2] or 1):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
 def atomic_write(path: Path, data: bytes | str) -> None:
     """Replace ``path`` by ``data`` atomically (a temporary file beside it, then a rename):
     a kill at any instant leaves either the old or the new file."""
@@ -145,6 +165,7 @@ def atomic_write(path: Path, data: bytes | str) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as handle:
         handle.write(data.encode() if isinstance(data, str) else data)
+    failpoint(path.name)
     os.replace(tmp, path)
 
 

@@ -12,6 +12,9 @@ mapped onto the underlying non-periodic mesh for output.
 
 from __future__ import annotations
 
+import contextlib
+import io
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +25,9 @@ from skfem import MeshTri
 from .errors import SceneError
 
 DIAGONAL_PATTERNS = ("right", "left", "alternating")
+#: Most nodes a structured channel may have: 2·10⁷ nodes are ~1 GB of mesh and operators,
+#: far beyond the paper's 17 000; a larger grid is almost always a mistyped Lx, Ly or h.
+MAX_GRID_NODES = 20_000_000
 
 
 @dataclass(frozen=True)
@@ -63,7 +69,13 @@ def channel_grid(length: float, width: float, spacing: float) -> ChannelGrid:
             raise SceneError(
                 key, extent, f"must be a whole multiple (≥ 2) of the spacing h = {spacing}"
             )
-    return ChannelGrid(nx=round(length / spacing), ny=round(width / spacing) + 1, h=float(spacing))
+    nx, ny = round(length / spacing), round(width / spacing) + 1
+    if nx * ny > MAX_GRID_NODES:
+        raise SceneError(
+            "domain.h", spacing, f"a spacing that gives at most {MAX_GRID_NODES:.0e} nodes: domain.Lx = {length:g} "
+            f"and domain.Ly = {width:g} at h = {spacing:g} make {nx * ny:.3g} nodes",
+        )
+    return ChannelGrid(nx=nx, ny=ny, h=float(spacing))
 
 
 def structured_channel_mesh(grid: ChannelGrid, diagonals: str = "right") -> MeshTri:
@@ -124,14 +136,29 @@ def save_mesh(mesh: MeshTri, path: str | Path) -> None:
 
 
 def read_meshio(path: str | Path) -> meshio.Mesh:
-    """meshio.read, with a SceneError (key domain.mesh) naming the reason on failure."""
+    """meshio.read, with a SceneError (key domain.mesh) naming the reason on any failure.
+
+    meshio's readers raise many types on a damaged file, and some call ``sys.exit``; every
+    one of them (SystemExit included, KeyboardInterrupt excepted) becomes the SceneError."""
     path = Path(path)
     if not path.is_file():
         raise SceneError("domain.mesh", str(path), "a mesh file that exists")
+    said = io.StringIO()  # meshio prints its readers' reasons, then exits: keep them for the message
     try:
-        return meshio.read(path)
-    except Exception as exc:  # meshio raises many types; the user needs only the reason
-        raise SceneError("domain.mesh", str(path), f"a file meshio can read ({exc})") from None
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            data = meshio.read(path)
+    except (Exception, SystemExit) as exc:  # the user needs only the reason
+        printed = " ".join(said.getvalue().split())  # one line, whatever the console's wrapping
+        if isinstance(exc, SystemExit) or not str(exc):
+            reason = printed[-400:] or type(exc).__name__
+        else:
+            reason = f"{type(exc).__name__}: {exc}"
+        raise SceneError("domain.mesh", str(path), f"a mesh file meshio can read ({reason})") from None
+    if said.getvalue():
+        sys.stderr.write(said.getvalue())  # meshio's warnings about a file it did read
+    if not isinstance(data, meshio.Mesh) or np.ndim(getattr(data, "points", None)) != 2:
+        raise SceneError("domain.mesh", str(path), "a mesh file meshio can read (it holds no points)")
+    return data
 
 
 def load_mesh(path: str | Path) -> MeshTri:
@@ -140,4 +167,13 @@ def load_mesh(path: str | Path) -> MeshTri:
     triangles = [block.data for block in data.cells if block.type == "triangle"]
     if not triangles:
         raise SceneError("domain.mesh", str(path), "a mesh with triangle cells")
-    return MeshTri(data.points[:, :2].T.astype(float), np.vstack(triangles).T.astype(np.int64))
+    try:
+        points = np.asarray(data.points, dtype=float)
+        triangles = np.vstack(triangles).astype(np.int64)
+        if points.ndim != 2 or points.shape[1] < 2 or not np.isfinite(points).all():
+            raise ValueError("the points are not finite (x, y) coordinates")
+        if triangles.size and (triangles.min() < 0 or triangles.max() >= len(points)):
+            raise ValueError("triangles refer to points that are not in the file")
+        return MeshTri(points[:, :2].T.copy(), triangles.T.copy())
+    except Exception as exc:
+        raise SceneError("domain.mesh", str(path), f"a triangle mesh ({exc})") from None

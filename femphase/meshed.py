@@ -63,6 +63,10 @@ TAG_KEYS = ("gmsh:physical", "boundary", "medit:ref", "cell_tags")
 MESH_KEYS = ("kind", "mesh", "h", "periodic", "boundaries", "Lx", "Ly")
 
 
+class PeriodicPairError(ValueError):
+    """The periodic pair names a boundary the mesh does not have (scene key domain.periodic)."""
+
+
 @DOMAINS.register("mesh")
 @dataclass(frozen=True, eq=False)
 class MeshDomain(Domain):
@@ -80,7 +84,7 @@ class MeshDomain(Domain):
     dof_map     (n_nodes,) the periodic dof of every mesh node (``dof_map`` of
                 every :class:`femphase.domain.Domain`, so output code serves both)
     operators   P1 mass, stiffness, lumped mass and element gradients on the dofs
-    source      the mesh file it was read from ("" if built in memory; Stokes caches sit beside it)
+    source      the mesh file it was read from ("" if built in memory: no Stokes cache then)
     nominal_spacing  the scene's ``h`` if it gave one (else :attr:`spacing` is the median edge)
     """
 
@@ -112,8 +116,10 @@ class MeshDomain(Domain):
         boundaries = channel_sides(mesh) if boundaries is None else dict(boundaries)
         low, high = periodic
         for name in periodic:
-            if name not in boundaries or len(boundaries[name]) == 0:
-                raise ValueError(
+            if name in boundaries and len(boundaries[name]) == 0:
+                raise ValueError(f"the periodic boundary {name!r} has no facets (a side x = const)")
+            if name not in boundaries:
+                raise PeriodicPairError(
                     f"the periodic boundary {name!r} is not in the mesh; its boundaries are "
                     f"{sorted(boundaries)} (name the pair with periodic=(min side, max side))"
                 )
@@ -149,16 +155,28 @@ class MeshDomain(Domain):
         for key, value in table.items():
             if key not in MESH_KEYS:
                 raise SceneError(f"domain.{key}", value, f"not a key of a mesh domain; valid: {', '.join(MESH_KEYS)}")
-        if not table.get("mesh"):
-            raise SceneError("domain.mesh", table.get("mesh"), "the mesh file of a mesh domain")
+        if not table.get("mesh") or not isinstance(table["mesh"], str):
+            raise SceneError("domain.mesh", table.get("mesh"), "the mesh file of a mesh domain (a path relative "
+                             "to the scene)")
         periodic = table.get("periodic", list(PERIODIC_PAIR))
-        if not isinstance(periodic, (list, tuple)) or len(periodic) != 2:
-            raise SceneError("domain.periodic", periodic, "two boundary names [min side, max side]")
-        path = (base_dir / table["mesh"]).resolve()
-        domain = read_domain(path, periodic=tuple(periodic), names=table.get("boundaries"))
+        if (not isinstance(periodic, (list, tuple)) or len(periodic) != 2
+                or not all(isinstance(name, str) and name for name in periodic) or periodic[0] == periodic[1]):
+            raise SceneError("domain.periodic", periodic, "two different boundary names [min side, max side]")
+        names = table.get("boundaries")
+        if names is not None and not (
+            isinstance(names, dict) and names
+            and all(isinstance(tag, int) and not isinstance(tag, bool) for tag in names.values())
+        ):
+            raise SceneError("domain.boundaries", names, "a table {name = integer tag, …} of the file's line tags")
+        for key in ("h", "Lx", "Ly"):
+            value = table.get(key)
+            if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                          and np.isfinite(value) and value > 0):
+                raise SceneError(f"domain.{key}", value, "a finite number > 0" + (" (the nominal spacing)" if key == "h"
+                                                                                   else " (or leave it out)"))
         h = table.get("h")
-        if h is not None and not (isinstance(h, (int, float)) and not isinstance(h, bool) and h > 0):
-            raise SceneError("domain.h", h, "a number > 0 (the nominal spacing)")
+        path = (base_dir / table["mesh"]).resolve()
+        domain = read_domain(path, periodic=tuple(periodic), names=names)
         domain = replace(domain, source=str(path), nominal_spacing=None if h is None else float(h))
         for key, value in (("Lx", domain.period), ("Ly", domain.width)):
             if key in table and not np.isclose(table[key], value, rtol=1e-6):
@@ -318,14 +336,16 @@ class MeshDomain(Domain):
         return area, self.centroids(layout, phi), shape_tensors(fields, self.operators)
 
     def stokes_flow(self, spec: dict):
-        """The Stokes flow of a ``{type = "stokes", …}`` table on this mesh (unit solutions
-        cached next to the mesh file as ``<mesh>.stokes.npz``)."""
-        from .stokes import stokes_drive, stokes_flow, unit_stokes_flow
+        """The Stokes flow of a ``{type = "stokes", …}`` table on this mesh. Unit solutions
+        of meshes read from a file are cached in the user cache folder, keyed by the mesh's
+        content and the viscosity (:func:`femphase.stokes.cache_path`; the module docstring of
+        :mod:`femphase.stokes` describes the cache)."""
+        from .stokes import cache_path, stokes_drive, stokes_flow, unit_stokes_flow
 
         _, _, viscosity = stokes_drive(spec)
         units = self._cache.setdefault("stokes", {})
         if viscosity not in units:
-            cache = Path(self.source + ".stokes.npz") if self.source else None
+            cache = cache_path(self, viscosity) if self.source else None
             units[viscosity] = unit_stokes_flow(self, viscosity, cache)
         return stokes_flow(self, spec, units[viscosity])
 
@@ -412,8 +432,13 @@ def read_domain(
             table = names or _file_names(data) or BOUNDARY_TAGS
             boundaries = _named_facets(mesh, lines, tags, table)
         return MeshDomain.from_mesh(mesh, boundaries, periodic, tolerance)
-    except ValueError as exc:
-        raise SceneError("domain.mesh", str(path), f"a periodic channel mesh ({exc})") from None
+    except SceneError:
+        raise
+    except PeriodicPairError as exc:
+        raise SceneError("domain.periodic", list(periodic), f"the names of two boundaries of {path} ({exc})") from None
+    except Exception as exc:  # a damaged file fails anywhere: name the file and the reason
+        reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+        raise SceneError("domain.mesh", str(path), f"a periodic channel mesh ({reason})") from None
 
 
 def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]:
@@ -421,9 +446,13 @@ def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]
     kinds = {block.type for block in data.cells}
     if "triangle" not in kinds:
         raise ValueError(f"no linear triangle cells (the file has {sorted(kinds)})")
+    if data.points.ndim != 2 or data.points.shape[1] < 2 or not np.isfinite(data.points).all():
+        raise ValueError("the points are not finite (x, y) coordinates")
     if data.points.shape[1] > 2 and np.ptp(data.points[:, 2]) > 0:
         raise ValueError("the points are not in a plane z = const")
     triangles = np.vstack([b.data for b in data.cells if b.type == "triangle"])
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(data.points)):
+        raise ValueError("triangles refer to points that are not in the file")
     used, renumbered = np.unique(triangles, return_inverse=True)
     new_index = np.full(len(data.points), -1)
     new_index[used] = np.arange(used.size)

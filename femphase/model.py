@@ -60,7 +60,9 @@ class ModelParameters:
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
-            if not np.isfinite(value) or value < 0:
+            real = (int, float, np.integer, np.floating)
+            number = isinstance(value, real) and not isinstance(value, (bool, np.bool_))
+            if not number or not np.isfinite(value) or value < 0:
                 raise SceneError(f"model.{name}", value, "must be a finite number ≥ 0")
         for name in ("interface_width", "radius", "mobility"):
             if getattr(self, name) <= 0:

@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from .analysis.lattice import T1Counter, frame_order
-from .analysis.shape import shape_observables
+from .analysis.shape import DEFAULT_THRESHOLD, shape_observables
 from .energy import WindowedFields
 from .registry import Registry
 
@@ -65,13 +65,18 @@ OBSERVABLES: Registry[type[Observable]] = Registry("Observables", "output.observ
 class Shape(Observable):
     """Per particle: φ-weighted centroid x, y (lattice units), area ∫φ² (lattice units²),
     elongation r = λ1/λ2 − 1 and orientation θ ∈ (−π/2, π/2] (radians) of the shape tensor
-    −∫∇φ∇φᵀ."""
+    −∫∇φ∇φᵀ.
+
+    Also wall_contact: 1 when φ > numerics.threshold on a wall dof, else 0; R then misses the
+    particle's side along the wall (:mod:`femphase.analysis.shape`, docs/outputs.md)."""
 
     name = "shape"
-    particle_columns = ("x", "y", "area", "elongation", "orientation")
+    particle_columns = ("x", "y", "area", "elongation", "orientation", "wall_contact")
 
     def __call__(self, state: "State", values: dict) -> dict:
-        shape = shape_observables(state)
+        scene = getattr(self.simulation, "scene", None)
+        threshold = scene.numerics.threshold if scene is not None else DEFAULT_THRESHOLD
+        shape = shape_observables(state, threshold)
         return {column: getattr(shape, column) for column in self.particle_columns}
 
 

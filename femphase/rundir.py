@@ -36,7 +36,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .errors import SceneError
-from .io import _jsonable, atomic_write
+from .io import _jsonable, atomic_write, failpoint
 
 CHECKPOINT = "checkpoint.h5"
 #: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
@@ -50,6 +50,8 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None
 
     A directory holding femphase outputs is refused unless ``resume`` (continue it) or
     ``overwrite`` (delete femphase's files in it, and only those)."""
+    if not str(directory).strip():
+        raise SceneError("-o", str(directory), "a directory path (it is empty)")
     directory = Path(directory)
     if directory.exists() and not directory.is_dir():
         raise SceneError("-o", str(directory), "a directory (this path is a file)")
@@ -102,9 +104,10 @@ class Outputs:
 
     def start_from(self, record: dict, mesh) -> None:
         """Cut every output back to ``record`` (what a checkpoint saw) and reopen them."""
-        for name, columns in self.columns.items():
+        sizes = {}
+        for name, columns in self.columns.items():  # every check before any cut
             path = self.directory / name
-            size = int(record["bytes"][name])
+            sizes[path] = size = int(record["bytes"][name])
             header = (",".join(columns) + "\n").encode()
             if not path.is_file() or path.stat().st_size < size:
                 raise SceneError("--resume", str(path), f"a file of at least {size} bytes, as when the checkpoint "
@@ -113,6 +116,7 @@ class Outputs:
                 if handle.read(len(header)) != header:
                     raise SceneError("--resume", str(path), f"a CSV with the columns {columns} (the scene's "
                                      "output.observables must not change on resume)")
+        for path, size in sizes.items():
             os.truncate(path, size)
         self.field_times = [float(t) for t in record["field_times"]]
         fields = self.directory / FIELDS_DIR
@@ -137,7 +141,12 @@ class Outputs:
     # -- appending ----------------------------------------------------------------------
     def append_rows(self, name: str, rows: Iterable[Iterable]) -> None:
         handle = self._handles[name]
-        handle.write("".join(",".join(_cell(v) for v in row) + "\n" for row in rows))
+        text = "".join(",".join(_cell(v) for v in row) + "\n" for row in rows)
+        half = len(text) // 2
+        handle.write(text[:half])
+        handle.flush()
+        failpoint("csv")  # a kill here leaves half a frame's rows: resume must cut them
+        handle.write(text[half:])
         handle.flush()
 
     def append_fields(self, time: float, data: dict[str, np.ndarray], mesh) -> None:
@@ -150,9 +159,10 @@ class Outputs:
             handle.attrs["time"] = time
             for name, values in data.items():
                 handle[name] = values
+        failpoint("fields")
         os.replace(tmp, path)
         self.field_times.append(float(time))
-        self._write_xdmf(mesh, list(data))
+        self._write_xdmf(mesh, sorted(data))  # sorted, as h5py lists a file's datasets
 
     def close(self) -> None:
         for handle in self._handles.values():

@@ -34,6 +34,12 @@ LAYOUTS = ("single", "hexagonal", "random", "list")
 #: Largest total target area Σ πR_i² over the domain's area that a scene may ask for (the
 #: paper's scene is at 1.20: the particles are compressed and deformed).
 MAX_AREA_FRACTION = 1.5
+#: Most particles a scene may ask for (the paper's scenes have 100; far beyond any run that
+#: fits in memory, so a mistyped N is refused whatever the layout).
+MAX_PARTICLES = 1_000_000
+#: Most time steps a phase may ask for (duration/dt): a bound far beyond any feasible run,
+#: so that a mistyped dt is refused at once instead of starting a run that cannot end.
+MAX_PHASE_STEPS = 10**12
 
 
 @dataclass(frozen=True)
@@ -156,28 +162,57 @@ class Scene:
                            self.model.interface_width, self.window_policy())
 
 
-def _from_table(cls, table: dict, prefix: str, aliases: dict | None = None):
-    """Build dataclass ``cls`` from a TOML table, rejecting unknown keys by name."""
+def _check_keys(cls, table: dict, prefix: str, aliases: dict | None = None) -> dict:
+    """The table's values by field name of dataclass ``cls``; SceneError naming an unknown
+    key, or a key given twice (under its name and its alias)."""
     names = {f.name for f in fields(cls)}
     aliases = aliases or {}
-    values = {}
+    values, spelled = {}, {}
     for key, value in table.items():
         name = aliases.get(key, key)
-        if name not in names:
+        if not isinstance(key, str) or name not in names:
             valid = sorted(names | set(aliases))
             raise SceneError(f"{prefix}.{key}", value, f"not a known key; valid keys: {', '.join(valid)}")
-        values[name] = value
+        if name in values:
+            raise SceneError(f"{prefix}.{key}", value, f"given once only: {prefix}.{spelled[name]} is the same "
+                             "parameter")
+        values[name], spelled[name] = value, key
+    return values
+
+
+def _from_table(cls, table: dict, prefix: str, aliases: dict | None = None):
+    """Build dataclass ``cls`` from a TOML table, rejecting unknown keys by name."""
+    values = _check_keys(cls, table, prefix, aliases)
     try:
         return cls(**values)
     except TypeError as exc:
         raise SceneError(prefix, table, str(exc)) from None
 
 
+def _is_number(value) -> bool:
+    """A finite int or float (``True`` is an int in Python, but not a number in a scene)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
 def _check_number(key: str, value, minimum: float = 0.0, strict: bool = True) -> None:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or (value <= minimum if strict else value < minimum):
+    if not _is_number(value) or (value <= minimum if strict else value < minimum):
         relation = ">" if strict else "≥"
         raise SceneError(key, value, f"a finite number {relation} {minimum:g}")
+
+
+def _check_integer(key: str, value, minimum: int, meaning: str = "") -> None:
+    if not isinstance(value, int) or isinstance(value, bool) or value < minimum:
+        raise SceneError(key, value, f"a whole number ≥ {minimum}{meaning}")
+
+
+def _check_bool(key: str, value) -> None:
+    if not isinstance(value, bool):
+        raise SceneError(key, value, "true or false")
+
+
+def _check_string(key: str, value, meaning: str = "") -> None:
+    if not isinstance(value, str) or not value.strip():
+        raise SceneError(key, value, f"a non-empty string{meaning}")
 
 
 def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
@@ -188,23 +223,28 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     for key in data:
         if key not in known:
             raise SceneError(key, data[key], f"not a known table; valid: {', '.join(sorted(known))}")
+    name = data.get("name", "scene")
+    _check_string("name", name, " (the scene's name)")
     model_table = dict(_table(data, "model"))
+    _check_keys(ModelParameters, model_table, "model", PAPER_SYMBOLS)
     for key, value in model_table.items():
         _check_number(f"model.{key}", value, 0.0, strict=False)
+        parameter = PAPER_SYMBOLS.get(key, key)
+        if parameter in ("interface_width", "radius", "mobility") and value == 0:
+            raise SceneError(f"model.{parameter}", value, "a finite number > 0"
+                             + (f" (given as model.{key})" if key != parameter else ""))
     model = _from_table(ModelParameters, model_table, "model", PAPER_SYMBOLS)
-    particles = _from_table(Particles, _table(data, "particles"), "particles")
-    numerics = _from_table(Numerics, _table(data, "numerics"), "numerics")
-    output_table = dict(_table(data, "output"))
-    if "observables" in output_table:
-        from .observables import OBSERVABLES
-
-        requested = output_table["observables"]
-        if not isinstance(requested, (list, tuple)):
-            raise SceneError("output.observables", requested, f"a list of names from {OBSERVABLES.names()}")
-        for item in requested:
-            OBSERVABLES.get(item, "output.observables")
-        output_table["observables"] = tuple(dict.fromkeys(("shape", "energy") + tuple(requested)))
-    output = _from_table(Output, output_table, "output")
+    particles_table = _table(data, "particles")
+    _check_keys(Particles, particles_table, "particles")
+    _check_particle_types(particles_table)
+    particles = _from_table(Particles, particles_table, "particles")
+    numerics_table = _table(data, "numerics")
+    _check_keys(Numerics, numerics_table, "numerics")
+    stabilisation = numerics_table.get("stabilisation", "auto")
+    if stabilisation != "auto" and not (_is_number(stabilisation) and stabilisation >= 0):
+        raise SceneError("numerics.stabilisation", stabilisation, '"auto" or a finite number ≥ 0')
+    numerics = _from_table(Numerics, numerics_table, "numerics")
+    output = _output(_table(data, "output"))
     phase_tables = data.get("phases", [])
     if not isinstance(phase_tables, list):
         raise SceneError("phases", phase_tables, "a list of [[phases]] tables")
@@ -213,8 +253,9 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
         raise SceneError("phases", [], "at least one [[phases]] table with duration, dt, frame_interval")
     domain_table = dict(_table(data, "domain"))
     domain_table.setdefault("kind", "grid")
+    _check_domain_types(domain_table)
     scene = Scene(
-        name=str(data.get("name", "scene")), model=model, domain_table=domain_table, particles=particles,
+        name=name, model=model, domain_table=domain_table, particles=particles,
         numerics=numerics, output=output, phases=phases, base_dir=str(base_dir),
     )
     _check_resolution(scene)
@@ -224,7 +265,56 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
             check_flow(phase.flow, scene.domain)
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
+    check_numerics(scene)
     return scene
+
+
+def check_numerics(scene: Scene, scheme: str | None = None) -> None:
+    """What the time stepping would refuse at its first step, refused now: the
+    finite-difference scheme off the structured channel or above its explicit stability
+    limit, and the tensor solver where the system has no tensor-product form.
+
+    ``scheme``: the time scheme the run uses, if not the scene's ``numerics.scheme`` (``femphase
+    run --method fd`` uses "fd-heun"); :func:`femphase.simulation.run_scene` should call this
+    with it before touching the run directory."""
+    numerics, domain = scene.numerics, scene.domain
+    scheme = numerics.scheme if scheme is None else scheme
+    key = "numerics.scheme" if scheme == numerics.scheme else "--method"
+    if scheme == "fd-heun":
+        if domain.kind != "grid":
+            raise SceneError(key, scheme, '"euler": the finite-difference reference needs the structured channel '
+                             f'([domain] kind = "grid"; this scene\'s kind is "{domain.kind}")')
+        from .energy import FreeEnergy
+        from .fd import explicit_stability_limit
+
+        x, y = domain.coordinates
+        for i, phase in enumerate(scene.phases):
+            flow = scene.flow(phase)
+            speed = 0.0
+            if not flow.is_still:
+                try:
+                    u, v = flow.velocity(x, y, 0.0)
+                    speed = float(np.max(np.abs(u)) + np.max(np.abs(v)))
+                except Exception as exc:  # a python flow runs the user's code
+                    raise SceneError(f"phases.{i}.flow", phase.flow, f"a flow that gives (u, v) at the nodes "
+                                     f"({type(exc).__name__}: {exc})") from None
+            limit = explicit_stability_limit(scene.model, domain.spacing, speed, float(np.min(scene.radii)),
+                                             FreeEnergy.paper(scene.model))
+            if phase.dt > limit * (1 + 1e-12):
+                raise SceneError(f"phases.{i}.dt", phase.dt, f"a time step ≤ {limit:.4g} for the explicit "
+                                 f"finite-difference scheme ({key} = \"fd-heun\") at h = {domain.spacing:g}")
+    elif numerics.solver == "tensor":
+        reason = None
+        if domain.kind != "grid":
+            reason = f'the structured channel ([domain] kind = "grid", not "{domain.kind}")'
+        elif numerics.mass != "lumped":
+            reason = 'the lumped mass (numerics.mass = "lumped")'
+        elif getattr(domain, "alternating", False):
+            reason = ("one diagonal direction (numerics.diagonals right or left, and a mesh file without "
+                      "alternating diagonals)")
+        if reason is not None:
+            raise SceneError("numerics.solver", "tensor",
+                             f'"auto", "direct" or "amg": the tensor solver needs {reason}')
 
 
 def _table(data: dict, name: str) -> dict:
@@ -232,6 +322,66 @@ def _table(data: dict, name: str) -> dict:
     if not isinstance(table, dict):
         raise SceneError(name, table, f"a table [{name}] of keys")
     return table
+
+
+def _output(table: dict) -> Output:
+    """The [output] table, every key checked."""
+    from .observables import OBSERVABLES
+
+    table = dict(table)
+    _check_keys(Output, table, "output")
+    for key in ("fields", "per_particle_fields", "checkpoint"):
+        if key in table:
+            _check_bool(f"output.{key}", table[key])
+    if "observables" in table:
+        requested = table["observables"]
+        if not isinstance(requested, (list, tuple)):
+            raise SceneError("output.observables", requested, f"a list of names from {OBSERVABLES.names()}")
+        for item in requested:
+            OBSERVABLES.get(item, "output.observables")
+        table["observables"] = tuple(dict.fromkeys(("shape", "energy") + tuple(requested)))
+    return _from_table(Output, table, "output")
+
+
+def _check_particle_types(table: dict) -> None:
+    """Types of the [particles] keys, whichever the layout (a key the layout does not use
+    must still be valid: a typo there would otherwise pass unnoticed)."""
+    if "layout" in table and table["layout"] not in LAYOUTS:
+        raise SceneError("particles.layout", table["layout"], f"one of {LAYOUTS}")
+    if "N" in table:
+        _check_integer("particles.N", table["N"], 1, " (the number of particles)")
+        if table["N"] > MAX_PARTICLES:
+            raise SceneError("particles.N", table["N"], f"a whole number from 1 to {MAX_PARTICLES}")
+    if "seed" in table:
+        _check_integer("particles.seed", table["seed"], 0, " (the random layout's seed)")
+    if table.get("per_row") is not None:
+        _check_integer("particles.per_row", table["per_row"], 1, " (particles per row)")
+    if table.get("initial_radius") is not None:
+        _check_number("particles.initial_radius", table["initial_radius"])
+    if table.get("centres") is not None:
+        centres = table["centres"]
+        def pair(c) -> bool:
+            return isinstance(c, (list, tuple)) and len(c) == 2 and all(_is_number(v) for v in c)
+
+        if not isinstance(centres, (list, tuple)) or not all(pair(c) for c in centres):
+            raise SceneError("particles.centres", centres, "a list of [x, y] pairs of finite numbers")
+    if table.get("radii") is not None:
+        radii = table["radii"]
+        if not isinstance(radii, (list, tuple)) or not all(_is_number(r) and r > 0 for r in radii):
+            raise SceneError("particles.radii", radii, "a list of finite numbers > 0, one per particle")
+
+
+def _check_domain_types(table: dict) -> None:
+    """The [domain] keys every kind shares; the kind's own checks follow when it is built."""
+    from . import channel, meshed  # noqa: F401  (register the domain kinds)
+    from .domain import DOMAINS
+
+    DOMAINS.get(table["kind"], "domain.kind")
+    for key in ("Lx", "Ly", "h"):
+        if key in table:
+            _check_number(f"domain.{key}", table[key])
+    if "mesh" in table and not (isinstance(table["mesh"], str) and (table["mesh"] or table["kind"] == "grid")):
+        raise SceneError("domain.mesh", table["mesh"], "the path of a mesh file (a string, relative to the scene)")
 
 
 def check_flow(spec: dict, domain: Domain) -> None:
@@ -266,52 +416,60 @@ def _check_resolution(scene: Scene) -> None:
 
 def _phase(index: int, table: dict) -> Phase:
     prefix = f"phases.{index}"
+    if not isinstance(table, dict):
+        raise SceneError(prefix, table, "a [[phases]] table with duration, dt, frame_interval (and flow)")
     table = dict(table)
+    _check_keys(Phase, table, prefix)
     table.setdefault("name", f"phase{index}")
+    _check_string(f"{prefix}.name", table["name"], " (the phase's label)")
     for key in ("duration", "dt", "frame_interval"):
         if key not in table:
             raise SceneError(f"{prefix}.{key}", None, "required (a number of time units)")
         _check_number(f"{prefix}.{key}", table[key])
     if "flow" in table and not isinstance(table["flow"], dict):
         raise SceneError(f"{prefix}.flow", table["flow"], 'a table such as {type = "shear", rate = 0.1}')
+    for key in ("duration", "dt", "frame_interval"):
+        table[key] = float(table[key])
     phase = _from_table(Phase, table, prefix)
     for key in ("duration", "frame_interval"):
         ratio = getattr(phase, key) / phase.dt
+        if not ratio <= MAX_PHASE_STEPS:
+            raise SceneError(f"{prefix}.{key}", getattr(phase, key), f"at most {MAX_PHASE_STEPS:.0e} steps of "
+                             f"dt = {phase.dt:g} (it is {ratio:.3g} steps): a larger {prefix}.dt or a shorter "
+                             f"{prefix}.{key}")
         if abs(ratio - round(ratio)) > 1e-6 * max(1.0, ratio) or round(ratio) < 1:
-            raise SceneError(f"{prefix}.{key}", getattr(phase, key), f"a whole multiple of dt = {phase.dt:g}")
+            raise SceneError(f"{prefix}.{key}", getattr(phase, key), f"a whole multiple (≥ 1) of {prefix}.dt = "
+                             f"{phase.dt:g}")
     return phase
 
 
 def _check_particles(scene: Scene) -> None:
     p, domain = scene.particles, scene.domain
-    if p.layout not in LAYOUTS:
-        raise SceneError("particles.layout", p.layout, f"one of {LAYOUTS}")
-    if p.layout in ("hexagonal", "random") and (not isinstance(p.N, int) or isinstance(p.N, bool) or p.N < 1):
-        raise SceneError("particles.N", p.N, "a whole number ≥ 1")
+    _check_particle_types(asdict(p))
     if p.layout == "list" and not p.centres:
         raise SceneError("particles.centres", p.centres, "a non-empty list of [x, y] pairs for layout = 'list'")
-    if p.centres is not None:
-        try:
-            centres = np.asarray(p.centres, dtype=float)
-        except (TypeError, ValueError):
-            centres = np.zeros(0)
-        if centres.ndim != 2 or centres.shape[1] != 2:
-            raise SceneError("particles.centres", p.centres, "a list of [x, y] pairs")
     n = scene.n_particles
-    if p.radii is not None:
-        radii = np.asarray(p.radii, dtype=float)
-        if radii.shape != (n,) or not np.all(radii > 0):
-            raise SceneError("particles.radii", p.radii, f"{n} radii, all > 0")
-    if p.initial_radius is not None:
-        _check_number("particles.initial_radius", p.initial_radius)
-    fraction = np.sum(np.pi * scene.radii**2) / domain.area
+    if p.radii is not None and len(p.radii) != n:
+        raise SceneError("particles.radii", p.radii, f"{n} radii (one per particle), all > 0")
+    # from the count, not an array: N may be any whole number here
+    mean_square = float(np.mean(np.square(p.radii))) if p.radii is not None else scene.model.radius**2
+    fraction = n * np.pi * mean_square / domain.area
     if fraction > MAX_AREA_FRACTION:
         raise SceneError(
             "particles.N", n,
-            f"the particles' total area is {fraction:.2f} × the domain's; at most {MAX_AREA_FRACTION} fits "
-            f"(N ≤ {int(MAX_AREA_FRACTION * domain.area / (np.pi * np.mean(scene.radii) ** 2))} "
-            f"at R = {np.mean(scene.radii):g})",
+            f"the particles' total area is {fraction:.3g} × the domain's; at most {MAX_AREA_FRACTION} fits "
+            f"(N ≤ {int(MAX_AREA_FRACTION * domain.area / (np.pi * mean_square))} "
+            f"at R = {np.sqrt(mean_square):g})",
         )
+    if p.layout == "hexagonal" and p.per_row is not None and p.per_row > n:
+        raise SceneError("particles.per_row", p.per_row, f"a whole number from 1 to particles.N = {n}")
+    if p.layout == "random":
+        low, high = domain.y_range
+        diameter = 2 * float(np.max(scene.initial_radii()))
+        if diameter >= high - low:
+            key = "particles.initial_radius" if p.initial_radius is not None else "model.radius"
+            raise SceneError(key, diameter / 2, f"initial discs that fit between the walls: a radius < "
+                             f"{(high - low) / 2:g} (half the width)")
     if p.layout != "random":  # fixed centres: check them now, not at the run
         initial_centres(scene)
 
@@ -337,24 +495,53 @@ def initial_centres(scene: Scene) -> np.ndarray:
 
 
 def set_value(data: dict, assignment: str) -> None:
-    """Apply one ``--set key=value`` (dotted key, TOML value; phases by index: phases.1.dt)."""
+    """Apply one ``--set key=value`` (dotted key, TOML value; phases by index: phases.1.dt).
+
+    A value that is not TOML is taken as a string (``--set particles.layout=hexagonal``).
+    SceneError for a malformed assignment (no ``=``, an empty key part), an index that is
+    not one of the list's (``--set`` changes entries, it cannot add them), or a dotted key
+    that runs through a value that is not a table (``model.mu.x``)."""
+    if not isinstance(assignment, str):
+        raise SceneError("--set", assignment, "key=value, e.g. model.mu=10 or phases.1.flow.rate=0.3")
     key, sep, text = assignment.partition("=")
+    key = key.strip()
     if not sep or not key:
         raise SceneError("--set", assignment, "key=value, e.g. model.mu=10 or phases.1.flow.rate=0.3")
-    try:
-        value = tomllib.loads(f"v = {text}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = text
-    parts = key.split(".")
+    parts = [part.strip() for part in key.split(".")]
+    if not all(parts):
+        raise SceneError("--set", assignment, "a dotted key without empty parts, e.g. phases.1.flow.rate=0.3")
+    value = _toml_value(text)
     target = data
-    for depth, part in enumerate(parts[:-1]):
+    for depth, part in enumerate(parts):
+        path, last = ".".join(parts[: depth + 1]), depth == len(parts) - 1
         if isinstance(target, list):
-            if not part.isdigit() or int(part) >= len(target):
-                raise SceneError(".".join(parts[: depth + 1]), part, f"an index 0 … {len(target) - 1}")
-            target = target[int(part)]
+            parent = ".".join(parts[:depth])
+            if not part.isdecimal() or int(part) >= len(target):
+                valid = f"an index 0 … {len(target) - 1}" if target else "no index: the list is empty"
+                raise SceneError(path, assignment, f"{valid} into '{parent}', which has {len(target)} entries "
+                                 "(--set changes entries, it cannot add them)")
+            if last:
+                target[int(part)] = value
+            else:
+                target = target[int(part)]
+        elif isinstance(target, dict):
+            if last:
+                target[part] = value
+            else:
+                target = target.setdefault(part, {})
         else:
-            target = target.setdefault(part, {})
-    target[parts[-1]] = value
+            parent = ".".join(parts[:depth])
+            raise SceneError(parent, target, f"a table to set '{part}' in (--set {assignment}); "
+                             f"'{parent}' holds a {type(target).__name__}")
+
+
+def _toml_value(text: str):
+    """``text`` as a TOML value, or the string itself when it is none."""
+    try:
+        document = tomllib.loads(f"v = {text}")
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
+        return text
+    return document["v"] if set(document) == {"v"} else text
 
 
 def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> dict:
@@ -363,8 +550,14 @@ def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> d
     if not path.is_file():
         raise SceneError("scene", str(path), "a TOML scene file that exists")
     try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
+        text = path.read_bytes().decode("utf-8")
+    except OSError as exc:
+        raise SceneError("scene", str(path), f"a readable file ({exc.strerror or exc})") from None
+    except UnicodeDecodeError as exc:
+        raise SceneError("scene", str(path), f"a UTF-8 text file (TOML); byte {exc.start} is not UTF-8") from None
+    try:
+        data = tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, RecursionError, ValueError) as exc:
         raise SceneError("scene", str(path), f"valid TOML ({exc})") from None
     for assignment in assignments or []:
         set_value(data, assignment)

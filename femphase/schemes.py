@@ -24,6 +24,12 @@ discrete energy for any dt. At the paper's parameters S = 0 for dt ≤ dt* = 2c/
 (lumped, several particles). Above dt*, G/dt + J0 S M_L = (J0 L/2) M_L no longer depends
 on dt: the explicit forces advance by dt* per step whatever dt is, so large steps are stable
 but slow the relaxation by dt/dt*.
+
+In general (any S ≥ 0, either mass on smooth modes, where G ≈ M_L) one step moves φ by
+−J0 g dt_eff with dt_eff = dt/(1 + J0 S dt): the relaxation runs 1 + J0 S dt times slower
+than the clock (:attr:`LinearlyImplicitEuler.relaxation_slowdown`; = dt/dt* for the lumped
+"auto"). :func:`stability_step` and :func:`auto_stabilisation` compute dt* and S without a
+stepper (the accuracy guard, :mod:`femphase.guards`, uses them).
 """
 
 from __future__ import annotations
@@ -37,7 +43,26 @@ from .stepping import SCHEMES
 from .windows import Layout
 
 if TYPE_CHECKING:
+    from .energy import FreeEnergy
     from .stepping import Stepper
+
+
+#: c of the bound G ≥ c M_L on the time mass, by ``numerics.mass``.
+MASS_BOUND = {"lumped": 1.0, "consistent": 0.25}
+
+
+def stability_step(energy: "FreeEnergy", mobility: float, mass: str, smallest_radius: float, pairs: bool) -> float:
+    """dt* = 2c/(J0 L): the largest dt at which the "auto" stabilisation is zero (inf when the
+    explicit energy has no curvature)."""
+    curvature = energy.curvature_bound(smallest_radius, pairs)
+    return 2.0 * MASS_BOUND[mass] / (mobility * curvature) if curvature > 0 else float("inf")
+
+
+def auto_stabilisation(energy: "FreeEnergy", mobility: float, mass: str, dt: float, smallest_radius: float,
+                       pairs: bool) -> float:
+    """S = max(0, L/2 − c/(J0 dt)): the smallest S that makes the no-flow step energy-decreasing."""
+    half_bound = 0.5 * energy.curvature_bound(smallest_radius, pairs)
+    return max(0.0, half_bound - MASS_BOUND[mass] / (mobility * dt))
 
 
 class TimeScheme(ABC):
@@ -75,9 +100,21 @@ class LinearlyImplicitEuler(TimeScheme):
     def auto_stabilisation(self) -> float:
         """The smallest S that makes the no-flow step energy-decreasing (module docstring)."""
         stepper = self.stepper
-        mass_bound = 0.25 if stepper.numerics.mass == "consistent" else 1.0
-        half_bound = 0.5 * stepper.energy.curvature_bound(stepper.smallest_radius, stepper.pairs)
-        return max(0.0, half_bound - mass_bound / (stepper.mobility * stepper.dt))
+        return auto_stabilisation(stepper.energy, stepper.mobility, stepper.numerics.mass, stepper.dt,
+                                  stepper.smallest_radius, stepper.pairs)
+
+    @property
+    def stability_step(self) -> float:
+        """dt* = 2c/(J0 L): above it the "auto" stabilisation is active (module docstring)."""
+        stepper = self.stepper
+        return stability_step(stepper.energy, stepper.mobility, stepper.numerics.mass, stepper.smallest_radius,
+                              stepper.pairs)
+
+    @property
+    def relaxation_slowdown(self) -> float:
+        """1 + J0 S dt: how many times slower than dt the explicit forces relax (1 for S = 0;
+        dt/dt* for the lumped "auto" stabilisation above dt*)."""
+        return 1.0 + self.stepper.mobility * self.stabilisation * self.stepper.dt
 
     def advance(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> tuple[np.ndarray, Layout]:
         if self.stepper.advection is not None:

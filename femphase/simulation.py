@@ -24,7 +24,7 @@ from .errors import Interrupted, SceneError
 from .io import atomic_write, load_checkpoint, point_data, read_checkpoint_metadata, save_checkpoint, to_toml
 from .observables import OBSERVABLES, Observable, resolve
 from .rundir import CHECKPOINT, Outputs, Status, prepare_directory, resume_position
-from .scene import Phase, Scene
+from .scene import Phase, Scene, check_numerics
 from .state import State
 from .stepping import Stepper
 
@@ -231,7 +231,6 @@ class RunDirectory(Tracker):
         scene = simulation.scene
         self.simulation = simulation
         prepare_directory(self.directory, resume=self.resume_from is not None, overwrite=self.overwrite)
-        atomic_write(self.directory / "scene.toml", to_toml(scene.to_dict()))
         particle_columns, global_columns = simulation.columns()
         self.outputs = Outputs(self.directory, particle_columns, global_columns, scene.output.fields)
         self.particle_columns, self.global_columns = particle_columns, global_columns
@@ -239,7 +238,8 @@ class RunDirectory(Tracker):
         if self.resume_from is None:
             self.outputs.start_new(mesh)
         else:
-            self.outputs.start_from(self.resume_from, mesh)
+            self.outputs.start_from(self.resume_from, mesh)  # checks every file before it cuts any
+        atomic_write(self.directory / "scene.toml", to_toml(scene.to_dict()))
         self.status = Status(self.directory, {
             "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
             "settings": scene.to_dict(),
@@ -265,7 +265,7 @@ class RunDirectory(Tracker):
     def _checkpoint(self, state: State) -> None:
         save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {
             "scene": self.simulation.scene.to_dict(), "outputs": self.outputs.record(),
-            "method": self.simulation.method,
+            "method": self.simulation.method, "time": state.time,
         })
 
     def finish(self, state: State, error: Exception | None) -> None:
@@ -317,18 +317,21 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
     checkpoint; the scene may change only compatibly, :func:`femphase.rundir.resume_position`)
     or ``overwrite``. Nothing in the directory is touched before every check has passed."""
     directory = Path(directory)
-    prepare_directory(directory, resume=resume, overwrite=overwrite)
     simulation = Simulation(scene, method)
+    check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
+    prepare_directory(directory, resume=resume, overwrite=overwrite)
     record, changes = None, []
     if resume:
         checkpoint = directory / CHECKPOINT
         metadata = read_checkpoint_metadata(checkpoint)
-        if "scene" not in metadata or "outputs" not in metadata:
+        if not {"scene", "outputs", "time"} <= set(metadata):
             raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
         if metadata.get("method", "fem") != method:
             raise SceneError("--method", method, f"{metadata.get('method')!r}, the method the run was started with")
+        # the scene first: its message names the key that changed
+        phase, phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), metadata["time"])
         state, observers = load_checkpoint(checkpoint, simulation.domain)
-        state.phase, state.phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), state.time)
+        state.phase, state.phase_step = phase, phase_step
         simulation.restore_observers(observers)
         record = metadata["outputs"]
     else:
@@ -336,5 +339,8 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
     trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite)]
     if progress is not False:
         trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))
+    from .guards import AccuracyGuard  # here: femphase.guards imports this module
+
+    trackers.append(AccuracyGuard())  # last: a frame is written before a strict stop
     with stop_on_signals() as stop:
         return simulation.run(state, trackers, initial_frame=not resume, stop=stop)

@@ -14,7 +14,7 @@ K (see :func:`femphase.discretisation.line_operators`). :class:`TensorSolver` th
 exactly with the 1D generalised eigenvectors: four dense matrix products per batch of
 right-hand sides, 1.5–3.7× faster than the LU's triangular solves up to 256 × 256 nodes and
 no faster beyond (``benchmarks/solver_crossover.py``). The stepper uses it there
-(``femphase.stepping.TENSOR_MAX_SIDES``) when it has verified the tensor form against the
+(``femphase.channel.TENSOR_MAX_SIDES``) when it has verified the tensor form against the
 assembled matrix.
 """
 

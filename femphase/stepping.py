@@ -24,7 +24,7 @@ from typing import Callable
 import numpy as np
 import scipy.sparse as sp
 
-from .domain import Domain
+from .domain import Domain, window_block
 from .energy import FreeEnergy, WindowedFields
 from .errors import BlowUpError, SceneError
 from .flows import Flow, no_flow
@@ -64,6 +64,10 @@ class Numerics:
     blowup_margin   a step fails when φ leaves [−blowup_margin, 1 + blowup_margin]. Discs
                     started at R/2 overshoot physically to φ ≈ 1.4 while the area constraint
                     inflates them (2.1 with μ × 10), so the default, 2, flags only runaways
+    strict          False (default): a run that leaves the accuracy envelope measured in
+                    benchmarks/stability.py warns (:class:`femphase.guards.AccuracyWarning`,
+                    naming the scene key to change); True: it stops with
+                    :class:`femphase.guards.AccuracyError` at that step (docs/outputs.md)
     """
 
     scheme: str = "euler"
@@ -77,6 +81,7 @@ class Numerics:
     diagonals: str = "right"
     blowup_margin: float = 2.0
     fd_advection: str = "upwind3"
+    strict: bool = False
 
     def __post_init__(self) -> None:
         from .mesh import DIAGONAL_PATTERNS
@@ -93,8 +98,9 @@ class Numerics:
             and self.stabilisation >= 0
         ):
             raise SceneError("numerics.stabilisation", self.stabilisation, '"auto" or a number ≥ 0')
-        if not isinstance(self.windows, bool):
-            raise SceneError("numerics.windows", self.windows, "true or false")
+        for key in ("windows", "strict"):
+            if not isinstance(getattr(self, key), bool):
+                raise SceneError(f"numerics.{key}", getattr(self, key), "true or false")
         for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
                                ("blowup_margin", 0.0, np.inf)):
             value = getattr(self, key)
@@ -215,11 +221,11 @@ class Stepper:
         if cache_key not in self._solvers:
             matrix, time_mass = self.system(shift, stabilisation)
             dofs = self.domain.window_dofs(window)
-            block = matrix[dofs][:, dofs].tocsr()
+            block = window_block(matrix, dofs)
             a = shift + self.mobility * stabilisation
             solver = self.domain.solver(window, block, a, self.mobility * self.energy.diffusivity,
                                         time_mass is None, self.numerics.solver, self.numerics.tolerance)
-            mass_block = time_mass[dofs][:, dofs].tocsr() if time_mass is not None else None
+            mass_block = window_block(time_mass, dofs) if time_mass is not None else None
             if len(self._solvers) > 4096:  # windows come and go: keep the cache bounded
                 self._solvers.clear()
             self._solvers[cache_key] = (solver, mass_block)

@@ -29,11 +29,40 @@ Conventions
 Discretisation: Taylor–Hood P2/P1, inf-sup stable so no pressure
 stabilisation is needed, assembled on the non-periodic mesh and folded with
 :mod:`femphase.periodic`.
+
+Cache of unit solutions
+-----------------------
+A scene's Stokes flow is the solution for a unit pressure drop, rescaled
+(Stokes flow is linear in the driving); that solution takes about a minute
+of SuperLU on a 17k-node mesh, so :meth:`femphase.meshed.MeshDomain.stokes_flow`
+keeps it in a user cache folder, :func:`cache_dir`:
+
+* ``$FEMPHASE_CACHE`` if set (and not empty), else ``$XDG_CACHE_HOME/femphase``,
+  else ``~/.cache/femphase``;
+* one file per mesh and viscosity, ``stokes-<key>.npz``, ``<key>`` a digest of
+  the mesh's nodes, triangles and walls and of the viscosity
+  (:func:`cache_key`): the mesh's path plays no part, so a moved, copied or
+  read-only mesh file finds its solution, and an edited one does not find a
+  stale one;
+* written atomically (a temporary file in the folder, then ``os.replace``), so
+  concurrent runs and kills never leave half a file under the final name;
+* validated on reading: a file that is truncated, corrupt, of another format
+  version, or whose stored key, array sizes or values do not fit the mesh is
+  solved again and replaced, with a :class:`StokesCacheWarning` naming the file;
+* a cache folder that cannot be created or written (read-only, full, a path
+  through a regular file) does not fail the run: a warning, and the run goes
+  on without caching.
+
+Deleting the folder is always safe.  Meshes built in memory (no file) are
+not cached.
 """
 
 from __future__ import annotations
 
 import hashlib
+import os
+import tempfile
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -62,6 +91,13 @@ if TYPE_CHECKING:
 
 #: Keys of a scene's ``flow = {type = "stokes", ...}`` table; exactly one driving key.
 STOKES_DRIVES = ("max_velocity", "flux", "pressure_drop")
+#: Format version of the cache files (a file of another version is solved again).
+CACHE_VERSION = 2
+
+
+class StokesCacheWarning(UserWarning):
+    """The Stokes cache could not be used (a damaged file was replaced, or the folder is
+    not writable); the run goes on, solving the flow."""
 
 
 @BilinearForm
@@ -354,8 +390,9 @@ def stokes_drive(spec: dict) -> tuple[str, float, float]:
     if not isinstance(value, (int, float)) or isinstance(value, bool) or not np.isfinite(value):
         raise SceneError(f"flow.{given[0]}", value, "a finite number")
     viscosity = spec.get("viscosity", 1.0)
-    if not isinstance(viscosity, (int, float)) or isinstance(viscosity, bool) or not viscosity > 0:
-        raise SceneError("flow.viscosity", viscosity, "a number > 0")
+    if (not isinstance(viscosity, (int, float)) or isinstance(viscosity, bool) or not np.isfinite(viscosity)
+            or not viscosity > 0):
+        raise SceneError("flow.viscosity", viscosity, "a finite number > 0")
     return given[0], float(value), float(viscosity)
 
 
@@ -384,34 +421,104 @@ def stokes_flow(domain: "MeshDomain", spec: dict, unit: StokesFlow | None = None
 
 
 def unit_stokes_flow(domain: "MeshDomain", viscosity: float = 1.0, cache: str | Path | None = None) -> StokesFlow:
-    """The Stokes flow driven by a unit pressure drop, read from ``cache`` (an .npz file)
-    when it holds this mesh's solution, else solved (and written there).
-
-    A P2 Stokes solve on a ~20k-node channel takes about a minute with SuperLU, so scenes
-    keep the unit solution next to their mesh; the file stores a checksum of the mesh and
-    the viscosity, and a stale file is solved again and overwritten.
-    """
-    checksum = _mesh_checksum(domain, viscosity)
-    if cache is not None and Path(cache).is_file():
-        with np.load(cache) as data:
-            if str(data["checksum"]) == checksum:
-                velocity_basis = Basis(domain.mesh, ElementVector(ElementTriP2()))
-                return StokesFlow(
-                    mesh=domain.mesh, velocity_basis=velocity_basis,
-                    pressure_basis=velocity_basis.with_element(ElementTriP1()),
-                    velocity=data["velocity"], pressure=data["pressure"], period=domain.period,
-                    viscosity=viscosity, pressure_drop=1.0, flux=float(data["flux"]),
-                )
+    """The Stokes flow driven by a unit pressure drop, read from ``cache`` (an .npz file,
+    e.g. :func:`cache_path`) when it holds this mesh's solution, else solved and written
+    there (see "Cache of unit solutions" in the module docstring: a damaged or stale file
+    is solved again with a warning, an unwritable place only warns)."""
+    key = cache_key(domain, viscosity)
+    if cache is not None:
+        flow = _read_cache(Path(cache), domain, viscosity, key)
+        if flow is not None:
+            return flow
     flow = solve_stokes(domain.mesh, domain.period, wall_facets=domain.wall_facets,
                         pressure_drop=1.0, viscosity=viscosity)
     if cache is not None:
-        np.savez(cache, checksum=checksum, velocity=flow.velocity, pressure=flow.pressure, flux=flow.flux)
+        _write_cache(Path(cache), flow, key)
     return flow
 
 
-def _mesh_checksum(domain: "MeshDomain", viscosity: float) -> str:
+def cache_dir() -> Path:
+    """The folder of cached Stokes solutions: ``$FEMPHASE_CACHE``, else
+    ``$XDG_CACHE_HOME/femphase``, else ``~/.cache/femphase`` (empty variables count as unset)."""
+    if os.environ.get("FEMPHASE_CACHE"):
+        return Path(os.environ["FEMPHASE_CACHE"]).expanduser()
+    if os.environ.get("XDG_CACHE_HOME"):
+        return Path(os.environ["XDG_CACHE_HOME"]).expanduser() / "femphase"
+    return Path.home() / ".cache" / "femphase"
+
+
+def cache_path(domain: "MeshDomain", viscosity: float = 1.0, folder: str | Path | None = None) -> Path:
+    """The cache file of the unit solution on ``domain`` at ``viscosity``, in ``folder``
+    (default :func:`cache_dir`)."""
+    return Path(cache_dir() if folder is None else folder) / f"stokes-{cache_key(domain, viscosity)[:32]}.npz"
+
+
+def cache_key(domain: "MeshDomain", viscosity: float) -> str:
+    """A digest of the mesh's nodes, triangles and wall facets and of the viscosity."""
     digest = hashlib.sha256()
     for array in (domain.mesh.p, domain.mesh.t, domain.wall_facets):
         digest.update(np.ascontiguousarray(array).tobytes())
     digest.update(repr(float(viscosity)).encode())
     return digest.hexdigest()
+
+
+_mesh_checksum = cache_key  # the name of earlier versions
+
+
+def _read_cache(path: Path, domain: "MeshDomain", viscosity: float, key: str) -> StokesFlow | None:
+    """The unit flow stored in ``path``, or None (absent, or damaged/stale: then warned)."""
+    if not path.exists():
+        return None
+    velocity_basis = Basis(domain.mesh, ElementVector(ElementTriP2()))
+    pressure_basis = velocity_basis.with_element(ElementTriP1())
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            stored = {name: data[name] for name in ("version", "checksum", "velocity", "pressure", "flux")}
+        if int(stored["version"]) != CACHE_VERSION:
+            problem = f"format version {int(stored['version'])}, not {CACHE_VERSION}"
+        elif str(stored["checksum"]) != key:
+            problem = "it holds the solution of another mesh or viscosity"
+        elif stored["velocity"].shape != (velocity_basis.N,) or stored["pressure"].shape != (pressure_basis.N,):
+            problem = "its arrays do not fit the mesh"
+        elif not (np.isfinite(stored["velocity"]).all() and np.isfinite(stored["pressure"]).all()
+                  and np.isfinite(stored["flux"]) and float(stored["flux"]) > 0):
+            problem = "it holds values that are not finite"
+        else:
+            problem = None
+    except Exception as exc:  # truncated or corrupt: zipfile, pickle, KeyError, … all mean "unusable"
+        problem = f"unreadable ({type(exc).__name__}: {exc})"
+    if problem is not None:
+        warnings.warn(f"the Stokes cache file {path} cannot be used ({problem}); solving the flow again and "
+                      "replacing the file", StokesCacheWarning, stacklevel=3)
+        return None
+    return StokesFlow(
+        mesh=domain.mesh, velocity_basis=velocity_basis, pressure_basis=pressure_basis,
+        velocity=np.asarray(stored["velocity"], dtype=float), pressure=np.asarray(stored["pressure"], dtype=float),
+        period=domain.period, viscosity=viscosity, pressure_drop=1.0, flux=float(stored["flux"]),
+    )
+
+
+def _write_cache(path: Path, flow: StokesFlow, key: str) -> None:
+    """Write the unit flow to ``path`` atomically; a warning (never an error) when it cannot."""
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        with os.fdopen(handle, "wb") as file:
+            np.savez(file, version=CACHE_VERSION, checksum=key, velocity=flow.velocity, pressure=flow.pressure,
+                     flux=flow.flux)
+            file.flush()
+            os.fsync(file.fileno())
+        os.chmod(tmp, 0o644)  # mkstemp's 0600 would hide the file from a shared cache folder
+        os.replace(tmp, path)
+        tmp = None
+    except OSError as exc:
+        warnings.warn(f"cannot write the Stokes cache file {path} ({exc.strerror or exc}); continuing without "
+                      "caching (set FEMPHASE_CACHE to a writable folder to keep the solution)",
+                      StokesCacheWarning, stacklevel=3)
+    finally:
+        if tmp is not None:
+            try:
+                os.unlink(tmp)
+            except OSError:
+                pass

@@ -40,7 +40,7 @@ from collections.abc import Sequence
 
 import numpy as np
 from numpy.typing import ArrayLike
-from scipy.spatial import Delaunay
+from scipy.spatial import Delaunay, QhullError
 
 #: Bonds within this angle (radians) of the lanes' axis x are in-lane neighbours, and bonds
 #: within it of the normal y join particles stacked on top of each other; neither carries the
@@ -82,11 +82,27 @@ def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray
     images = np.concatenate(
         [centroids + (shift, 0.0) for shift in (0.0, -period_x, period_x)]
     )
-    edges = Delaunay(images).simplices[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
+    try:
+        edges = Delaunay(images).simplices[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
+    except QhullError:
+        # every centroid on one line (e.g. a single lane): the triangulation is flat, and
+        # the neighbours are the consecutive points along the line
+        edges = _collinear_edges(images)
     extent_x = np.abs(images[edges[:, 1], 0] - images[edges[:, 0], 0])
     edges = edges[(edges < n_particles).any(axis=1) & (extent_x <= period_x / 2)]
     pairs = np.sort(edges % n_particles, axis=1)
     return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+
+
+def _collinear_edges(points: np.ndarray) -> np.ndarray:
+    """Edges between consecutive points along the line through collinear ``points``
+    (coincident points are joined to one of them)."""
+    if len(points) < 2:
+        return np.zeros((0, 2), dtype=int)
+    offsets = points - points.mean(axis=0)
+    direction = np.linalg.svd(offsets, full_matrices=False)[2][0]
+    order = np.argsort(offsets @ direction, kind="stable")
+    return np.stack([order[:-1], order[1:]], axis=1)
 
 
 def bond_vectors(centroids: ArrayLike, period_x: float, pairs: ArrayLike) -> np.ndarray:
@@ -269,7 +285,7 @@ def lattice_angle(
 
     The median of :func:`particle_lattice_angles` over the particles that have inclined
     bonds; the median ignores the few wall or defect particles whose bonds are not those of
-    the lattice.
+    the lattice.  (:func:`frame_order`, what runs write, gives NaN instead of raising.)
 
     Raises
     ------
@@ -288,7 +304,13 @@ def lattice_angle(
 
 def frame_order(centroids: ArrayLike, orientation: ArrayLike, period_x: float) -> dict:
     """One frame's order: per particle |ψ6| and |ψ2| ("psi6_abs", "psi2_abs"), and Ψ6, Ψ2^L
-    and the lattice angle (radians); NaN for fewer than 3 particles."""
+    and the lattice angle (radians).
+
+    Never raises on a valid configuration: NaN for fewer than 3 particles, Ψ6 and Ψ2^L NaN
+    when no particle has a neighbour, and the lattice angle NaN when no bond is inclined
+    (e.g. a rectangular layout whose bonds all lie within the axis tolerance of x or y, as
+    at t = 0 of a run started on such a lattice), so a run's "order" observable records the
+    frame instead of aborting."""
     centroids = _as_centroids(centroids)
     n = len(centroids)
     if n < 3:
@@ -297,8 +319,15 @@ def frame_order(centroids: ArrayLike, orientation: ArrayLike, period_x: float) -
     pairs = periodic_delaunay_pairs(centroids, period_x)
     psi6 = bond_order(centroids, period_x, pairs)
     psi2 = nematic_order(orientation, pairs, n)
-    return {"psi6_abs": np.abs(psi6), "psi2_abs": np.abs(psi2), "Psi6": global_order(psi6),
-            "Psi2": global_order(psi2), "lattice_angle": lattice_angle(centroids, period_x, pairs)}
+    angles = particle_lattice_angles(centroids, period_x, pairs)
+    return {"psi6_abs": np.abs(psi6), "psi2_abs": np.abs(psi2), "Psi6": _global_or_nan(psi6),
+            "Psi2": _global_or_nan(psi2),
+            "lattice_angle": float(np.nanmedian(angles)) if not np.isnan(angles).all() else np.nan}
+
+
+def _global_or_nan(psi: np.ndarray) -> float:
+    """:func:`global_order`, NaN when no particle has a neighbour."""
+    return global_order(psi) if not np.isnan(psi).all() else np.nan
 
 
 def t1_events(

@@ -1,0 +1,140 @@
+"""docs/outputs.md documents every file and column a run writes; the wall-contact flag of the
+shape observable on both domains."""
+
+import re
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from femphase.analysis.shape import shape_observables, wall_contact, wall_dofs
+from femphase.io import read_csv
+from femphase.meshed import MeshDomain
+from femphase.meshing import delaunay_channel, edge_for_spacing
+from femphase.observables import OBSERVABLES
+from femphase.rundir import OUTPUTS
+from femphase.scene import scene_from_dict
+from femphase.simulation import FrameRecorder, Simulation, run_scene
+from femphase.state import discs_state
+from femphase.stepping import Numerics
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "outputs.md"
+
+
+def section(text: str, title: str) -> str:
+    """The text under the heading ``## title`` up to the next ``## `` heading."""
+    match = re.search(rf"^## {re.escape(title)}\n(.*?)(?=^## |\Z)", text, flags=re.S | re.M)
+    assert match, f"docs/outputs.md has no section '## {title}'"
+    return match.group(1)
+
+
+def documented(block: str) -> set[str]:
+    return set(re.findall(r"^\| `([^`]+)` \|", block, flags=re.M))
+
+
+def small_scene(**output):
+    return scene_from_dict({"name": "outputs", "domain": {"Lx": 40.0, "Ly": 40.0},
+                            "particles": {"layout": "list", "centres": [[10.0, 5.0], [30.0, 20.0], [20.0, 34.0]]},
+                            "output": {"fields": False, **output},
+                            "phases": [{"duration": 2.0, "dt": 1.0, "frame_interval": 1.0}]})
+
+
+def builtin_observables():
+    return [name for name in OBSERVABLES.names() if OBSERVABLES.get(name).__module__ == "femphase.observables"]
+
+
+def test_every_column_an_observable_can_produce_is_documented():
+    text = DOC.read_text()
+    particles, global_ = documented(section(text, "particles.csv")), documented(section(text, "global.csv"))
+    simulation = Simulation(small_scene())
+    names = builtin_observables()
+    assert {"shape", "energy", "order"} <= set(names)
+    produced_particle, produced_global = {"time", "id"}, {"time", "step"}
+    for name in names:
+        observable = simulation.observable(name)
+        produced_particle |= set(observable.particle_columns)
+        produced_global |= set(observable.global_columns)
+    assert produced_particle - particles == set(), "undocumented particles.csv columns"
+    assert produced_global - global_ == set(), "undocumented global.csv columns"
+    assert "wall_contact" in produced_particle and "area" in produced_global
+
+
+def test_the_columns_of_a_run_directory_are_the_documented_ones(tmp_path):
+    run_scene(small_scene(observables=["shape", "order"]), tmp_path / "run", progress=False)
+    text = DOC.read_text()
+    header = (tmp_path / "run" / "particles.csv").read_text().splitlines()[0].split(",")
+    assert set(header) == documented(section(text, "particles.csv"))
+    header = (tmp_path / "run" / "global.csv").read_text().splitlines()[0].split(",")
+    assert set(header) == documented(section(text, "global.csv"))
+    table = read_csv(tmp_path / "run" / "particles.csv")
+    assert set(np.unique(table["wall_contact"])) == {0.0, 1.0}
+
+
+def test_every_file_of_a_run_directory_is_documented():
+    files = section(DOC.read_text(), "Files")
+    for name in OUTPUTS:
+        assert f"`{name}" in files, name
+    for name in ("fields/mesh.h5", "fields/frame_NNNNNN.h5", "phi_sum", "phi_max", "label"):
+        assert name in files
+
+
+def test_wall_contact_on_the_grid():
+    sc = small_scene()
+    state = sc.initial_state()  # discs of R/2 = 4: φ > 0.01 reaches 8.6 from the centre
+    shape = shape_observables(state)
+    assert shape.wall_contact.tolist() == [1, 0, 1]  # y = 5 and y = 34 touch, y = 20 does not
+    mask = wall_dofs(sc.domain)
+    assert set(np.unique(sc.domain.coordinates[1][mask])) == {0.0, 40.0}
+    assert mask.sum() == 2 * 40  # two rows of the periodic lattice
+    # the threshold is the window threshold: a higher one clears the faint contact of y = 34
+    layout, phi = state.flat()
+    assert wall_contact(sc.domain, layout, phi, threshold=0.2).tolist() == [1, 0, 0]  # φ_wall 0.27, 0.12
+
+
+def test_a_particle_on_a_wall_has_a_biased_shape_tensor_and_is_flagged():
+    # relaxed at full size 5 from the wall: wider than tall, yet its shape tensor (without
+    # the interface along the wall) reports a vertical elongation axis (docs/outputs.md)
+    sc = scene_from_dict({"name": "wall", "domain": {"Lx": 60.0, "Ly": 40.0},
+                          "particles": {"layout": "list", "centres": [[30.0, 5.0]], "initial_radius": 8.0},
+                          "output": {"fields": False},
+                          "phases": [{"duration": 100.0, "dt": 1.0, "frame_interval": 100.0}]})
+    recorder = FrameRecorder()
+    Simulation(sc).run(sc.initial_state(), [recorder])
+    state = recorder.frames[-1].state
+    phi = state.global_field(0).reshape(41, 60) > 0.5
+    width, height = np.ptp(np.flatnonzero(phi.any(0))) + 1, np.ptp(np.flatnonzero(phi.any(1))) + 1
+    assert width > height + 3
+    shape = shape_observables(state)
+    assert shape.wall_contact[0] == 1
+    assert shape.elongation[0] > 0.3 and abs(abs(shape.orientation[0]) - np.pi / 2) < 0.01
+
+
+def test_wall_contact_on_a_mesh_with_a_curved_wall_and_an_obstacle():
+    edge = edge_for_spacing(1.0)
+    domain = MeshDomain.from_mesh(*delaunay_channel(
+        40.0, edge, lambda x: 3.0 + 2.0 * np.sin(2 * np.pi * x / 40.0), lambda x: 0 * x + 60.0,
+        obstacles=[(30.0, 40.0, 4.0)], seed=3))
+    # near the curved bottom wall (at y = 5 below x = 10), mid-channel, next to the obstacle
+    centres = np.array([[10.0, 10.0], [12.0, 28.0], [30.0, 51.0]])
+    state = discs_state(domain, centres, np.full(3, 8.0), np.full(3, 4.0), 2.0, domain.window_policy(Numerics()))
+    assert shape_observables(state).wall_contact.tolist() == [1, 0, 1]
+    mask = wall_dofs(domain)
+    x, y = domain.coordinates
+    bottom = 3.0 + 2.0 * np.sin(2 * np.pi * x / 40.0)
+    on_bottom, on_obstacle = np.isclose(y, bottom, atol=1e-6), np.isclose(np.hypot(x - 30, y - 40), 4.0)
+    assert np.all(mask == (on_bottom | on_obstacle | (y == 60.0)))  # no dof of the periodic sides
+    # far from every wall: no contact, with windows or without
+    far = discs_state(domain, np.array([[12.0, 28.0]]), np.full(1, 8.0), np.full(1, 4.0), 2.0,
+                      domain.window_policy(Numerics(windows=False)))
+    assert shape_observables(far).wall_contact.tolist() == [0]
+
+
+@pytest.mark.parametrize("threshold", [0.01, 0.2])
+def test_the_shape_observable_uses_the_scene_threshold(threshold):
+    sc = scene_from_dict({"name": "t", "domain": {"Lx": 40.0, "Ly": 40.0},
+                          "particles": {"layout": "list", "centres": [[20.0, 11.0]], "initial_radius": 8.0},
+                          "numerics": {"threshold": threshold}, "output": {"fields": False},
+                          "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]})
+    values = Simulation(sc).observable("shape")(sc.initial_state(), {})
+    # the disc's tail reaches the wall with φ = (1 + tanh(−3/2))/2 ≈ 0.047
+    assert values["wall_contact"].tolist() == [1 if threshold < 0.047 else 0]

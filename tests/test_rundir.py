@@ -1,0 +1,140 @@
+"""Run directories: refusals, compatible and incompatible resumes, bad paths (issue 11).
+
+Every refusal is checked to leave the directory byte for byte as it was."""
+
+import json
+from pathlib import Path
+
+import pytest
+
+from femphase.cli import main
+from femphase.io import read_csv
+
+SCENE = """
+name = "tiny"
+[domain]
+Lx = 30.0
+Ly = 30.0
+[particles]
+layout = "list"
+centres = [[10.0, 15.0], [21.0, 15.0]]
+[[phases]]
+name = "relax"
+duration = 20.0
+dt = 1.0
+frame_interval = 5.0
+[[phases]]
+name = "shear"
+duration = 20.0
+dt = 1.0
+frame_interval = 5.0
+flow = { type = "shear", rate = 0.3 }
+"""
+
+
+@pytest.fixture
+def scene(tmp_path) -> Path:
+    path = tmp_path / "scene.toml"
+    path.write_text(SCENE)
+    return path
+
+
+def _snapshot(directory: Path) -> dict:
+    return {p.relative_to(directory): p.read_bytes() for p in sorted(directory.rglob("*")) if p.is_file()}
+
+
+def _run(scene, directory, *flags) -> int:
+    return main(["run", str(scene), "-o", str(directory), "-q", *flags])
+
+
+def test_an_existing_run_is_refused_without_resume_or_overwrite(scene, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    (run / "notes.txt").write_text("mine")
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert _run(scene, run) == 2
+    message = capsys.readouterr().err
+    assert "'-o'" in message and "--resume" in message and "--overwrite" in message and "Traceback" not in message
+    assert _snapshot(run) == before
+    assert _run(scene, run, "--overwrite", "--set", "phases.1.duration=10") == 0
+    assert (run / "notes.txt").read_text() == "mine"  # only femphase's files are replaced
+    assert read_csv(run / "global.csv")["time"][-1] == 30.0
+
+
+@pytest.mark.parametrize("target", ["file", "/proc/femphase-cannot-write-here"])
+def test_an_unusable_output_path_is_one_clear_message(scene, tmp_path, capsys, target):
+    path = tmp_path / "a-file" if target == "file" else Path(target)
+    if target == "file":
+        path.write_text("not a directory")
+    assert _run(scene, path) == 2
+    message = capsys.readouterr().err
+    assert "'-o'" in message and "Traceback" not in message
+
+
+@pytest.mark.parametrize("assignment, key", [
+    ("model.mu=10", "model.area_stiffness"),
+    ("domain.h=0.5", "domain.h"),
+    ("domain.Lx=40", "domain.Lx"),
+    ("particles.centres=[[10.0, 15.0], [21.0, 15.0], [15.0, 5.0]]", "particles.centres"),
+    ("output.observables=[\"order\"]", "output.observables"),
+    ("phases.0.duration=10", "phases.0.duration"),
+    ("phases.0.flow={type = \"shear\", rate = 0.1}", "phases.0.flow"),
+])
+def test_resume_refuses_incompatible_changes_naming_the_key(scene, tmp_path, capsys, assignment, key):
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.1.duration=10") == 0
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", assignment) == 2
+    message = capsys.readouterr().err
+    assert f"'{key}'" in message and "Traceback" not in message, message
+    assert _snapshot(run) == before
+
+
+def test_extending_a_finished_run_equals_running_it_longer_at_once(scene, tmp_path):
+    straight, extended = tmp_path / "straight", tmp_path / "extended"
+    assert _run(scene, straight, "--set", "phases.1.duration=30") == 0
+    assert _run(scene, extended) == 0
+    assert _run(scene, extended, "--resume", "--set", "phases.1.duration=30") == 0
+    for name in ("particles.csv", "global.csv", "fields.xdmf"):
+        assert (straight / name).read_bytes() == (extended / name).read_bytes(), name
+    segments = json.loads((extended / "run.json").read_text())["segments"]
+    assert len(segments) == 2 and segments[1]["from_time"] == 40.0
+    assert "phases.1.duration: 20.0 → 30.0" in segments[1]["changes"]
+
+
+def test_a_new_dt_in_the_phase_under_way_ends_the_phase_on_time(scene, tmp_path):
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.1.duration=10") == 0  # stopped at t = 30, in phase 1
+    assert _run(scene, run, "--resume", "--set", "phases.1.dt=0.5") == 0
+    times = read_csv(run / "global.csv")["time"]
+    assert times[-1] == 40.0
+    assert list(times) == [5.0 * k for k in range(9)]  # frames stay on the 5-unit grid
+    assert "phases.1.dt: 1.0 → 0.5" in json.loads((run / "run.json").read_text())["segments"][1]["changes"]
+
+
+def test_a_dt_that_does_not_divide_the_time_spent_is_refused(scene, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.1.duration=7") == 0
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "phases.1.dt=2.0", "--set", "phases.1.frame_interval=10") == 2
+    assert "'phases.1.dt'" in capsys.readouterr().err
+
+
+def test_a_truncated_checkpoint_is_one_message_and_nothing_is_touched(scene, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    checkpoint = run / "checkpoint.h5"
+    checkpoint.write_bytes(checkpoint.read_bytes()[:500])
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert _run(scene, run, "--resume") == 2
+    message = capsys.readouterr().err
+    assert "'--resume'" in message and "Traceback" not in message
+    assert _snapshot(run) == before
+
+
+def test_resume_needs_a_checkpoint(scene, tmp_path, capsys):
+    assert _run(scene, tmp_path / "empty", "--resume") == 2
+    assert "checkpoint.h5" in capsys.readouterr().err
