@@ -32,7 +32,7 @@ import numpy as np
 
 from femphase.scene import scene_from_dict
 from femphase.simulation import Simulation
-from femphase.stepping import SemiImplicitStepper
+from femphase.stepping import Stepper
 
 from common import markdown_table, update_readme
 
@@ -55,7 +55,7 @@ def sheared_stepper(scene, relax_steps: int = 100):
     """(state relaxed for ``relax_steps`` at dt = 1, the shear stepper after its first step)."""
     simulation = Simulation(scene)
     state = scene.initial_state()
-    relax = SemiImplicitStepper(simulation.discretisation, scene.model, scene.numerics, 1.0, None, state.radii)
+    relax = Stepper(simulation.domain, scene.model, scene.numerics, 1.0, None, state.radii)
     for _ in range(relax_steps):
         relax.step(state)
     stepper = simulation.stepper(scene.phases[0], state.radii)
@@ -70,8 +70,8 @@ def time_per_step(scene, steps: int) -> dict:
         started = time.process_time()
         stepper.step(state)
         samples.append(time.process_time() - started)
-    return {"N": state.n_particles, "h": scene.domain.h, "Ly": scene.domain.Ly, "steps": steps,
-            "nodes": scene.grid.n_nodes, "window_dofs": int(sum(f.size for f in state.fields)),
+    return {"N": state.n_particles, "h": scene.domain.spacing, "Ly": scene.domain.width, "steps": steps,
+            "nodes": scene.domain.grid.n_nodes, "window_dofs": int(sum(f.size for f in state.fields)),
             "ms_per_step": 1e3 * float(np.median(samples)), "mean_ms": 1e3 * float(np.mean(samples))}
 
 
@@ -102,15 +102,21 @@ def profile_parts(steps: int = PROFILE_STEPS) -> dict:
 
     step = cumulative("step", "stepping.py")
     solve = cumulative("solve", "solvers.py")
+    # the row shift rebuilds the layout when whole columns move: counted under "layout"
+    advect = cumulative("advect", "advection.py")
+    advection = (advect - cumulative("layout", "channel.py", caller="advect")
+                 - cumulative("group_block", "windows.py", caller="advect"))
     parts = {
-        "advection (exact row shift, FFT)": cumulative("advect_row_flow", "advection.py"),
+        "advection (exact row shift, FFT)": advection,
         "linear solves (tensor-product solver, multi-RHS)": solve,
-        "explicit forces (g, areas, overlaps) and right-hand sides": cumulative("_relax", "stepping.py") - solve,
+        # the relaxation of the time scheme (schemes.py: advance) less its advection and solves
+        "explicit forces (g, areas, overlaps) and right-hand sides": cumulative("advance", "schemes.py")
+        - advect - solve,
         "blow-up check": cumulative("check_fields", "stepping.py"),
-        "window refit (misfits, fit, transfer)": cumulative("misfits", "windows.py", caller="step")
+        "window refit (misfits, fit, transfer)": cumulative("misfits", "windows.py", caller="refit")
         + cumulative("fit", "windows.py") + cumulative("transfer", "windows.py"),
-        "layout (grouping, gather, scatter)": cumulative("__init__", "windows.py")
-        + cumulative("gather", "windows.py", caller="step") + cumulative("scatter", "windows.py", caller="step")
+        "layout (grouping, gather, scatter)": cumulative("layout", "channel.py")
+        + cumulative("gather", "windows.py") + cumulative("scatter", "windows.py")
         + cumulative("group_block", "windows.py"),
     }
     parts["other (Python overhead of step)"] = step - sum(parts.values())

@@ -2,8 +2,8 @@
 
     python benchmarks/solver_crossover.py [--quick]
 
-The matrix is the stepper's own, A = M_L/dt + D K (D = J0·2γλ = 0.12, dt = 1, stabilisation
-0 as "auto" gives at dt = 1), taken as the principal submatrix of square windows of m × m
+The matrix is the stepper's own, A = M_L/dt + J0 S M_L + D K (D = J0·2γλ = 0.12, dt = 1, the
+stabilisation S = 0.17 "auto" gives at dt = 1), taken as the principal submatrix of square windows of m × m
 nodes (Dirichlet on the window's edges, as every window is) and on the paper's full
 70 × 240 channel at h = 1, 0.5, 0.25 (periodic in x, Neumann walls: full-mesh mode).
 Right-hand sides are real relaxation steps: b = M_L φ/dt − J0 M_L g(φ) for discs of radius
@@ -38,41 +38,46 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 from common import markdown_table, update_readme
 
-from femphase.energy import explicit_derivative
+from femphase.channel import TENSOR_MAX_SIDES, ChannelDomain, tensor_solver
+from femphase.energy import FreeEnergy, WindowedFields
 from femphase.mesh import channel_grid
 from femphase.model import ModelParameters
 from femphase.solvers import DIRECT_MAX_DOFS, make_solver
-from femphase.state import disc_field
-from femphase.stepping import TENSOR_MAX_SIDES, Discretisation, Numerics, SemiImplicitStepper, tensor_solver
-from femphase.windows import Window, full_window
+from femphase.stepping import Numerics, Stepper
+from femphase.windows import Window
 
 RESULTS = Path(__file__).parent / "results"
 PARAMS = ModelParameters()
 DT = 1.0
 STEPS = 1000  # set-up cost amortised over this many steps
 RHS = 100  # right-hand sides per direct solve (N = 100 fields)
+# the explicit forces of isolated discs: the paper's terms without the repulsion (no overlap)
+ISOLATED = FreeEnergy([term for term in FreeEnergy.paper(PARAMS).terms if term.name != "repulsion"])
 
 
 # -- the measurement ----------------------------------------------------------------------------
-def relaxation_rhs(phi: np.ndarray, mass: np.ndarray) -> np.ndarray:
-    """b = M_L φ/dt − J0 M_L g(φ) for fields phi (n, k) of isolated discs (no overlap)."""
-    ratio = (mass @ phi**2) / (np.pi * PARAMS.radius**2)
-    g = explicit_derivative(phi, np.zeros_like(phi), ratio[None, :], np.full_like(phi, PARAMS.radius), PARAMS)
-    return mass[:, None] * (phi / DT - PARAMS.mobility * g)
+def relaxation_rhs(phi: np.ndarray, domain: ChannelDomain, window: Window) -> np.ndarray:
+    """b = M_L φ/dt − J0 M_L g(φ) for fields phi (n, k) of isolated discs (no overlap), all on
+    ``window``."""
+    n, k = phi.shape
+    layout = domain.layout([window] * k)  # one group: the flat vector is the columns in order
+    flat = phi.T.ravel()
+    g = ISOLATED.explicit_derivative(WindowedFields(flat, layout, np.full(k, PARAMS.radius)))
+    return (layout.mass * (flat / DT - PARAMS.mobility * g)).reshape(k, n).T.copy()
 
 
-def window_problem(grid, system, lumped_mass, window: Window, k: int, rng) -> tuple:
+def window_problem(domain: ChannelDomain, system, window: Window, k: int, rng) -> tuple:
     """(matrix, rhs (n, k), warm start (n, k)) on ``window``: discs of radius R/2 at random
     centres inside the window (clipped by its edge when the window is small)."""
-    nodes = window.node_indices(grid)
-    h = grid.h
+    nodes = domain.window_dofs(window)
+    h = domain.spacing
     size_x, size_y = window.nx * h, window.ny * h
     phi = np.empty((nodes.size, k))
     for j in range(k):
         centre = (window.ix0 * h + rng.uniform(0.3, 0.7) * size_x, window.iy0 * h + rng.uniform(0.3, 0.7) * size_y)
-        phi[:, j] = disc_field(grid, window, centre, 0.5 * PARAMS.radius, PARAMS.interface_width).ravel()
+        phi[:, j] = domain.disc_field(window, centre, 0.5 * PARAMS.radius, PARAMS.interface_width)
     matrix = system[nodes][:, nodes]
-    return matrix, relaxation_rhs(phi, lumped_mass[nodes]), phi
+    return matrix, relaxation_rhs(phi, domain, window), phi
 
 
 def block_jacobi_cg(matrix, rhs: np.ndarray, guess: np.ndarray, tol: float, maxiter: int = 500) -> tuple[np.ndarray, int]:
@@ -112,10 +117,15 @@ def best_time(function, repeats: int) -> float:
     return min(times)
 
 
-def tensor_for(stepper: SemiImplicitStepper, matrix, window: Window):
+def stepper_matrix(stepper: Stepper):
+    """The stepper's full-domain matrix M_L/dt + J0 S M_L + J0 D K."""
+    return stepper.system(1.0 / stepper.dt, stepper.scheme.stabilisation)[0]
+
+
+def tensor_for(stepper: Stepper, matrix, window: Window):
     """The stepper's TensorSolver for ``window`` (asserting the matrix is a tensor product)."""
-    a = 1.0 / stepper.dt + stepper.params.mobility * stepper.stabilisation
-    solver = tensor_solver(matrix, window, stepper.disc.grid, a, stepper.params.diffusivity)
+    a = 1.0 / stepper.dt + stepper.mobility * stepper.scheme.stabilisation
+    solver = tensor_solver(matrix, window, stepper.domain.grid, a, stepper.mobility * stepper.energy.diffusivity)
     assert solver is not None, "the relaxation matrix is not a tensor product"
     return solver
 
@@ -172,15 +182,15 @@ def square_windows(sizes: list[int]) -> list[dict]:
     """Interior m × m windows of one large mesh at h = 1 (every window's submatrix has the
     same entries, so one assembly serves all sizes)."""
     side = max(sizes) + 4
-    grid = channel_grid(float(side), float(side), 1.0)
-    disc = Discretisation.structured(grid)
-    stepper = SemiImplicitStepper(disc, PARAMS, Numerics(), DT)
+    domain = ChannelDomain(channel_grid(float(side), float(side), 1.0))
+    stepper = Stepper(domain, PARAMS, Numerics(), DT)
+    system = stepper_matrix(stepper)
     rng = np.random.default_rng(0)
     rows = []
     for m in sizes:
         k = RHS
         window = Window(2, m, 2, m)
-        matrix, rhs, guess = window_problem(grid, stepper.system, disc.operators.lumped_mass, window, k, rng)
+        matrix, rhs, guess = window_problem(domain, system, window, k, rng)
         rows.append(measure(f"window {m}×{m}", matrix, rhs, guess, amg_columns=k if m * m < 40_000 else 10,
                             tensor=lambda: tensor_for(stepper, matrix, window)))
         rows[-1]["sides"] = 2 * m
@@ -192,15 +202,16 @@ def channels(spacings: list[float]) -> list[dict]:
     rows = []
     for h in spacings:
         scene = common.lattice_scene(h=h, windows=False)
-        disc = scene.discretisation()
-        stepper = SemiImplicitStepper(disc, scene.model, scene.numerics, DT)
+        domain = scene.domain
+        stepper = Stepper(domain, scene.model, scene.numerics, DT)
+        system = stepper_matrix(stepper)
         state = scene.initial_state()
         phi = state.global_fields().T.copy()
-        rhs = relaxation_rhs(phi, disc.operators.lumped_mass)
-        window = full_window(disc.grid)
+        window = domain.full_window()
         assert state.windows[0] == window
-        rows.append(measure(f"channel h = {h:g}", stepper.system, rhs, phi, amg_columns=10,
-                            tensor=lambda: tensor_for(stepper, stepper.system, window)))
+        rhs = relaxation_rhs(phi, domain, window)
+        rows.append(measure(f"channel h = {h:g}", system, rhs, phi, amg_columns=10,
+                            tensor=lambda: tensor_for(stepper, system, window)))
         rows[-1]["sides"] = window.nx + window.ny
     return rows
 

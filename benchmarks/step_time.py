@@ -19,7 +19,7 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 
 from femphase.simulation import Simulation
-from femphase.stepping import SemiImplicitStepper
+from femphase.stepping import Stepper
 
 
 def time_steps(windows: bool, steps: int) -> dict:
@@ -27,7 +27,7 @@ def time_steps(windows: bool, steps: int) -> dict:
     simulation = Simulation(scene)
     state = scene.initial_state()
     phase = scene.phases[0]
-    relax = SemiImplicitStepper(simulation.discretisation, scene.model, scene.numerics, phase.dt, None, state.radii)
+    relax = Stepper(simulation.domain, scene.model, scene.numerics, phase.dt, None, state.radii)
     for _ in range(20 if not windows else 100):
         relax.step(state)
     stepper = simulation.stepper(phase, state.radii)

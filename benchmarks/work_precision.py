@@ -151,8 +151,9 @@ def run(point: Point) -> Point:
     point.seconds = min(times)
     if point.problem == "particle":
         stride = round(2.0 / point.h)  # the h = 2 grid's nodes
-        phi = state.global_field(0).reshape(state.grid.ny, state.grid.nx)[::stride, ::stride]
-        point.result = {"area": float(shape_observables(state, simulation.discretisation.operators).area[0]),
+        grid = state.domain.grid
+        phi = state.global_field(0).reshape(grid.ny, grid.nx)[::stride, ::stride]
+        point.result = {"area": float(shape_observables(state).area[0]),
                         "field": phi.tolist()}
     else:
         point.result = {"times": tracker.times, "mean_elongation": tracker.values}

@@ -1,0 +1,243 @@
+"""Step time of this tree against another femphase tree (the code before a redesign), interleaved.
+
+    python benchmarks/redesign_step_time.py --old /path/to/old/tree [--runs 4] [--sessions 3]
+
+Both trees' own ``benchmarks/step_time.py`` measure: its ``time_steps`` (the N = 100 lattice,
+h = 1, dt = 1, shear γ̇ = 0.1487, relaxed 100 steps, first shear step untimed, then 300
+windowed steps; the full mesh: 20 relaxation steps, then 10 steps) runs unchanged in a
+subprocess whose ``femphase`` is imported from that tree (checked). Nothing is written into
+either tree except ``results/redesign_step_time.json`` of this one. On a shared machine the
+absolute times drift by tens of percent within minutes, so only same-time ratios count. Two
+protocols, one process at a time:
+
+* runs: whole ``time_steps`` runs in fresh subprocesses, in blocks old, new, new, old
+  (``--runs`` blocks); the ratio pairs each new run with the old run next to it.
+* batches: one worker subprocess per tree prepares exactly as ``time_steps`` does, then the
+  two take turns (old, new, new, old, …) running batches of ``--batch`` timed steps while
+  the other waits (blocked on a pipe, using no CPU); the state of both advances through the
+  same steps. The ratio of each batch pair (median step of the new batch over that of the
+  adjacent old batch) sees the same machine load within a fraction of a second.
+  ``--sessions`` fresh pairs of workers.
+
+Each step is timed as step_time.py times it (wall clock, ``perf_counter``) and also in CPU
+time of the worker process (``process_time``, read at the same two instants).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+NEW_TREE = HERE.parent
+RESULTS = HERE / "results"
+MODES = {"windows": True, "full_mesh": False}
+
+
+# -- the worker (runs inside a subprocess on one tree) ------------------------------------------
+class _Clock:
+    """Stands in for step_time's ``time`` module: ``perf_counter`` also records process_time,
+    and before the first step of every batch it reports and waits for the controller."""
+
+    def __init__(self, batch: int, gated: bool) -> None:
+        self.batch, self.gated, self.calls, self.cpu, self.wall = batch, gated, 0, [], []
+
+    def perf_counter(self) -> float:
+        if self.gated and self.calls % (2 * self.batch) == 0:  # a step's start, first of a batch
+            print("ready", flush=True)
+            if sys.stdin.readline().strip() != "go":
+                raise SystemExit(0)
+        self.calls += 1
+        self.cpu.append(time.process_time())
+        self.wall.append(time.perf_counter())
+        return self.wall[-1]
+
+    def per_step_ms(self, samples: list[float]) -> np.ndarray:
+        """Step durations (ms) from the (start, end) readings of every step."""
+        return np.diff(np.array(samples).reshape(-1, 2), axis=1)[:, 0] * 1e3
+
+    def __getattr__(self, name: str):
+        return getattr(time, name)
+
+
+def worker(tree: str, steps: dict, batch: dict, gated: bool) -> None:
+    sys.path[0] = os.path.join(tree, "benchmarks")  # not this script's directory
+    import step_time  # that tree's script (imports its common: pins BLAS)
+
+    import femphase
+
+    for module in (femphase, step_time):
+        assert module.__file__.startswith(tree + os.sep), (module.__file__, tree)
+    out = {"tree": tree, "femphase": femphase.__file__}
+    for mode, windows in MODES.items():
+        clock = step_time.time = _Clock(batch[mode], gated)
+        row = step_time.time_steps(windows, steps[mode])
+        wall, cpu = clock.per_step_ms(clock.wall), clock.per_step_ms(clock.cpu)
+        assert wall.size == steps[mode] and np.isclose(np.median(wall), row["median_ms"])
+        row.update(cpu_median_ms=float(np.median(cpu)), cpu_ms=cpu.tolist(), wall_ms=wall.tolist())
+        out[mode] = row
+    if gated:
+        print("ready", flush=True)  # the last batch is done
+    print(json.dumps(out), flush=True)
+
+
+# -- the controller ----------------------------------------------------------------------------
+def _env(tree: Path) -> dict:
+    env = dict(os.environ, PYTHONPATH=str(tree), PYTHONDONTWRITEBYTECODE="1")
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        env[name] = "1"
+    return env
+
+
+def _command(tree: Path, args, gated: bool) -> list[str]:
+    return [sys.executable, str(Path(__file__).resolve()), "--worker", str(tree), "--steps", str(args.steps),
+            "--full-steps", str(args.full_steps), "--batch", str(args.batch), "--full-batch", str(args.full_batch)] \
+        + (["--gated"] if gated else [])
+
+
+def whole_run(tree: Path, args) -> dict:
+    done = subprocess.run(_command(tree, args, False), cwd=tree, env=_env(tree), capture_output=True, text=True,
+                          check=True)
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+class Worker:
+    def __init__(self, tree: Path, args) -> None:
+        self.process = subprocess.Popen(_command(tree, args, True), cwd=tree, env=_env(tree), text=True,
+                                        stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+        self.wait_ready()  # set-up (relaxation, factorisations) done
+
+    def wait_ready(self) -> None:
+        line = self.process.stdout.readline().strip()
+        if line != "ready":
+            raise RuntimeError(f"worker said {line!r}")
+
+    def batch(self) -> None:
+        """Run one batch (its steps are timed inside the worker), and wait for it."""
+        self.process.stdin.write("go\n")
+        self.process.stdin.flush()
+        self.wait_ready()
+
+    def result(self) -> dict:
+        out = json.loads(self.process.stdout.readline())
+        self.process.wait()
+        return out
+
+
+def batch_session(old: Path, new: Path, args) -> dict:
+    """Two workers taking turns, batch b of the old tree next to batch b of the new one.
+    (The last windowed batch also runs the full-mesh set-up, untimed, before its "ready".)"""
+    workers = {"old": Worker(old, args), "new": Worker(new, args)}
+    for n, size in ((args.steps, args.batch), (args.full_steps, args.full_batch)):
+        for b in range(-(-n // size)):
+            for name in (("old", "new") if b % 2 == 0 else ("new", "old")):
+                workers[name].batch()
+    return {name: w.result() for name, w in workers.items()}
+
+
+def _batch_ratios(session: dict, mode: str, size: int, clock: str = "cpu") -> list[float]:
+    """Median step of each new batch over that of the old batch run next to it."""
+    old = np.array(session["old"][mode][f"{clock}_ms"])
+    new = np.array(session["new"][mode][f"{clock}_ms"])
+    return [float(np.median(new[i:i + size]) / np.median(old[i:i + size])) for i in range(0, old.size, size)]
+
+
+def tree_version(tree: Path) -> dict:
+    """The tree's git commit and the files of its femphase/ that differ from it (None outside git)."""
+    def git(*args: str) -> str | None:
+        done = subprocess.run(["git", "-C", str(tree), *args], capture_output=True, text=True, check=False)
+        return done.stdout.strip() if done.returncode == 0 else None
+    commit = git("rev-parse", "--short", "HEAD")
+    dirty = git("status", "--porcelain", "--", "femphase")
+    return {"commit": commit, "femphase_modified": None if commit is None else dirty.splitlines()}
+
+
+def summary(values) -> dict:
+    values = np.asarray(values, dtype=float)
+    return {"median": float(np.median(values)), "q25": float(np.percentile(values, 25)),
+            "q75": float(np.percentile(values, 75)), "min": float(values.min()), "max": float(values.max()),
+            "n": int(values.size)}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--old", type=Path, help="the other femphase tree (its benchmarks/step_time.py is run)")
+    parser.add_argument("--runs", type=int, default=4, help="blocks old, new, new, old of whole runs")
+    parser.add_argument("--sessions", type=int, default=3, help="pairs of batch-interleaved workers")
+    parser.add_argument("--steps", type=int, default=300)
+    parser.add_argument("--full-steps", type=int, default=10)
+    parser.add_argument("--batch", type=int, default=20)
+    parser.add_argument("--full-batch", type=int, default=2)
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    parser.add_argument("--gated", action="store_true", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        worker(args.worker, {"windows": args.steps, "full_mesh": args.full_steps},
+               {"windows": args.batch, "full_mesh": args.full_batch}, args.gated)
+        return
+    old, new = args.old.resolve(), NEW_TREE
+    runs = []
+    for block in range(args.runs):
+        for name in ("old", "new", "new", "old"):
+            row = whole_run(old if name == "old" else new, args)
+            row["which"] = name
+            runs.append(row)
+            print(f"run {name}: windows {row['windows']['median_ms']:.2f} ms/step (CPU {row['windows']['cpu_median_ms']:.2f}), "
+                  f"full mesh {row['full_mesh']['median_ms']:.1f} (CPU {row['full_mesh']['cpu_median_ms']:.1f})", flush=True)
+    sessions = []
+    for s in range(args.sessions):
+        sessions.append(batch_session(old, new, args))
+        print(f"session {s}: windows batch ratios new/old (CPU) {np.round(_batch_ratios(sessions[-1], 'windows', args.batch), 3)}",
+              flush=True)
+
+    result = {"old_tree": str(old), "new_tree": str(new), "old_version": tree_version(old),
+              "new_version": tree_version(new), "scene": "benchmarks/step_time.py (N = 100, h = 1, dt = 1, "
+              "shear 0.1487; 300 windowed steps, 10 full-mesh steps)", "protocol": __doc__,
+              "loadavg_end": Path("/proc/loadavg").read_text().split()[:3]}
+    for mode in MODES:
+        entry = {}
+        for clock, key in (("wall", "median_ms"), ("cpu", "cpu_median_ms")):
+            old_runs = [r[mode][key] for r in runs if r["which"] == "old"]
+            new_runs = [r[mode][key] for r in runs if r["which"] == "new"]
+            pairs = []
+            for b in range(0, len(runs), 4):
+                o1, n1, n2, o2 = (runs[b + i][mode][key] for i in range(4))
+                pairs += [n1 / o1, n2 / o2]
+            entry[f"runs_{clock}"] = {"old_ms": summary(old_runs), "new_ms": summary(new_runs),
+                                     "ratio_of_medians": float(np.median(new_runs) / np.median(old_runs)),
+                                     "pair_ratios": summary(pairs)}
+        size = args.batch if mode == "windows" else args.full_batch
+        for clock in ("wall", "cpu"):
+            ratios = [r for s in sessions for r in _batch_ratios(s, mode, size, clock)]
+            old_steps = [v for s in sessions for v in s["old"][mode][f"{clock}_ms"]]
+            new_steps = [v for s in sessions for v in s["new"][mode][f"{clock}_ms"]]
+            entry[f"batches_{clock}"] = {
+                "old_ms": summary(old_steps), "new_ms": summary(new_steps),
+                "ratio_of_medians": float(np.median(new_steps) / np.median(old_steps)),
+                "batch_ratios": summary(ratios),
+                "session_ratios": [float(np.median(_batch_ratios(s, mode, size, clock))) for s in sessions]}
+        result[mode] = entry
+    result["runs"] = [{k: r[k] for k in ("which", "femphase")}
+                      | {m: {k: v for k, v in r[m].items() if not k.endswith("_ms") or "median" in k or "mean" in k}
+                         for m in MODES} for r in runs]
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "redesign_step_time.json").write_text(json.dumps(result, indent=1) + "\n")
+    for mode in MODES:
+        e = result[mode]
+        print(f"{mode}: runs (wall) old {e['runs_wall']['old_ms']['median']:.2f} new {e['runs_wall']['new_ms']['median']:.2f} "
+              f"ms/step, pair ratio {e['runs_wall']['pair_ratios']['median']:.3f} "
+              f"[{e['runs_wall']['pair_ratios']['q25']:.3f}, {e['runs_wall']['pair_ratios']['q75']:.3f}]; "
+              f"batches (CPU) old {e['batches_cpu']['old_ms']['median']:.2f} new {e['batches_cpu']['new_ms']['median']:.2f}, "
+              f"ratio {e['batches_cpu']['batch_ratios']['median']:.3f} "
+              f"[{e['batches_cpu']['batch_ratios']['q25']:.3f}, {e['batches_cpu']['batch_ratios']['q75']:.3f}]")
+
+
+if __name__ == "__main__":
+    main()
