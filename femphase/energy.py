@@ -105,6 +105,11 @@ class EnergyTerm(ABC):
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
         """δ/δφ (lumped metric) of the explicitly treated part, at every position."""
 
+    def explicit_energy(self, fields: WindowedFields) -> float:
+        """The energy of the explicitly treated part (the whole term unless it has an
+        implicit part): what a scalar-auxiliary-variable scheme tracks."""
+        return self.energy(fields)
+
     @abstractmethod
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         """An upper bound on the Hessian of the explicit part per unit lumped mass, for fields
@@ -130,6 +135,9 @@ class InterfaceTerm(EnergyTerm):
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
         return self.tension / self.interface_width * double_well_derivative(fields.phi)
+
+    def explicit_energy(self, fields: WindowedFields) -> float:
+        return self.tension / self.interface_width * fields.integral(double_well(fields.phi))
 
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         # (γ/λ) W'' = (γ/λ) 8(1 − 6φ + 6φ²) ≤ 8γ/λ on [0, 1]
@@ -237,6 +245,10 @@ class FreeEnergy:
         for term in self.terms[1:]:
             g += term.explicit_derivative(fields)
         return g
+
+    def explicit_energy(self, fields: WindowedFields) -> float:
+        """E1: the energy of the explicitly treated parts (F minus its implicit gradient part)."""
+        return float(sum(t.explicit_energy(fields) for t in self.terms))
 
     def curvature_bound(self, smallest_radius: float, pairs: bool = True) -> float:
         """L: bound on the Hessian of the explicit energy per unit lumped mass."""

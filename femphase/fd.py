@@ -64,6 +64,7 @@ from .stepping import SCHEMES
 from .windows import Layout, pad_window
 
 if TYPE_CHECKING:
+    from .state import State
     from .stepping import Stepper
 
 #: Largest dt·(diffusion + reaction spectral radius): half of Heun's real-axis limit 2.
@@ -206,8 +207,8 @@ class FiniteDifferenceHeun(TimeScheme):
             self._layout, self._padded = layout, padded_index(layout, self.domain.lattice)
         return self._padded
 
-    def advance(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> tuple[np.ndarray, Layout]:
-        dt = self.stepper.dt
+    def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
+        dt, time, radii = self.stepper.dt, state.time, state.radii
         k1 = self.rate(phi, layout, radii, time)
         k2 = self.rate(phi + dt * k1, layout, radii, time + dt)
         return phi + 0.5 * dt * (k1 + k2), layout

@@ -55,7 +55,8 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
     :meth:`Domain.describe`, checked on resume), ``time``, ``step``, ``phase``, ``phase_step``.
     Datasets: ``windows`` (N, 4, the domain's encoding), ``sizes`` (N,), ``values`` (all
     fields concatenated in particle order), ``radii`` (N,); group ``observers``: the
-    observables' running state (the T1 counter's). ``metadata`` (JSON-able values) is kept
+    observables' running state (the T1 counter's); group ``memory``: what the time scheme
+    carries from step to step (``State.memory``). ``metadata`` (JSON-able values) is kept
     as JSON attributes ``meta_<name>`` (:func:`read_checkpoint_metadata`)."""
     import h5py
 
@@ -74,6 +75,9 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
         group = handle.create_group("observers")
         for name, values in (observers or {}).items():
             group[name] = values
+        memory = handle.create_group("memory")
+        for name, values in state.memory.items():
+            memory[name] = values
         for name, value in (metadata or {}).items():
             handle.attrs[f"meta_{name}"] = json.dumps(value)
     failpoint("checkpoint")
@@ -115,6 +119,7 @@ def load_checkpoint(path: Path, domain: Domain) -> tuple[State, dict[str, np.nda
             state = State(domain, windows, fields, handle["radii"][()].copy(), float(attrs["time"]),
                           int(attrs["step"]), int(attrs["phase"]), int(attrs["phase_step"]))
             observers = {name: handle["observers"][name][()] for name in handle["observers"]}
+            state.memory = {name: handle["memory"][name][()] for name in handle.get("memory", {})}
     except (OSError, KeyError) as exc:
         raise SceneError("--resume", str(path), f"a readable checkpoint ({exc})") from None
     return state, observers

@@ -39,11 +39,14 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
+from .energy import WindowedFields
+from .errors import SceneError
 from .stepping import SCHEMES
 from .windows import Layout
 
 if TYPE_CHECKING:
     from .energy import FreeEnergy
+    from .state import State
     from .stepping import Stepper
 
 
@@ -78,9 +81,12 @@ class TimeScheme(ABC):
         self.stepper = stepper
 
     @abstractmethod
-    def advance(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> tuple[np.ndarray, Layout]:
-        """φ (layout order) at time + dt, and the layout it lives on (advection may move
-        windows). ``phi`` is the stepper's own gathered copy: it may be overwritten."""
+    def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
+        """φ (layout order) at ``state.time`` + dt, and the layout it lives on (advection may
+        move windows). ``phi`` is the stepper's own gathered copy of ``state``'s fields: it
+        may be overwritten. ``state`` is read (time, radii) and not changed, except
+        ``state.memory``, where a scheme keeps what it carries from step to step (saved in
+        checkpoints, so that a resumed run continues bit for bit)."""
 
 
 @SCHEMES.register("euler")
@@ -116,10 +122,10 @@ class LinearlyImplicitEuler(TimeScheme):
         dt/dt* for the lumped "auto" stabilisation above dt*)."""
         return 1.0 + self.stepper.mobility * self.stabilisation * self.stepper.dt
 
-    def advance(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> tuple[np.ndarray, Layout]:
+    def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
         if self.stepper.advection is not None:
-            phi, layout = self.stepper.advection.advect(phi, layout, time)
-        return self.relax(phi, layout, time, radii), layout
+            phi, layout = self.stepper.advection.advect(phi, layout, state.time)
+        return self.relax(phi, layout, state.time, state.radii), layout
 
     def relax(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> np.ndarray:
         """The relaxation over one step from ``time``: one linearly implicit Euler step."""
@@ -133,3 +139,104 @@ class LinearlyImplicitEuler(TimeScheme):
         if source is not None:
             nodal += source
         return stepper.solve(nodal, phi, layout, 1.0 / stepper.dt, self.stabilisation)
+
+
+@SCHEMES.register("sav2")
+class RelaxedSAV2(TimeScheme):
+    """Second order: Strang splitting (advection over dt/2, relaxation over dt, advection
+    over dt/2) with a relaxed scalar-auxiliary-variable Crank–Nicolson relaxation, which
+    never increases the (modified) free energy without flow, at any dt, with no
+    stabilisation to saturate. Lumped mass only."""
+
+    name = "sav2"
+    order = 2
+    #: C in r = √(E1 + C): any C > 0 keeps the root real (E1 ≥ 0 for the paper's terms).
+    OFFSET = 1.0
+    #: η: the share of each step's dissipation the relaxation of r may give back (Jiang,
+    #: Zhang & Yang 2022); 0.95 keeps 5 % of it as a strict decrease.
+    RELAXATION = 0.95
+
+    def __init__(self, stepper: "Stepper") -> None:
+        super().__init__(stepper)
+        if stepper.numerics.mass != "lumped":
+            raise SceneError("numerics.mass", stepper.numerics.mass, '"lumped" with numerics.scheme = "sav2"')
+        flow, dt = stepper.flow, stepper.dt
+        self.half = None if flow.is_still else stepper.domain.advection(flow, 0.5 * dt, stepper.numerics)
+        # the predictor: one linearly implicit Euler step of dt/2, energy-stable (module docstring)
+        half_bound = 0.5 * stepper.energy.curvature_bound(stepper.smallest_radius, stepper.pairs)
+        self.predictor_stabilisation = max(0.0, half_bound - 1.0 / (stepper.mobility * 0.5 * dt))
+
+    def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
+        dt = self.stepper.dt
+        r = state.memory.get("sav_r")
+        if self.half is not None:
+            phi, layout = self.half.advect(phi, layout, state.time)
+            r = None  # advection changes E1; r restarts from it (the flow does work anyway)
+        phi, r = self.relax(phi, layout, state.time, state.radii, None if r is None else float(r[0]))
+        state.memory["sav_r"] = np.array([r])
+        if self.half is not None:
+            phi, layout = self.half.advect(phi, layout, state.time + 0.5 * dt)
+        return phi, layout
+
+    def relax(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray,
+              r: float | None) -> tuple[np.ndarray, float]:
+        """One relaxation step from ``time`` and the new auxiliary variable r (RSAV-CN).
+
+        With L = D M_L⁻¹K, g = δE1/δφ, V(φ) = √(E1(φ) + C), b = g(φ̄)/V(φ̄) at a predicted
+        midpoint φ̄ (one Euler step of dt/2):
+
+            (φ¹ − φ⁰)/dt = −J0 [L (φ¹ + φ⁰)/2 + r^{1/2} b] + s(t + dt/2),
+            r¹ − r⁰ = (b, φ¹ − φ⁰)_M / 2,                 r^{1/2} = (r¹ + r⁰)/2,
+
+        whose modified energy D/2 φᵀKφ + r² falls by |φ¹ − φ⁰|²_M/(J0 dt) without source. φ¹ =
+        p − r^{1/2} q from two solves with (2M/dt + J0 D K), and r^{1/2} from one scalar
+        equation. Then r is relaxed towards V(φ¹): r ← ξ r¹ + (1 − ξ) V(φ¹), ξ ∈ [0, 1] the
+        smallest that keeps r² − r¹² ≤ η |φ¹ − φ⁰|²_M/(J0 dt), so r stays √(E1 + C) wherever
+        the dissipation allows (then the modified energy is F + C) and the decrease holds."""
+        stepper, dt, j0 = self.stepper, self.stepper.dt, self.stepper.mobility
+        energy, mass = stepper.energy, layout.mass
+        diffusivity = j0 * energy.diffusivity
+        fields = WindowedFields(phi, layout, radii)
+        if r is None:
+            r = np.sqrt(energy.explicit_energy(fields) + self.OFFSET)
+        # predicted midpoint: a linearly implicit Euler step of dt/2 from φ⁰
+        nodal = energy.explicit_derivative(fields)
+        nodal *= -j0
+        if self.predictor_stabilisation:
+            nodal += (j0 * self.predictor_stabilisation) * phi
+        source = stepper.source_term(layout, time + 0.5 * dt)
+        if source is not None:
+            nodal += source
+        midpoint = stepper.solve(nodal, phi, layout, 2.0 / dt, self.predictor_stabilisation)
+        middle = WindowedFields(midpoint, layout, radii)
+        b = energy.explicit_derivative(middle) / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
+        # (2M/dt + J0 D K) p = (2M/dt − J0 D K) φ⁰ + 2 M s;   (2M/dt + J0 D K) q = 2 J0 M b
+        stiffness = stepper.domain.stiffness_apply(layout)(phi)
+        nodal = -diffusivity * stiffness / mass
+        if source is not None:
+            nodal += 2.0 * source
+        p = stepper.solve(nodal, phi, layout, 2.0 / dt, 0.0)
+        q = stepper.solve(2.0 * j0 * b, np.zeros_like(phi), layout, 2.0 / dt, 0.0)
+        weighted_b = mass * b
+        r_half = (r + 0.25 * float(weighted_b @ (p - phi))) / (1.0 + 0.25 * float(weighted_b @ q))
+        new = p - r_half * q
+        r_new = 2.0 * r_half - r
+        change = new - phi
+        dissipation = float(mass @ (change * change)) / (j0 * dt)
+        target = np.sqrt(energy.explicit_energy(WindowedFields(new, layout, radii)) + self.OFFSET)
+        return new, relaxed(r_new, target, self.RELAXATION * dissipation)
+
+
+def relaxed(r: float, target: float, allowance: float) -> float:
+    """ξ r + (1 − ξ) target with the smallest ξ ∈ [0, 1] such that the result's square exceeds
+    r² by at most ``allowance`` (≥ 0)."""
+    if target * target - r * r <= allowance:
+        return target
+    # (target + ξ (r − target))² − r² = allowance: the root in [0, 1]
+    a, b, c = (r - target) ** 2, 2.0 * target * (r - target), target * target - r * r - allowance
+    if a == 0.0:
+        return r
+    root = (-b - np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)
+    roots = [x for x in (root, (-b + np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)) if 0.0 <= x <= 1.0]
+    xi = min(roots) if roots else 1.0
+    return xi * r + (1.0 - xi) * target

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Hashable
 
 import numpy as np
@@ -29,6 +29,7 @@ class State:
     step: int = 0
     phase: int = 0
     phase_step: int = 0
+    memory: dict = field(default_factory=dict)
 
     @property
     def n_particles(self) -> int:
@@ -57,7 +58,7 @@ class State:
     def copy(self) -> "State":
         """A copy sharing the (immutable) domain and windows."""
         return replace(self, windows=list(self.windows), fields=[f.copy() for f in self.fields],
-                       radii=self.radii.copy())
+                       radii=self.radii.copy(), memory={k: np.copy(v) for k, v in self.memory.items()})
 
 
 def discs_state(domain: Domain, centres: np.ndarray, radii: np.ndarray, initial_radii: np.ndarray,

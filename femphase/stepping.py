@@ -239,7 +239,7 @@ class Stepper:
         if tuple(windows) != layout.windows:
             layout = self.domain.layout(windows)
             phi = layout.gather(fields)
-        phi, layout = self.scheme.advance(phi, layout, state.time, state.radii)
+        phi, layout = self.scheme.advance(phi, layout, state)
         check_fields(phi, self.numerics.blowup_margin, state.step + 1, state.time + self.dt)
         state.windows, state.fields = list(layout.windows), layout.scatter(phi)
         state.time += self.dt
