@@ -52,11 +52,11 @@ from matplotlib.ticker import NullFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from femphase.analysis.shape import shape_observables  # noqa: E402
+from femphase.channel import ChannelDomain  # noqa: E402
 from femphase.mesh import channel_grid  # noqa: E402
 from femphase.model import ModelParameters  # noqa: E402
 from femphase.state import State, discs_state  # noqa: E402
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper  # noqa: E402
-from femphase.windows import WindowPolicy  # noqa: E402
+from femphase.stepping import Numerics, Stepper  # noqa: E402
 from verification.mms import command_line, log_axes, observed_orders, save_results  # noqa: E402
 
 PARAMS = ModelParameters()
@@ -77,16 +77,17 @@ QUANTITIES = ("area", "mass", "radius", "radius_from_mass", "interior")
 EXPECTED_ORDER = 2.0
 
 
-def superlevel_area(disc: Discretisation, phi: np.ndarray, level: float = 0.5) -> float:
-    """Area of {φ_h ≥ level} of the P1 field with nodal values phi (grid order), exactly."""
-    low, middle, high = np.sort(phi[disc.dof_map[disc.mesh.t]], axis=0)
+def superlevel_area(domain: ChannelDomain, phi: np.ndarray, level: float = 0.5) -> float:
+    """Area of {φ_h ≥ level} of the P1 field with nodal values phi (per dof, grid order),
+    exactly."""
+    low, middle, high = np.sort(phi[domain.dof_map[domain.mesh.t]], axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
         # only the highest corner above: a similar triangle at that corner
         one_above = (high - level) ** 2 / ((high - low) * (high - middle))
         # only the lowest corner below: the triangle minus one at the lowest corner
         two_above = 1.0 - (level - low) ** 2 / ((high - low) * (middle - low))
     fraction = np.select([low >= level, middle >= level, high > level], [1.0, two_above, one_above], 0.0)
-    return float(disc.operators.element_area @ fraction)
+    return float(domain.operators.element_area @ fraction)
 
 
 def interior_bulk(area: float) -> float:
@@ -100,14 +101,13 @@ def interior_bulk(area: float) -> float:
 CENTRE = (0.5 * SIZE, 0.5 * SIZE)
 
 
-def relaxed_state(h: float, dt: float, windows: bool = True) -> tuple[Discretisation, State]:
+def relaxed_state(h: float, dt: float, windows: bool = True) -> tuple[ChannelDomain, State]:
     """The particle relaxed from a disc of radius R/2 on spacing h with step dt."""
-    grid = channel_grid(SIZE, SIZE, h)
-    disc = Discretisation.structured(grid)
-    policy = WindowPolicy.for_spacing(h, enabled=windows)
-    state = discs_state(grid, np.array([CENTRE]), np.array([PARAMS.radius]), np.array([0.5 * PARAMS.radius]),
-                        PARAMS.interface_width, policy)
-    stepper = SemiImplicitStepper(disc, PARAMS, Numerics(windows=windows), dt, None, state.radii)
+    domain = ChannelDomain(channel_grid(SIZE, SIZE, h))
+    numerics = Numerics(windows=windows)
+    state = discs_state(domain, np.array([CENTRE]), np.array([PARAMS.radius]), np.array([0.5 * PARAMS.radius]),
+                        PARAMS.interface_width, domain.window_policy(numerics))
+    stepper = Stepper(domain, PARAMS, numerics, dt, None, state.radii)
     # compare ∫φ² and ∫φ every time unit (or step): they do not see the particle's slow
     # drift (a neutral mode) that keeps nodal values changing
     interval = max(1, round(1.0 / dt))
@@ -118,27 +118,27 @@ def relaxed_state(h: float, dt: float, windows: bool = True) -> tuple[Discretisa
             raise RuntimeError(f"h = {h}, dt = {dt}: no equilibrium in {MAX_STEPS} steps (change {change:.2e})")
         for _ in range(interval):
             stepper.step(state)
-        previous, integrals = integrals, np.array(integrals_of(disc, state))
+        previous, integrals = integrals, np.array(integrals_of(domain, state))
         change = float(np.abs(integrals - previous).max())
-    return disc, state
+    return domain, state
 
 
-def integrals_of(disc: Discretisation, state: State) -> tuple[float, float]:
+def integrals_of(domain: ChannelDomain, state: State) -> tuple[float, float]:
     """(∫φ², ∫φ) of the state's one field, nodal quadrature."""
     phi = state.global_field(0)
-    return float(phi**2 @ disc.operators.lumped_mass), float(phi @ disc.operators.lumped_mass)
+    return float(phi**2 @ domain.operators.lumped_mass), float(phi @ domain.operators.lumped_mass)
 
 
-def measure(disc: Discretisation, state: State) -> dict:
+def measure(domain: ChannelDomain, state: State) -> dict:
     """The equilibrium quantities of the module docstring, and run diagnostics."""
-    grid, phi = state.grid, state.global_field(0)
-    shape = shape_observables(state, disc.operators)
-    area, mass = integrals_of(disc, state)
+    grid, phi = domain.grid, state.global_field(0)
+    shape = shape_observables(state)
+    area, mass = integrals_of(domain, state)
     centre_node = (grid.ny // 2) * grid.nx + grid.nx // 2  # the node at (Lx/2, Ly/2)
     return {
         "area": area,
         "mass": mass,
-        "radius": float(np.sqrt(superlevel_area(disc, phi) / np.pi)),
+        "radius": float(np.sqrt(superlevel_area(domain, phi) / np.pi)),
         "radius_from_mass": float(np.sqrt(mass / np.pi - (np.pi * PARAMS.interface_width) ** 2 / 12)),
         "interior": float(phi[centre_node]),
         "interior_bulk": float(interior_bulk(area)),
@@ -246,8 +246,9 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run(quick: bool = False) -> dict:
-    """The (h, dt) study and the window check; writes results/equilibrium.json and .png."""
+def run(quick: bool = False, output: Path | None = None) -> dict:
+    """The (h, dt) study and the window check; writes results/equilibrium.json and .png (or into
+    ``output``)."""
     start = time.perf_counter()
     data = study(QUICK_PLAN if quick else PLAN)
     truncation = window_truncation(data, QUICK_WINDOW_CHECK if quick else WINDOW_CHECK)
@@ -271,7 +272,7 @@ def run(quick: bool = False) -> dict:
         },
         "study": data,
     }
-    return save_results("equilibrium", results, plot, start)
+    return save_results("equilibrium", results, plot, start, output)
 
 
 if __name__ == "__main__":

@@ -149,7 +149,7 @@ def _simulate(job: tuple) -> dict:
     started = wallclock.perf_counter()
     Simulation(scene, method).run(scene.initial_state(), [recorder])
     seconds = wallclock.perf_counter() - started
-    grid = scene.grid
+    grid = scene.domain.grid
     return {
         "job": job,
         "seconds": seconds,
@@ -165,7 +165,7 @@ def _simulate(job: tuple) -> dict:
 
 def _nodal(state, stride: int) -> np.ndarray:
     """All fields of a state (N, ny, nx) at every ``stride``-th node row and column."""
-    grid = state.grid
+    grid = state.domain.grid
     return state.global_fields().reshape(-1, grid.ny, grid.nx)[:, ::stride, ::stride]
 
 
@@ -408,7 +408,7 @@ def steepness() -> dict:
         Simulation(scene).run(state)
         maxima = {"gradient": [], "d3x": [], "d4x": []}
         for phi, window in zip(state.fields, state.windows):
-            p = pad_window(phi, window, state.grid, 2)
+            p = pad_window(phi.reshape(window.shape), window, state.domain.lattice, 2)
             core = p[2:-2, 2:-2]
             dx = (p[2:-2, 3:-1] - p[2:-2, 1:-3]) / 2
             dy = (p[3:-1, 2:-2] - p[1:-3, 2:-2]) / 2

@@ -43,12 +43,12 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from femphase.energy import free_energy  # noqa: E402
+from femphase.channel import ChannelDomain  # noqa: E402
+from femphase.energy import FreeEnergy, WindowedFields  # noqa: E402
 from femphase.mesh import channel_grid  # noqa: E402
 from femphase.model import ModelParameters, interface_profile  # noqa: E402
 from femphase.state import State  # noqa: E402
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper  # noqa: E402
-from femphase.windows import full_window  # noqa: E402
+from femphase.stepping import Numerics, Stepper  # noqa: E402
 from verification.mms import command_line, log_axes, observed_orders, save_results  # noqa: E402
 
 PARAMS = replace(ModelParameters(), area_stiffness=0.0)
@@ -69,21 +69,22 @@ def tension() -> float:
 def equilibrium(h: float) -> tuple[np.ndarray, np.ndarray, dict]:
     """Relax the flat interface on spacing h: (y of the rows, the profile φ(y), diagnostics)."""
     grid = channel_grid(LX, LY, h)
-    disc = Discretisation.structured(grid)
-    x, y = grid.coordinates()
+    domain = ChannelDomain(grid)
+    _, y = grid.coordinates()
     start = interface_profile(y - 0.5 * LY, 2.0 * PARAMS.interface_width)
-    state = State(grid, [full_window(grid)], [np.repeat(start[:, None], grid.nx, axis=1)],
-                  np.array([PARAMS.radius]))
-    stepper = SemiImplicitStepper(disc, PARAMS, Numerics(windows=False), DT, None, state.radii)
+    # one flat field in grid order (dof = iy * nx + ix)
+    state = State(domain, [domain.full_window()], [np.repeat(start, grid.nx)], np.array([PARAMS.radius]))
+    stepper = Stepper(domain, PARAMS, Numerics(windows=False), DT, None, state.radii)
     change = np.inf
     while change > TOLERANCE:
         if state.step == MAX_STEPS:
             raise RuntimeError(f"h = {h}: no equilibrium after {MAX_STEPS} steps (change {change:.2e})")
-        previous = state.fields[0]
+        previous = state.fields[0].copy()
         stepper.step(state)
         change = float(np.abs(state.fields[0] - previous).max())
-    field = state.fields[0]
-    energy = free_energy(state.global_fields(), state.radii, PARAMS, disc.operators)
+    field = state.fields[0].reshape(grid.ny, grid.nx)
+    layout, phi = state.flat()
+    energy = FreeEnergy.paper(PARAMS).parts(WindowedFields(phi, layout, state.radii, domain.stiffness_apply(layout)))
     diagnostics = {
         "steps": state.step,
         "energy_per_length": energy.total / LX,
@@ -160,8 +161,9 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run(quick: bool = False) -> dict:
-    """The h study; writes results/flat_interface.json and .png."""
+def run(quick: bool = False, output: Path | None = None) -> dict:
+    """The h study; writes results/flat_interface.json and .png (or into
+    ``output``)."""
     start = time.perf_counter()
     table = study(QUICK_SPACINGS if quick else SPACINGS)
     results = {
@@ -182,7 +184,7 @@ def run(quick: bool = False) -> dict:
         },
         "table": table,
     }
-    return save_results("flat_interface", results, plot, start)
+    return save_results("flat_interface", results, plot, start, output)
 
 
 if __name__ == "__main__":

@@ -60,13 +60,13 @@ import numpy as np  # noqa: E402
 from skfem.quadrature import get_quadrature  # noqa: E402
 from skfem.refdom import RefTri  # noqa: E402
 
+from femphase.channel import ChannelDomain  # noqa: E402
 from femphase.flows import linear_shear  # noqa: E402
 from femphase.io import write_json  # noqa: E402
 from femphase.mesh import channel_grid  # noqa: E402
 from femphase.model import ModelParameters, double_well_derivative  # noqa: E402
 from femphase.state import State  # noqa: E402
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper  # noqa: E402
-from femphase.windows import full_window  # noqa: E402
+from femphase.stepping import Numerics, Stepper  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -132,19 +132,16 @@ def source(x: np.ndarray, y: np.ndarray, t: float) -> np.ndarray:
 
 
 # -- solving and measuring -------------------------------------------------------------------
-def simulate(h: float, dt: float) -> tuple[Discretisation, np.ndarray, float]:
-    """The discrete solution at FINAL_TIME on spacing h with step dt: (discretisation,
-    nodal values in grid order, the stabilisation S the stepper chose)."""
-    grid = channel_grid(LX, LY, h)
-    disc = Discretisation.structured(grid)
-    x, y = grid.coordinates()
-    state = State(grid, [full_window(grid)], [exact(x[None, :], y[:, None], 0.0)], np.array([PARAMS.radius]))
-    stepper = SemiImplicitStepper(
-        disc, PARAMS, Numerics(windows=False), dt, linear_shear(SHEAR_RATE, LY), state.radii, source
-    )
+def simulate(h: float, dt: float) -> tuple[ChannelDomain, np.ndarray, float]:
+    """The discrete solution at FINAL_TIME on spacing h with step dt: (domain, nodal values
+    in grid order, the stabilisation S the stepper's Euler scheme chose)."""
+    domain = ChannelDomain(channel_grid(LX, LY, h))
+    x, y = domain.coordinates  # of every dof, grid order
+    state = State(domain, [domain.full_window()], [exact(x, y, 0.0)], np.array([PARAMS.radius]))
+    stepper = Stepper(domain, PARAMS, Numerics(windows=False), dt, linear_shear(SHEAR_RATE, LY), state.radii, source)
     for _ in range(round(FINAL_TIME / dt)):
         stepper.step(state)
-    return disc, state.global_field(0), stepper.stabilisation
+    return domain, state.global_field(0), stepper.scheme.stabilisation
 
 
 _POINTS, _WEIGHTS = get_quadrature(RefTri, 6)
@@ -153,12 +150,13 @@ _WEIGHTS = _WEIGHTS / _WEIGHTS.sum()  # fractions of the element's area
 _BARYCENTRIC = np.stack([1.0 - _POINTS[0] - _POINTS[1], _POINTS[0], _POINTS[1]])
 
 
-def error_norms(disc: Discretisation, phi: np.ndarray, t: float) -> tuple[float, float]:
-    """(‖φ_h − φ_e‖_L2, ‖∇φ_h − ∇φ_e‖_L2) of the P1 field with nodal values phi at time t."""
-    mesh, ops = disc.mesh, disc.operators
+def error_norms(domain: ChannelDomain, phi: np.ndarray, t: float) -> tuple[float, float]:
+    """(‖φ_h − φ_e‖_L2, ‖∇φ_h − ∇φ_e‖_L2) of the P1 field with nodal values phi (per dof) at
+    time t."""
+    mesh, ops = domain.mesh, domain.operators
     corners = mesh.p[:, mesh.t]  # (2, 3, n_elements), the non-periodic coordinates
     x, y = np.einsum("dve,vq->deq", corners, _BARYCENTRIC)
-    values = np.einsum("ve,vq->eq", phi[disc.dof_map[mesh.t]], _BARYCENTRIC)
+    values = np.einsum("ve,vq->eq", phi[domain.dof_map[mesh.t]], _BARYCENTRIC)
     weights = ops.element_area[:, None] * _WEIGHTS[None, :]
     l2 = np.sum(weights * (values - exact(x, y, t)) ** 2)
     gx, gy = exact_gradient(x, y, t)
@@ -172,10 +170,10 @@ def spatial_study(spacings: tuple[float, ...]) -> dict:
     raw errors at dt = h²/16."""
     table = {"h": [], "dt": [], "L2": [], "H1": [], "L2_raw": [], "H1_raw": []}
     for h in spacings:
-        disc, coarse, _ = simulate(h, h * h / 8)
+        domain, coarse, _ = simulate(h, h * h / 8)
         _, fine, _ = simulate(h, h * h / 16)
-        extrapolated = error_norms(disc, 2.0 * fine - coarse, FINAL_TIME)
-        raw = error_norms(disc, fine, FINAL_TIME)
+        extrapolated = error_norms(domain, 2.0 * fine - coarse, FINAL_TIME)
+        raw = error_norms(domain, fine, FINAL_TIME)
         for key, value in zip(("h", "dt", "L2", "H1", "L2_raw", "H1_raw"),
                               (h, h * h / 16, *extrapolated, *raw)):
             table[key].append(value)
@@ -188,8 +186,8 @@ def temporal_study(h: float, steps: tuple[float, ...]) -> dict:
     """Errors against dt at fixed h."""
     table = {"h": h, "dt": list(steps), "L2": [], "H1": [], "stabilisation": []}
     for dt in steps:
-        disc, phi, stabilisation = simulate(h, dt)
-        l2, h1 = error_norms(disc, phi, FINAL_TIME)
+        domain, phi, stabilisation = simulate(h, dt)
+        l2, h1 = error_norms(domain, phi, FINAL_TIME)
         table["L2"].append(l2)
         table["H1"].append(h1)
         table["stabilisation"].append(stabilisation)
@@ -222,8 +220,8 @@ def plot(results: dict, path: Path) -> None:
     plt.close(fig)
 
 
-def run(quick: bool = False) -> dict:
-    """Both studies; writes results/mms.json and results/mms.png."""
+def run(quick: bool = False, output: Path | None = None) -> dict:
+    """Both studies; writes results/mms.json and results/mms.png (or into ``output``)."""
     start = time.perf_counter()
     spatial = spatial_study(QUICK_SPACINGS if quick else SPACINGS)
     h, steps = QUICK_TEMPORAL if quick else TEMPORAL
@@ -249,7 +247,7 @@ def run(quick: bool = False) -> dict:
         "spatial": spatial,
         "temporal": temporal,
     }
-    return save_results("mms", results, plot, start)
+    return save_results("mms", results, plot, start, output)
 
 
 # -- shared by the other convergence checks -----------------------------------------------
@@ -259,13 +257,16 @@ def observed_orders(sizes, errors) -> list[float]:
     return (np.log(errors[:-1] / errors[1:]) / np.log(sizes[:-1] / sizes[1:])).tolist()
 
 
-def save_results(name: str, results: dict, plot_function: Callable[[dict, Path], None], start: float) -> dict:
-    """Add the run time and command, write results/<name>.json and <name>.png; return results."""
+def save_results(name: str, results: dict, plot_function: Callable[[dict, Path], None], start: float,
+                 output: Path | None = None) -> dict:
+    """Add the run time and command, write <name>.json and <name>.png into ``output``
+    (default: results/); return results."""
+    directory = RESULTS if output is None else Path(output)
     results["run_time_s"] = round(time.perf_counter() - start, 1)
     results["command"] = f"python -m verification.{name}" + (" --quick" if results["quick"] else "")
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    write_json(RESULTS / f"{name}.json", results)
-    plot_function(results, RESULTS / f"{name}.png")
+    directory.mkdir(parents=True, exist_ok=True)
+    write_json(directory / f"{name}.json", results)
+    plot_function(results, directory / f"{name}.png")
     return results
 
 
@@ -278,17 +279,20 @@ def log_axes(ax, sizes) -> None:
     ax.xaxis.set_minor_formatter(NullFormatter())
 
 
-def command_line(name: str, run_function: Callable[[bool], dict], headline: tuple[str, ...]) -> None:
-    """``python -m verification.<name> [--quick]``: run and print the headline numbers."""
+def command_line(name: str, run_function: Callable[[bool, Path | None], dict], headline: tuple[str, ...]) -> None:
+    """``python -m verification.<name> [--quick] [--output DIR]``: run and print the headline
+    numbers."""
     parser = argparse.ArgumentParser(prog=f"python -m verification.{name}")
     parser.add_argument("--quick", action="store_true", help="coarse levels only (seconds)")
+    parser.add_argument("--output", type=Path, default=None,
+                        help=f"directory for {name}.json/.png (default {RESULTS}: the stored results)")
     args = parser.parse_args()
-    results = run_function(args.quick)
+    results = run_function(args.quick, args.output)
     expected = results.get("expected", {})
     for key in headline:
         note = f"  (expected {expected[key]:g})" if key in expected else ""
         print(f"{key} = {json.dumps(results[key])}{note}")
-    print(f"wrote {RESULTS / name}.json and .png in {results['run_time_s']} s")
+    print(f"wrote {(args.output or RESULTS) / name}.json and .png in {results['run_time_s']} s")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,9 @@
 
 The reproductions run long simulations, so every run is resumable and cached:
 
-* a run lives in ``verification/runs/<name>/`` (a femphase run directory, gitignored);
+* a run lives in ``verification/runs/<name>/`` (a femphase run directory, gitignored; the
+  environment variable ``FEMPHASE_VERIFICATION_RUNS`` names another directory, e.g. for a
+  rerun that must not reuse the runs there);
 * :func:`ensure_run` skips a run that already reached the end of its scene, resumes one
   that was interrupted (from its checkpoint) and extends one whose scene got longer;
 * runs that share a relaxation start from one relaxed checkpoint (``branch_from``), so
@@ -30,13 +32,14 @@ import numpy as np
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-from femphase.io import load_checkpoint, load_observers, write_json  # noqa: E402
+from femphase.io import load_checkpoint, read_checkpoint_metadata, write_json  # noqa: E402
+from femphase.rundir import resume_position  # noqa: E402
 from femphase.scene import Scene, load_scene  # noqa: E402
-from femphase.simulation import RunDirectory, Simulation  # noqa: E402
+from femphase.simulation import CHECKPOINT, RunDirectory, Simulation, run_scene  # noqa: E402
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = REPO / "examples"
-RUNS = REPO / "verification" / "runs"
+RUNS = Path(os.environ.get("FEMPHASE_VERIFICATION_RUNS", REPO / "verification" / "runs"))
 RESULTS = REPO / "verification" / "results"
 
 
@@ -55,13 +58,18 @@ def is_complete(directory: Path, scene: Scene) -> bool:
     return run.get("status") == "completed" and run.get("steps") == total
 
 
-def _position(scene: Scene, step: int) -> tuple[int, int]:
-    """(phase, phase_step) of the scene after `step` steps in all (len(phases), 0) at the end."""
-    for index, phase in enumerate(scene.phases):
-        if step < phase.n_steps:
-            return index, step
-        step -= phase.n_steps
-    return len(scene.phases), 0
+def _continue(scene: Scene, directory: Path, method: str) -> None:
+    """Continue the run in ``directory`` from its checkpoint under ``scene`` with ``method``:
+    what ``femphase run --resume`` does (:func:`femphase.simulation.run_scene`), except that
+    the method may differ from the checkpoint's, so that a finite-difference branch can start
+    from a relaxation done with FEM."""
+    checkpoint = directory / CHECKPOINT
+    metadata = read_checkpoint_metadata(checkpoint)
+    simulation = Simulation(scene, method)
+    state, observers = load_checkpoint(checkpoint, simulation.domain)
+    state.phase, state.phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), state.time)
+    simulation.restore_observers(observers)
+    simulation.run(state, [RunDirectory(directory, metadata["outputs"], changes)], initial_frame=False)
 
 
 def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None, log=print,
@@ -72,26 +80,25 @@ def ensure_run(scene: Scene, directory: Path, *, branch_from: Path | None = None
     grown longer (a longer last phase) continues to the new end.  With `branch_from`, a new
     run starts from the relaxed state in that directory (which must hold the run of the
     scene's first phase alone, see :func:`ensure_relaxation`): its checkpoint and CSV files
-    are copied over and the remaining phases run from there, with ``method`` ("fem" or "fd").  The wall time of every session
-    is appended to ``sessions.json`` (run.json keeps the last session's only).
+    are copied over and the remaining phases run from there, with ``method`` ("fem" or "fd").
+    A directory with outputs but no checkpoint (a run that failed before its first frame) is
+    started again. The wall time of every session is appended to ``sessions.json``.
     """
     directory = Path(directory)
     if is_complete(directory, scene):
         return directory
-    checkpoint = directory / "checkpoint.npz"
+    checkpoint = directory / CHECKPOINT
     if not checkpoint.exists() and branch_from is not None:
         directory.mkdir(parents=True, exist_ok=True)
-        for name in ("checkpoint.npz", "particles.csv", "global.csv"):
+        for name in (CHECKPOINT, "particles.csv", "global.csv"):
             shutil.copy2(Path(branch_from) / name, directory / name)
     started = wallclock.perf_counter()
     if checkpoint.exists():
-        state = load_checkpoint(checkpoint)
-        state.phase, state.phase_step = _position(scene, state.step)
-        log(f"  {directory.name}: continuing from t = {state.time:g}")
-        Simulation(scene, method, load_observers(checkpoint)).run(state, [RunDirectory(directory, resume=True)])
+        log(f"  {directory.name}: continuing from t = {load_checkpoint(checkpoint, scene.domain)[0].time:g}")
+        _continue(scene, directory, method)
     else:
         log(f"  {directory.name}: starting")
-        Simulation(scene, method).run(scene.initial_state(), [RunDirectory(directory)])
+        run_scene(scene, directory, overwrite=True, method=method, progress=False)
     sessions = directory / "sessions.json"
     previous = json.loads(sessions.read_text()) if sessions.exists() else []
     sessions.write_text(json.dumps(previous + [{"wall_s": wallclock.perf_counter() - started}], indent=1))
@@ -125,7 +132,10 @@ def wall_seconds(directory: Path) -> float:
     if sessions.exists():
         return float(sum(s["wall_s"] for s in json.loads(sessions.read_text())))
     info = Path(directory) / "run.json"
-    return float(json.loads(info.read_text()).get("wall_time_s", np.nan)) if info.exists() else float("nan")
+    if not info.exists():
+        return float("nan")
+    segments = json.loads(info.read_text()).get("segments", [])
+    return float(sum(s.get("wall_time_s", 0.0) for s in segments)) if segments else float("nan")
 
 
 def fmt(value: float, uncertainty: float | None = None, digits: int = 3) -> str:

@@ -112,6 +112,7 @@ def summarise(results: list[dict]) -> dict:
 
 def figures(summary: dict, seeds: tuple[int, ...], h: float, durations: dict[float, float]) -> None:
     from femphase.plot import _pyplot, draw_snapshot, load_run
+    from femphase.simulation import CHECKPOINT
 
     plt = _pyplot()
     rows = summary["rates"]
@@ -138,7 +139,7 @@ def figures(summary: dict, seeds: tuple[int, ...], h: float, durations: dict[flo
     plt.close(fig)
 
     directories = [RUNS / run_name(seeds[0], rate, h, durations[rate]) for rate in rates]
-    directories = [d for d in directories if (d / "checkpoint.npz").exists()]
+    directories = [d for d in directories if (d / CHECKPOINT).exists()]
     fig, axes = plt.subplots(1, len(directories), figsize=(2.0 * len(directories), 6.5), squeeze=False)
     for ax, directory, rate in zip(axes[0], directories, rates):
         draw_snapshot(ax, load_run(directory))

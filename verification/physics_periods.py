@@ -366,6 +366,7 @@ def figures(summary: dict, results: list[dict]) -> None:
     the paper's rates, finest grid), physics_periods_cycles.png (limit cycles at 0.0778 and
     0.3857) and physics_periods_snapshot.png (γ̇ = 0.1487, h = 1, the end of the run)."""
     from femphase.plot import _pyplot, draw_elongation, draw_limit_cycle, load_run, plot_snapshot
+    from femphase.simulation import CHECKPOINT
 
     plt = _pyplot()
     periods = summary["periods"]
@@ -421,7 +422,7 @@ def figures(summary: dict, results: list[dict]) -> None:
         _save_result(fig, "physics_periods_cycles.png")
 
     snapshot = RUNS / run_name(1.0, 0.1487)
-    if (snapshot / "checkpoint.npz").exists():
+    if (snapshot / CHECKPOINT).exists():
         plot_snapshot(load_run(snapshot), RESULTS / "physics_periods_snapshot.png")
 
 
@@ -470,8 +471,9 @@ def table(summary: dict) -> str:
 
 
 def run(quick: bool = False, spacings: tuple[float, ...] | None = None, simulate_only: bool = False,
-        analyse_only: bool = False) -> dict:
-    """Run every planned shear run (resumably), analyse them, write the results.
+        analyse_only: bool = False, write: bool | None = None) -> dict:
+    """Run every planned shear run (resumably), analyse them, write the results (default: not
+    in quick).
 
     `simulate_only` skips the analysis; `analyse_only` runs nothing and analyses the runs that
     are complete (e.g. while others are still under way in another process)."""
@@ -498,7 +500,7 @@ def run(quick: bool = False, spacings: tuple[float, ...] | None = None, simulate
         results.append(cached(directory / "result.json",
                               lambda: {**analyse(directory, h, rate, dt), "method": method}, key))
     summary = summarise(results)
-    if not quick:
+    if (not quick) if write is None else write:
         from femphase.io import write_json
 
         write_json(RESULTS / "periods.json", summary["periods"])

@@ -122,8 +122,9 @@ def table(results: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def run(quick: bool = False) -> dict:
-    """Run (resumably) and analyse the single-particle runs; write the results (not in quick)."""
+def run(quick: bool = False, write: bool | None = None) -> dict:
+    """Run (resumably) and analyse the single-particle runs; write the results (default: not
+    in quick)."""
     plan = QUICK["plan"] if quick else RUNS_PLAN
     duration = QUICK["shear_duration"] if quick else SHEAR_DURATION
     results = []
@@ -143,7 +144,7 @@ def run(quick: bool = False) -> dict:
         "protocol": {"scene": "examples/single.toml", "rate": RATE, "shear_duration": duration,
                      "frame_interval": FRAME_INTERVAL, "runs_h_dt": [list(x) for x in plan]},
     }
-    if not quick:
+    if (not quick) if write is None else write:
         from femphase.io import write_json
 
         write_json(RESULTS / "physics_single.json", {**summary, "runs": [

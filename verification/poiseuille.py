@@ -29,6 +29,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
@@ -40,19 +41,16 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from femphase.analysis.order import OrderObserver  # noqa: E402
 from femphase.analysis.shape import shape_observables  # noqa: E402
-from femphase.flows import poiseuille  # noqa: E402
+from femphase.channel import ChannelDomain  # noqa: E402
+from femphase.flows import flow_from_spec, poiseuille  # noqa: E402
 from femphase.mesh import channel_grid  # noqa: E402
+from femphase.meshed import MeshDomain  # noqa: E402
 from femphase.model import ModelParameters  # noqa: E402
-from femphase.scene import random_centres  # noqa: E402
+from femphase.observables import Order  # noqa: E402
+from femphase.placement import random_centres  # noqa: E402
 from femphase.state import discs_state  # noqa: E402
-from femphase.stepping import Discretisation, Numerics, SemiImplicitStepper  # noqa: E402
-from femphase.unstructured import (  # noqa: E402
-    UnstructuredStepper, mesh_discs_state, mesh_shape_observables, read_domain, stokes_flow, unit_stokes_flow,
-)
-from femphase.unstructured.windows import MeshWindowPolicy  # noqa: E402
-from femphase.windows import WindowPolicy  # noqa: E402
+from femphase.stepping import Numerics, Stepper  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "verification" / "results"
@@ -66,48 +64,54 @@ COMPARED_VELOCITY = 0.3
 PARAMS, NUMERICS = ModelParameters(), Numerics()
 
 
-class GridRun:
-    """The structured solver on the lattice channel at spacing h."""
+class Run:
+    """Discs of radius R/2 at ``centres`` on a domain, stepped by the one stepper of both kinds."""
+
+    def __init__(self, domain, centres: np.ndarray) -> None:
+        self.domain = domain
+        self.state = discs_state(domain, centres, np.full(N, R), np.full(N, R / 2), PARAMS.interface_width,
+                                 domain.window_policy(NUMERICS))
+
+    def flow(self, velocity: float):
+        raise NotImplementedError
+
+    def stepper(self, velocity: float | None) -> Stepper:
+        return Stepper(self.domain, PARAMS, NUMERICS, DT, self.flow(velocity) if velocity else None, self.state.radii)
+
+    def shape(self):
+        return shape_observables(self.state)
+
+
+class GridRun(Run):
+    """The structured channel at spacing h, in the Poiseuille flow u = 4U y(Ly − y)/Ly²."""
 
     def __init__(self, h: float, centres: np.ndarray) -> None:
-        grid = channel_grid(LX, LY, h)
-        self.disc = Discretisation.structured(grid)
-        self.state = discs_state(grid, centres, np.full(N, R), np.full(N, R / 2), PARAMS.interface_width,
-                                 WindowPolicy.for_spacing(h))
+        super().__init__(ChannelDomain(channel_grid(LX, LY, h)), centres)
 
-    def stepper(self, velocity: float | None):
-        flow = poiseuille(velocity, LY) if velocity else None
-        return SemiImplicitStepper(self.disc, PARAMS, NUMERICS, DT, flow, self.state.radii)
-
-    def shape(self):
-        return shape_observables(self.state, self.disc.operators)
+    def flow(self, velocity: float):
+        return poiseuille(velocity, LY)
 
 
-class MeshRun:
-    """The unstructured solver on the meshed straight channel, driven by its Stokes flow."""
+class MeshRun(Run):
+    """The meshed straight channel, driven by its own Stokes flow (the unit solution cached
+    next to the mesh as ``<mesh>.stokes.npz``, as for a scene)."""
 
     def __init__(self, centres: np.ndarray) -> None:
-        self.domain = read_domain(MESH)
-        self.state = mesh_discs_state(self.domain, centres, np.full(N, R), np.full(N, R / 2),
-                                      PARAMS.interface_width, MeshWindowPolicy.for_spacing(self.domain.spacing))
-        self.unit = unit_stokes_flow(self.domain, cache=MESH.with_name(MESH.name + ".stokes.npz"))
+        super().__init__(MeshDomain.from_table({"kind": "mesh", "mesh": MESH.name}, MESH.parent, NUMERICS), centres)
 
-    def stepper(self, velocity: float | None):
-        flow = stokes_flow(self.domain, {"type": "stokes", "max_velocity": velocity}, self.unit) if velocity else None
-        return UnstructuredStepper(self.domain, PARAMS, NUMERICS, DT, flow, self.state.radii)
-
-    def shape(self):
-        return mesh_shape_observables(self.state)
+    def flow(self, velocity: float):
+        return flow_from_spec({"type": "stokes", "max_velocity": velocity}, self.domain)
 
 
 def simulate(run, velocity: float) -> dict:
     """Relax, then flow; the frame series of Ψ6, Ψ2, mean elongation and area, and ms/step."""
-    observer = OrderObserver(LX)
+    # the "order" observable of a run's frames (it reads only the simulation's domain)
+    observer = Order(SimpleNamespace(domain=run.domain))
     series = {key: [] for key in ("time", "Psi6", "Psi2", "elongation", "area")}
 
     def frame():
         shape = run.shape()
-        order = observer(shape)
+        order = observer(run.state, {"x": shape.x, "y": shape.y, "orientation": shape.orientation})
         for key, value in (("time", run.state.time), ("Psi6", order["Psi6"]), ("Psi2", order["Psi2"]),
                            ("elongation", float(np.mean(shape.elongation))), ("area", float(np.mean(shape.area)))):
             series[key].append(float(value))

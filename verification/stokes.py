@@ -12,7 +12,7 @@ Writes verification/results/stokes.json (``max_rel_error``: the largest
 nodal error of (u, v) relative to the centreline velocity, over all cases)
 and verification/results/stokes.png.
 
-Run from the repository root: ``python verification/stokes.py``.
+Run from the repository root: ``python verification/stokes.py [--output DIR]``.
 """
 
 from __future__ import annotations
@@ -116,7 +116,8 @@ def plot(cases: dict[str, dict], profile_flow: StokesFlow, path: Path) -> None:
     fig.savefig(path, dpi=120)
 
 
-def main() -> None:
+def main(output: Path | None = None) -> dict:
+    """Every case; writes stokes.json and stokes.png into ``output`` (default: results/)."""
     cases = {}
     for mesh_name, jitter in MESHES.items():
         for driving in ("pressure_drop", "flux"):
@@ -143,11 +144,18 @@ def main() -> None:
         },
         "cases": cases,
     }
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    (RESULTS / "stokes.json").write_text(json.dumps(summary, indent=2) + "\n")
-    plot(cases, profile_flow, RESULTS / "stokes.png")
+    directory = RESULTS if output is None else Path(output)
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "stokes.json").write_text(json.dumps(summary, indent=2) + "\n")
+    plot(cases, profile_flow, directory / "stokes.png")
     print(f"max_rel_error = {summary['max_rel_error']:.3e}")
+    return summary
 
 
 if __name__ == "__main__":
-    main()
+    import argparse
+
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--output", type=Path, default=None,
+                        help=f"directory for stokes.json/.png (default {RESULTS})")
+    main(parser.parse_args().output)
