@@ -43,6 +43,8 @@ import warnings
 from pathlib import Path
 from typing import NamedTuple
 
+from .io import toml_value
+
 #: A small valid scene on the structured channel: validated in milliseconds, and run (for
 #: the run directory that ``--resume`` inputs need) in about a second.
 BASE_SCENE: dict = {
@@ -160,27 +162,6 @@ def _variant(base: dict, changes: dict) -> dict:
     for path, value in changes.items():
         _set_path(data, path, value)
     return data
-
-
-def toml_value(value) -> str:
-    """``value`` as a TOML literal (inline tables and arrays; nan and inf as TOML spells them)."""
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, int):
-        return str(value)
-    if isinstance(value, float):
-        if math.isnan(value):
-            return "nan"
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return repr(value)
-    if isinstance(value, str):
-        return json.dumps(value)
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{json.dumps(str(k))} = {toml_value(v)}" for k, v in value.items()) + "}"
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(toml_value(v) for v in value) + "]"
-    raise TypeError(f"no TOML literal for {value!r}")
 
 
 def to_toml(data: dict) -> str:
