@@ -162,9 +162,12 @@ class RelaxedSAV2(TimeScheme):
             raise SceneError("numerics.mass", stepper.numerics.mass, '"lumped" with numerics.scheme = "sav2"')
         flow, dt = stepper.flow, stepper.dt
         self.half = None if flow.is_still else stepper.domain.advection(flow, 0.5 * dt, stepper.numerics)
-        # the predictor: one linearly implicit Euler step of dt/2, energy-stable (module docstring)
-        half_bound = 0.5 * stepper.energy.curvature_bound(stepper.smallest_radius, stepper.pairs)
-        self.predictor_stabilisation = max(0.0, half_bound - 1.0 / (stepper.mobility * 0.5 * dt))
+        self._half_bound = 0.5 * stepper.energy.curvature_bound(stepper.smallest_radius, stepper.pairs)
+
+    def predictor_stabilisation(self, dt: float) -> float:
+        """S of the predictor, one linearly implicit Euler step of dt/2: the smallest that
+        keeps it energy-stable (module docstring)."""
+        return max(0.0, self._half_bound - 1.0 / (self.stepper.mobility * 0.5 * dt))
 
     def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
         dt = self.stepper.dt
@@ -172,15 +175,16 @@ class RelaxedSAV2(TimeScheme):
         if self.half is not None:
             phi, layout = self.half.advect(phi, layout, state.time)
             r = None  # advection changes E1; r restarts from it (the flow does work anyway)
-        phi, r = self.relax(phi, layout, state.time, state.radii, None if r is None else float(r[0]))
+        phi, r, _ = self.relax(phi, layout, state.time, state.radii, None if r is None else float(r[0]), dt)
         state.memory["sav_r"] = np.array([r])
         if self.half is not None:
             phi, layout = self.half.advect(phi, layout, state.time + 0.5 * dt)
         return phi, layout
 
     def relax(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray,
-              r: float | None) -> tuple[np.ndarray, float]:
-        """One relaxation step from ``time`` and the new auxiliary variable r (RSAV-CN).
+              r: float | None, dt: float) -> tuple[np.ndarray, float, float]:
+        """One relaxation step of ``dt`` from ``time``: (φ¹, the new auxiliary variable r, an
+        estimate of the step's local error) (RSAV-CN).
 
         With L = D M_L⁻¹K, g = δE1/δφ, V(φ) = √(E1(φ) + C), b = g(φ̄)/V(φ̄) at a predicted
         midpoint φ̄ (one Euler step of dt/2):
@@ -192,8 +196,13 @@ class RelaxedSAV2(TimeScheme):
         p − r^{1/2} q from two solves with (2M/dt + J0 D K), and r^{1/2} from one scalar
         equation. Then r is relaxed towards V(φ¹): r ← ξ r¹ + (1 − ξ) V(φ¹), ξ ∈ [0, 1] the
         smallest that keeps r² − r¹² ≤ η |φ¹ − φ⁰|²_M/(J0 dt), so r stays √(E1 + C) wherever
-        the dissipation allows (then the modified energy is F + C) and the decrease holds."""
-        stepper, dt, j0 = self.stepper, self.stepper.dt, self.stepper.mobility
+        the dissipation allows (then the modified energy is F + C) and the decrease holds.
+
+        The error estimate is max |φ¹ − (2φ̄ − φ⁰)|: the predictor doubled is a first-order
+        step, so this is that step's local error, O(dt²), at no extra cost (an embedded pair
+        of orders 1 and 2; the second-order result is kept)."""
+        stepper, j0 = self.stepper, self.stepper.mobility
+        predictor_stabilisation = self.predictor_stabilisation(dt)
         energy, mass = stepper.energy, layout.mass
         diffusivity = j0 * energy.diffusivity
         fields = WindowedFields(phi, layout, radii)
@@ -202,12 +211,12 @@ class RelaxedSAV2(TimeScheme):
         # predicted midpoint: a linearly implicit Euler step of dt/2 from φ⁰
         nodal = energy.explicit_derivative(fields)
         nodal *= -j0
-        if self.predictor_stabilisation:
-            nodal += (j0 * self.predictor_stabilisation) * phi
+        if predictor_stabilisation:
+            nodal += (j0 * predictor_stabilisation) * phi
         source = stepper.source_term(layout, time + 0.5 * dt)
         if source is not None:
             nodal += source
-        midpoint = stepper.solve(nodal, phi, layout, 2.0 / dt, self.predictor_stabilisation)
+        midpoint = stepper.solve(nodal, phi, layout, 2.0 / dt, predictor_stabilisation)
         middle = WindowedFields(midpoint, layout, radii)
         b = energy.explicit_derivative(middle) / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
         # (2M/dt + J0 D K) p = (2M/dt − J0 D K) φ⁰ + 2 M s;   (2M/dt + J0 D K) q = 2 J0 M b
@@ -224,7 +233,8 @@ class RelaxedSAV2(TimeScheme):
         change = new - phi
         dissipation = float(mass @ (change * change)) / (j0 * dt)
         target = np.sqrt(energy.explicit_energy(WindowedFields(new, layout, radii)) + self.OFFSET)
-        return new, relaxed(r_new, target, self.RELAXATION * dissipation)
+        estimate = float(np.max(np.abs(new - 2.0 * midpoint + phi))) if new.size else 0.0
+        return new, relaxed(r_new, target, self.RELAXATION * dissipation), estimate
 
 
 def relaxed(r: float, target: float, allowance: float) -> float:
@@ -240,3 +250,83 @@ def relaxed(r: float, target: float, allowance: float) -> float:
     roots = [x for x in (root, (-b + np.sqrt(max(b * b - 4.0 * a * c, 0.0))) / (2.0 * a)) if 0.0 <= x <= 1.0]
     xi = min(roots) if roots else 1.0
     return xi * r + (1.0 - xi) * target
+
+
+@SCHEMES.register("adaptive")
+class AdaptiveSAV2(RelaxedSAV2):
+    """Error-controlled substeps of sav2 inside every step of the phase (frames stay at exact
+    times): embedded first/second-order error estimate, PI step controller, rejected substeps
+    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ)."""
+
+    name = "adaptive"
+    order = 2
+    #: Substeps are dt/2^k, k ≤ LEVELS: a finite set of step sizes, so solvers and advections
+    #: are built once per size and reused, and substeps end exactly on the phase's steps.
+    LEVELS = 12
+    #: The PI controller (Gustafsson; the defaults of SUNDIALS ARKODE's PI): exponents of
+    #: the error ratios for an estimate of local order 2, a safety factor, growth bounds.
+    K_I, K_P, SAFETY, GROWTH, SHRINK = 0.8 / 2, 0.31 / 2, 0.9, 4.0, 0.2
+
+    def __init__(self, stepper: "Stepper") -> None:
+        super().__init__(stepper)
+        self.tolerance = stepper.numerics.tolerance_t
+        self._advections: dict[int, object] = {}
+
+    def _half_advection(self, level: int):
+        if self.stepper.flow.is_still:
+            return None
+        if level not in self._advections:
+            stepper = self.stepper
+            h = stepper.dt / 2**level
+            self._advections[level] = stepper.domain.advection(stepper.flow, 0.5 * h, stepper.numerics)
+        return self._advections[level]
+
+    def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
+        stepper, dt = self.stepper, self.stepper.dt
+        memory = state.memory
+        level = int(memory.get("adaptive_level", np.array([2]))[0])
+        previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
+        r = memory.get("sav_r")
+        r = None if r is None or not stepper.flow.is_still else float(r[0])
+        done = 0  # substeps of the finest size dt/2^LEVELS done in this step
+        total = 2**self.LEVELS
+        accepted = rejected = 0
+        while done < total:
+            h = dt / 2**level
+            time = state.time + dt * done / total
+            half = self._half_advection(level)
+            trial, trial_layout = phi.copy(), layout
+            if half is not None:
+                trial, trial_layout = half.advect(trial, trial_layout, time)
+            trial_r = r if half is None else None
+            new, new_r, error = self.relax(trial, trial_layout, time, state.radii, trial_r, h)
+            error = max(error, 1e-14)
+            if error > self.tolerance and level < self.LEVELS:
+                rejected += 1
+                factor = max(self.SHRINK, self.SAFETY * (self.tolerance / error) ** 0.5)
+                level = min(self.LEVELS, level + max(1, int(np.ceil(-np.log2(factor)))))
+                continue
+            if half is not None:
+                new, trial_layout = half.advect(new, trial_layout, time + 0.5 * h)
+            phi, layout, r = new, trial_layout, new_r
+            done += 2 ** (self.LEVELS - level)
+            accepted += 1
+            factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous_error / self.tolerance) ** self.K_P
+            factor = min(self.GROWTH, max(self.SHRINK, factor))
+            previous_error = error
+            proposal = min(self.LEVELS, max(0, level - int(np.floor(np.log2(factor)))))
+            if proposal > level:
+                level = proposal
+            # coarser only as far as the next substep starts on the coarser grid
+            while proposal < level and done % 2 ** (self.LEVELS - level + 1) == 0:
+                level -= 1
+            windows, fields = stepper.domain.refit(layout, phi, stepper.policy, None)
+            if tuple(windows) != layout.windows:
+                layout = stepper.domain.layout(windows)
+                phi = layout.gather(fields)
+        memory["adaptive_level"] = np.array([level])
+        memory["adaptive_error"] = np.array([previous_error])
+        memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]
+        if r is not None:
+            memory["sav_r"] = np.array([r])
+        return phi, layout

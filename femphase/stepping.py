@@ -55,6 +55,7 @@ class Numerics:
                     lumped mass). "auto": tensor where it applies, else LU up to
                     DIRECT_MAX_DOFS, else AMG
     tolerance       relative residual of the AMG-Krylov solves
+    tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ)
     windows         False: every field on the whole domain (full-mesh mode)
     threshold       φ above which a node belongs to a particle (window fitting)
     margin          lattice units kept between a particle and its window's edge
@@ -75,6 +76,7 @@ class Numerics:
     stabilisation: float | str = "auto"
     solver: str = "auto"
     tolerance: float = 1e-10
+    tolerance_t: float = 1e-3
     windows: bool = True
     threshold: float = 0.01
     margin: float = 4.0
@@ -102,7 +104,7 @@ class Numerics:
             if not isinstance(getattr(self, key), bool):
                 raise SceneError(f"numerics.{key}", getattr(self, key), "true or false")
         for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
-                               ("blowup_margin", 0.0, np.inf)):
+                               ("tolerance_t", 0.0, 1.0), ("blowup_margin", 0.0, np.inf)):
             value = getattr(self, key)
             ok = isinstance(value, (int, float)) and not isinstance(value, bool) and low < value < high
             if not ok:
