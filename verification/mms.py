@@ -30,7 +30,9 @@ dt. The spatial study takes dt = h²/8 and h²/16 and measures the time-extrapol
 2φ_{h²/16} − φ_{h²/8}, whose O(dt) error is removed, so that the table shows the spatial
 error alone (raw errors at dt = h²/16 are listed too: dt ∝ h² keeps them O(h²) as well).
 The temporal study fixes h = 0.125, whose spatial L2 error is < 1% of the smallest temporal
-one, and takes dt ≤ 0.5 < 2/(J0 L) where the automatic stabilisation is zero.
+one, and takes dt ≤ 0.5 < 2/(J0 L) where the automatic stabilisation is zero. A second
+temporal study (``order_dt_2``) does the same for the second-order scheme ``sav2`` at
+h = 0.0625 and dt = 1, 0.5, 0.25.
 
 This module also holds the helpers the other convergence checks share (observed orders,
 writing results, the command line).
@@ -83,7 +85,12 @@ SPACINGS = (2.0, 1.0, 0.5, 0.25, 0.125)
 QUICK_SPACINGS = (2.0, 1.0, 0.5)
 TEMPORAL = (0.125, (0.5, 0.25, 0.125, 0.0625, 0.03125))
 QUICK_TEMPORAL = (0.5, (0.25, 0.125, 0.0625))
-EXPECTED = {"order_h_L2": 2.0, "order_h_H1": 1.0, "order_dt": 1.0}
+#: The second-order scheme sav2: its errors fall 4× per halving, so h must be finer to keep
+#: the spatial error (extrapolated: ~1e-4 at h = 0.0625, a quarter of h = 0.125's) below its
+#: temporal errors (5e-3 at dt = 0.25).
+TEMPORAL_2 = (0.0625, (1.0, 0.5, 0.25))
+QUICK_TEMPORAL_2 = (0.25, (2.0, 1.0))
+EXPECTED = {"order_h_L2": 2.0, "order_h_H1": 1.0, "order_dt": 1.0, "order_dt_2": 2.0}
 
 
 # -- the manufactured solution -------------------------------------------------------------
@@ -132,16 +139,17 @@ def source(x: np.ndarray, y: np.ndarray, t: float) -> np.ndarray:
 
 
 # -- solving and measuring -------------------------------------------------------------------
-def simulate(h: float, dt: float) -> tuple[ChannelDomain, np.ndarray, float]:
+def simulate(h: float, dt: float, scheme: str = "euler") -> tuple[ChannelDomain, np.ndarray, float]:
     """The discrete solution at FINAL_TIME on spacing h with step dt: (domain, nodal values
-    in grid order, the stabilisation S the stepper's Euler scheme chose)."""
+    in grid order, the stabilisation S the stepper's Euler scheme chose; 0 for sav2)."""
     domain = ChannelDomain(channel_grid(LX, LY, h))
     x, y = domain.coordinates  # of every dof, grid order
     state = State(domain, [domain.full_window()], [exact(x, y, 0.0)], np.array([PARAMS.radius]))
-    stepper = Stepper(domain, PARAMS, Numerics(windows=False), dt, linear_shear(SHEAR_RATE, LY), state.radii, source)
+    stepper = Stepper(domain, PARAMS, Numerics(windows=False, scheme=scheme), dt, linear_shear(SHEAR_RATE, LY),
+                      state.radii, source)
     for _ in range(round(FINAL_TIME / dt)):
         stepper.step(state)
-    return domain, state.global_field(0), stepper.scheme.stabilisation
+    return domain, state.global_field(0), getattr(stepper.scheme, "stabilisation", 0.0)
 
 
 _POINTS, _WEIGHTS = get_quadrature(RefTri, 6)
@@ -182,11 +190,11 @@ def spatial_study(spacings: tuple[float, ...]) -> dict:
     return table
 
 
-def temporal_study(h: float, steps: tuple[float, ...]) -> dict:
-    """Errors against dt at fixed h."""
-    table = {"h": h, "dt": list(steps), "L2": [], "H1": [], "stabilisation": []}
+def temporal_study(h: float, steps: tuple[float, ...], scheme: str = "euler") -> dict:
+    """Errors against dt at fixed h with the time scheme ``scheme``."""
+    table = {"h": h, "scheme": scheme, "dt": list(steps), "L2": [], "H1": [], "stabilisation": []}
     for dt in steps:
-        domain, phi, stabilisation = simulate(h, dt)
+        domain, phi, stabilisation = simulate(h, dt, scheme)
         l2, h1 = error_norms(domain, phi, FINAL_TIME)
         table["L2"].append(l2)
         table["H1"].append(h1)
@@ -209,11 +217,15 @@ def plot(results: dict, path: Path) -> None:
     left.set(xlabel="h", ylabel="error at t = T", title="MMS: error vs h")
     left.legend(fontsize=8)
     dt = np.array(time_["dt"])
-    right.loglog(dt, time_["L2"], "o-", label="L2")
-    right.loglog(dt, time_["H1"], "s-", label="H1 seminorm")
+    right.loglog(dt, time_["L2"], "o-", label=f"L2, euler (h = {time_['h']:g})")
+    right.loglog(dt, time_["H1"], "s-", label="H1 seminorm, euler")
     right.loglog(dt, time_["L2"][-1] * dt / dt[-1], "k:", lw=0.8, label="slope 1")
-    log_axes(right, dt)
-    right.set(xlabel="dt", ylabel="error at t = T", title=f"MMS: error vs dt (h = {time_['h']:g})")
+    second = results["temporal_2"]
+    dt2 = np.array(second["dt"])
+    right.loglog(dt2, second["L2"], "^-", label=f"L2, sav2 (h = {second['h']:g})")
+    right.loglog(dt2, second["L2"][-1] * (dt2 / dt2[-1]) ** 2, "k--", lw=0.8, label="slope 2")
+    log_axes(right, np.union1d(dt, dt2))
+    right.set(xlabel="dt", ylabel="error at t = T", title="MMS: error vs dt")
     right.legend(fontsize=8)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
@@ -226,12 +238,15 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
     spatial = spatial_study(QUICK_SPACINGS if quick else SPACINGS)
     h, steps = QUICK_TEMPORAL if quick else TEMPORAL
     temporal = temporal_study(h, steps)
+    h2, steps2 = QUICK_TEMPORAL_2 if quick else TEMPORAL_2
+    temporal_2 = temporal_study(h2, steps2, "sav2")
     results = {
         "check": "mms",
         "quick": quick,
         "order_h_L2": spatial["orders_L2"][-1],
         "order_h_H1": spatial["orders_H1"][-1],
         "order_dt": temporal["orders_L2"][-1],
+        "order_dt_2": temporal_2["orders_L2"][-1],
         "expected": EXPECTED,
         "orders_from": "the two finest levels of each table",
         "setup": {
@@ -246,6 +261,7 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
         },
         "spatial": spatial,
         "temporal": temporal,
+        "temporal_2": temporal_2,
     }
     return save_results("mms", results, plot, start, output)
 
@@ -296,4 +312,4 @@ def command_line(name: str, run_function: Callable[[bool, Path | None], dict], h
 
 
 if __name__ == "__main__":
-    command_line("mms", run, ("order_h_L2", "order_h_H1", "order_dt"))
+    command_line("mms", run, ("order_h_L2", "order_h_H1", "order_dt", "order_dt_2"))
