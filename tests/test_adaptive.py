@@ -64,3 +64,38 @@ def test_a_too_large_first_substep_is_rejected_and_redone(reference):
     assert counts.per_step[0][1] > 0  # rejected substeps in the stiff start
     r, r_ref = recorder.series("elongation")[:, 0], reference.series("elongation")[::1200, 0]
     assert np.max(np.abs(r - r_ref)) / np.max(r_ref) < 2e-3
+
+
+def test_a_resumed_adaptive_run_continues_bit_for_bit(tmp_path):
+    from femphase.cli import main
+    from femphase.io import load_checkpoint
+    from femphase.scene import load_scene
+
+    scene = tmp_path / "scene.toml"
+    scene.write_text("""
+[domain]
+Lx = 40.0
+Ly = 40.0
+[particles]
+layout = "list"
+centres = [[14.0, 20.0], [27.0, 20.0]]
+[numerics]
+scheme = "adaptive"
+[[phases]]
+duration = 60.0
+dt = 10.0
+frame_interval = 10.0
+flow = { type = "shear", rate = 0.3 }
+""")
+    assert main(["run", str(scene), "-o", str(tmp_path / "straight"), "-q"]) == 0
+    assert main(["run", str(scene), "-o", str(tmp_path / "cut"), "-q", "--set", "phases.0.duration=30"]) == 0
+    assert main(["run", str(scene), "-o", str(tmp_path / "cut"), "-q", "--resume"]) == 0
+    for name in ("particles.csv", "global.csv"):
+        assert (tmp_path / "straight" / name).read_bytes() == (tmp_path / "cut" / name).read_bytes()
+    # the scheme's memory (substep level, last error, counts) came back from the checkpoint
+    domain = load_scene(scene).domain
+    straight, _ = load_checkpoint(tmp_path / "straight" / "checkpoint.h5", domain)
+    resumed, _ = load_checkpoint(tmp_path / "cut" / "checkpoint.h5", domain)
+    assert straight.memory.keys() == resumed.memory.keys() == {"adaptive_counts", "adaptive_error",
+                                                              "adaptive_level", "sav_r"}
+    assert all(np.array_equal(straight.memory[k], resumed.memory[k]) for k in straight.memory)
