@@ -75,7 +75,7 @@ class Point:
         if self.method == "fd":
             return "FD (Heun)"
         names = {"mass": "{} mass", "diagonals": "{} diagonals", "windows": "windows {}",
-                 "solver": "{}", "tolerance": "tol {:g}"}
+                 "solver": "{}", "tolerance": "tol {:g}", "scheme": "{}", "tolerance_t": "tolerance_t {:g}"}
         parts = [names[k].format({True: "on", False: "off"}.get(v, v)) for k, v in sorted(self.options.items())]
         return "FEM " + (", ".join(parts) if parts else "default")
 
