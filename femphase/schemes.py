@@ -256,7 +256,10 @@ def relaxed(r: float, target: float, allowance: float) -> float:
 class AdaptiveSAV2(RelaxedSAV2):
     """Error-controlled substeps of sav2 inside every step of the phase (frames stay at exact
     times): embedded first/second-order error estimate, PI step controller, rejected substeps
-    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ)."""
+    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ).
+
+    A substep of the finest size, dt/2^LEVELS, is accepted whatever its estimate (the step
+    cannot shrink further; a smaller phase dt is then the remedy)."""
 
     name = "adaptive"
     order = 2
