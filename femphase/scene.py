@@ -284,25 +284,18 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
         if domain.kind != "grid":
             raise SceneError(key, scheme, '"euler": the finite-difference reference needs the structured channel '
                              f'([domain] kind = "grid"; this scene\'s kind is "{domain.kind}")')
-        from .energy import FreeEnergy
-        from .fd import explicit_stability_limit
+        from .stepping import Stepper
 
-        x, y = domain.coordinates
         for i, phase in enumerate(scene.phases):
-            flow = scene.flow(phase)
-            speed = 0.0
-            if not flow.is_still:
-                try:
-                    u, v = flow.velocity(x, y, 0.0)
-                    speed = float(np.max(np.abs(u)) + np.max(np.abs(v)))
-                except Exception as exc:  # a python flow runs the user's code
-                    raise SceneError(f"phases.{i}.flow", phase.flow, f"a flow that gives (u, v) at the nodes "
-                                     f"({type(exc).__name__}: {exc})") from None
-            limit = explicit_stability_limit(scene.model, domain.spacing, speed, float(np.min(scene.radii)),
-                                             FreeEnergy.paper(scene.model))
-            if phase.dt > limit * (1 + 1e-12):
-                raise SceneError(f"phases.{i}.dt", phase.dt, f"a time step ≤ {limit:.4g} for the explicit "
-                                 f"finite-difference scheme ({key} = \"fd-heun\") at h = {domain.spacing:g}")
+            # the scheme's own checks (its stability limit), phase by phase
+            try:
+                Stepper(domain, scene.model, numerics, phase.dt, scene.flow(phase), scene.radii, scheme=scheme)
+            except SceneError as exc:
+                raise SceneError(f"phases.{i}.{exc.key.removeprefix('phases.')}", exc.value,
+                                 f"{exc.valid} ({key} = \"{scheme}\")") from None
+            except Exception as exc:  # a python flow runs the user's code
+                raise SceneError(f"phases.{i}.flow", phase.flow, f"a flow that gives (u, v) at the nodes "
+                                 f"({type(exc).__name__}: {exc})") from None
     elif numerics.solver == "tensor":
         reason = None
         if domain.kind != "grid":
