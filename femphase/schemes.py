@@ -129,16 +129,24 @@ class LinearlyImplicitEuler(TimeScheme):
 
     def relax(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray) -> np.ndarray:
         """The relaxation over one step from ``time``: one linearly implicit Euler step."""
-        stepper = self.stepper
-        j0 = stepper.mobility
-        nodal = stepper.explicit_derivative(phi, layout, radii)
-        nodal *= -j0
-        if self.stabilisation:
-            nodal += (j0 * self.stabilisation) * phi
-        source = stepper.source_term(layout, time + stepper.dt)
-        if source is not None:
-            nodal += source
-        return stepper.solve(nodal, phi, layout, 1.0 / stepper.dt, self.stabilisation)
+        return linearly_implicit_step(self.stepper, phi, layout, radii, self.stepper.dt, self.stabilisation,
+                                      time + self.stepper.dt)
+
+
+def linearly_implicit_step(stepper: "Stepper", phi: np.ndarray, layout: Layout, radii: np.ndarray, dt: float,
+                           stabilisation: float, source_time: float) -> np.ndarray:
+    """One linearly implicit Euler relaxation step of ``dt`` (module docstring), the source
+    taken at ``source_time``: (G/dt + J0 S M_L + J0 D K) φ¹ = (G/dt + J0 S M_L) φ⁰ − J0 M_L g(φ⁰)
+    + M_L s."""
+    j0 = stepper.mobility
+    nodal = stepper.explicit_derivative(phi, layout, radii)
+    nodal *= -j0
+    if stabilisation:
+        nodal += (j0 * stabilisation) * phi
+    source = stepper.source_term(layout, source_time)
+    if source is not None:
+        nodal += source
+    return stepper.solve(nodal, phi, layout, 1.0 / dt, stabilisation)
 
 
 @SCHEMES.register("sav2")
@@ -209,14 +217,9 @@ class RelaxedSAV2(TimeScheme):
         if r is None:
             r = np.sqrt(energy.explicit_energy(fields) + self.OFFSET)
         # predicted midpoint: a linearly implicit Euler step of dt/2 from φ⁰
-        nodal = energy.explicit_derivative(fields)
-        nodal *= -j0
-        if predictor_stabilisation:
-            nodal += (j0 * predictor_stabilisation) * phi
+        midpoint = linearly_implicit_step(stepper, phi, layout, radii, 0.5 * dt, predictor_stabilisation,
+                                          time + 0.5 * dt)
         source = stepper.source_term(layout, time + 0.5 * dt)
-        if source is not None:
-            nodal += source
-        midpoint = stepper.solve(nodal, phi, layout, 2.0 / dt, predictor_stabilisation)
         middle = WindowedFields(midpoint, layout, radii)
         b = energy.explicit_derivative(middle) / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
         # (2M/dt + J0 D K) p = (2M/dt − J0 D K) φ⁰ + 2 M s;   (2M/dt + J0 D K) q = 2 J0 M b
