@@ -92,6 +92,7 @@ class Outputs:
                         "global.csv": ["time", "step"] + list(global_columns)}
         self.field_times: list[float] = []
         self._handles: dict[str, object] = {}
+        self._frame_datasets: dict[int, list[str]] = {}  # of frames written by earlier segments
 
     # -- opening ------------------------------------------------------------------------
     def start_new(self, mesh) -> None:
@@ -211,13 +212,12 @@ class Outputs:
         """The datasets of frame ``index`` (read from its file for frames of earlier segments)."""
         if names is not None and index == len(self.field_times) - 1:
             return names
-        cache = self.__dict__.setdefault("_name_cache", {})
-        if index not in cache:
+        if index not in self._frame_datasets:
             import h5py
 
             with h5py.File(self.directory / FIELDS_DIR / f"frame_{index:06d}.h5", "r") as handle:
-                cache[index] = list(handle)
-        return cache[index]
+                self._frame_datasets[index] = list(handle)
+        return self._frame_datasets[index]
 
 
 def _cell(value) -> str:

@@ -326,10 +326,7 @@ class AdaptiveSAV2(RelaxedSAV2):
             # coarser only as far as the next substep starts on the coarser grid
             while proposal < level and done % 2 ** (self.LEVELS - level + 1) == 0:
                 level -= 1
-            windows, fields = stepper.domain.refit(layout, phi, stepper.policy, None)
-            if tuple(windows) != layout.windows:
-                layout = stepper.domain.layout(windows)
-                phi = layout.gather(fields)
+            layout, phi = stepper.refit(layout, phi)
         memory["adaptive_level"] = np.array([level])
         memory["adaptive_error"] = np.array([previous_error])
         memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]

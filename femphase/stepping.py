@@ -237,15 +237,22 @@ class Stepper:
     def step(self, state: State) -> None:
         """Advance ``state`` by dt in place; raises BlowUpError (state unchanged) on failure."""
         layout, phi = state.flat()
-        windows, fields = self.domain.refit(layout, phi, self.policy, lambda: self._motion(layout, phi, state.time))
-        if tuple(windows) != layout.windows:
-            layout = self.domain.layout(windows)
-            phi = layout.gather(fields)
+        layout, phi = self.refit(layout, phi, state.time)
         phi, layout = self.scheme.advance(phi, layout, state)
         check_fields(phi, self.numerics.blowup_margin, state.step + 1, state.time + self.dt)
         state.windows, state.fields = list(layout.windows), layout.scatter(phi)
         state.time += self.dt
         state.step += 1
+
+    def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None) -> tuple[Layout, np.ndarray]:
+        """(layout, φ) after refitting the windows that no longer fit their fields; with
+        ``time``, windows leave room for the motion of a step from then (meshes)."""
+        motion = None if time is None else (lambda: self._motion(layout, phi, time))
+        windows, fields = self.domain.refit(layout, phi, self.policy, motion)
+        if tuple(windows) != layout.windows:
+            layout = self.domain.layout(windows)
+            phi = layout.gather(fields)
+        return layout, phi
 
     def _motion(self, layout: Layout, phi: np.ndarray, time: float) -> np.ndarray:
         """(N, 2): each particle's displacement over the coming step, its φ²-weighted mean
