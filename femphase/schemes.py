@@ -134,12 +134,14 @@ class LinearlyImplicitEuler(TimeScheme):
 
 
 def linearly_implicit_step(stepper: "Stepper", phi: np.ndarray, layout: Layout, radii: np.ndarray, dt: float,
-                           stabilisation: float, source_time: float) -> np.ndarray:
+                           stabilisation: float, source_time: float,
+                           fields: WindowedFields | None = None) -> np.ndarray:
     """One linearly implicit Euler relaxation step of ``dt`` (module docstring), the source
     taken at ``source_time``: (G/dt + J0 S M_L + J0 D K) φ¹ = (G/dt + J0 S M_L) φ⁰ − J0 M_L g(φ⁰)
-    + M_L s."""
+    + M_L s. ``fields``: φ⁰ as WindowedFields, if the caller has them (shares their cached
+    sums)."""
     j0 = stepper.mobility
-    nodal = stepper.explicit_derivative(phi, layout, radii)
+    nodal = stepper.explicit_derivative(phi, layout, radii) if fields is None else stepper.energy.explicit_derivative(fields)
     nodal *= -j0
     if stabilisation:
         nodal += (j0 * stabilisation) * phi
@@ -152,9 +154,16 @@ def linearly_implicit_step(stepper: "Stepper", phi: np.ndarray, layout: Layout, 
 @SCHEMES.register("sav2")
 class RelaxedSAV2(TimeScheme):
     """Second order: Strang splitting (advection over dt/2, relaxation over dt, advection
-    over dt/2) with a relaxed scalar-auxiliary-variable Crank–Nicolson relaxation, which
-    never increases the (modified) free energy without flow, at any dt, with no
-    stabilisation to saturate. Lumped mass only."""
+    over dt/2) with a relaxed scalar-auxiliary-variable Crank–Nicolson relaxation, with no
+    stabilisation to saturate. Lumped mass only.
+
+    Energy stability: the SAV step never increases its modified energy, but the free energy
+    F itself can rise at large dt (measured: dt = 10 on two particles relaxing from R/2;
+    at dt = 100 φ reached 3.6). So without flow each step checks F and, where it would
+    rise, takes the energy-stable Euler step (:meth:`fallback`) instead: F never rises, at
+    any dt (``tests/test_sav2.py`` up to dt = 100); such steps are first order and counted
+    in ``state.memory["sav_fallbacks"]``. The check costs one energy evaluation per step and
+    only runs without flow (with flow F is not monotone)."""
 
     name = "sav2"
     order = 2
@@ -183,11 +192,39 @@ class RelaxedSAV2(TimeScheme):
         if self.half is not None:
             phi, layout = self.half.advect(phi, layout, state.time)
             r = None  # advection changes E1; r restarts from it (the flow does work anyway)
-        phi, r, _ = self.relax(phi, layout, state.time, state.radii, None if r is None else float(r[0]), dt)
+        before = self.free_energy(phi, layout, state.radii) if self.checks_energy else None
+        new, r, _ = self.relax(phi, layout, state.time, state.radii, None if r is None else float(r[0]), dt)
+        if before is not None and self.free_energy(new, layout, state.radii) > before:
+            new, r = self.fallback(phi, layout, state.time, state.radii, dt), self.restart(WindowedFields(new, layout, state.radii))
+            state.memory["sav_fallbacks"] = state.memory.get("sav_fallbacks", np.zeros(1, dtype=np.int64)) + 1
+        phi = new
         state.memory["sav_r"] = np.array([r])
         if self.half is not None:
             phi, layout = self.half.advect(phi, layout, state.time + 0.5 * dt)
         return phi, layout
+
+    @property
+    def checks_energy(self) -> bool:
+        """Whether steps must not raise F: without flow and without a source term."""
+        return self.stepper.flow.is_still and self.stepper.source is None
+
+    def free_energy(self, phi: np.ndarray, layout: Layout, radii: np.ndarray) -> float:
+        """The discrete free energy F (energy units), window by window."""
+        fields = WindowedFields(phi, layout, radii, self.stepper.domain.stiffness_apply(layout))
+        return self.stepper.energy.parts(fields).total
+
+    def restart(self, fields: WindowedFields) -> float:
+        """r = √(E1(φ) + C): the auxiliary variable equal to the energy it stands for."""
+        return float(np.sqrt(self.stepper.energy.explicit_energy(fields) + self.OFFSET))
+
+    def fallback(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray, dt: float) -> np.ndarray:
+        """The linearly implicit Euler step of ``dt`` with the "auto" stabilisation, which
+        lowers F at any dt (module docstring): taken instead of a relaxation step that would
+        raise F (first order on that step; counted in ``state.memory["sav_fallbacks"]``)."""
+        stepper = self.stepper
+        stabilisation = auto_stabilisation(stepper.energy, stepper.mobility, "lumped", dt, stepper.smallest_radius,
+                                           stepper.pairs)
+        return linearly_implicit_step(stepper, phi, layout, radii, dt, stabilisation, time + dt)
 
     def relax(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray,
               r: float | None, dt: float) -> tuple[np.ndarray, float, float]:
@@ -215,10 +252,10 @@ class RelaxedSAV2(TimeScheme):
         diffusivity = j0 * energy.diffusivity
         fields = WindowedFields(phi, layout, radii)
         if r is None:
-            r = np.sqrt(energy.explicit_energy(fields) + self.OFFSET)
+            r = self.restart(fields)
         # predicted midpoint: a linearly implicit Euler step of dt/2 from φ⁰
         midpoint = linearly_implicit_step(stepper, phi, layout, radii, 0.5 * dt, predictor_stabilisation,
-                                          time + 0.5 * dt)
+                                          time + 0.5 * dt, fields)
         source = stepper.source_term(layout, time + 0.5 * dt)
         middle = WindowedFields(midpoint, layout, radii)
         b = energy.explicit_derivative(middle) / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
@@ -261,8 +298,11 @@ class AdaptiveSAV2(RelaxedSAV2):
     times): embedded first/second-order error estimate, PI step controller, rejected substeps
     redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ).
 
-    A substep of the finest size, dt/2^LEVELS, is accepted whatever its estimate (the step
-    cannot shrink further; a smaller phase dt is then the remedy)."""
+    Without flow (and source), a substep that would raise the free energy F is rejected as
+    well; at the finest size, dt/2^LEVELS, the energy-stable Euler step (:meth:`fallback`)
+    replaces it, so F never rises, whatever dt. A substep of the finest size is otherwise
+    accepted whatever its estimate (the step cannot shrink further; a smaller phase dt is
+    then the remedy)."""
 
     name = "adaptive"
     order = 2
@@ -297,6 +337,7 @@ class AdaptiveSAV2(RelaxedSAV2):
         done = 0  # substeps of the finest size dt/2^LEVELS done in this step
         total = 2**self.LEVELS
         accepted = rejected = 0
+        before = self.free_energy(phi, layout, state.radii) if self.checks_energy else None
         while done < total:
             h = dt / 2**level
             time = state.time + dt * done / total
@@ -312,6 +353,17 @@ class AdaptiveSAV2(RelaxedSAV2):
                 factor = max(self.SHRINK, self.SAFETY * (self.tolerance / error) ** 0.5)
                 level = min(self.LEVELS, level + max(1, int(np.ceil(-np.log2(factor)))))
                 continue
+            if before is not None:
+                after = self.free_energy(new, layout, state.radii)
+                if after > before and level < self.LEVELS:  # F must not rise: a smaller substep
+                    rejected += 1
+                    level += 1
+                    continue
+                if after > before:
+                    new = self.fallback(phi, layout, time, state.radii, h)
+                    new_r = self.restart(WindowedFields(new, layout, state.radii))
+                    after = self.free_energy(new, layout, state.radii)
+                before = after
             if half is not None:
                 new, trial_layout = half.advect(new, trial_layout, time + 0.5 * h)
             phi, layout, r = new, trial_layout, new_r
