@@ -67,7 +67,7 @@ def test_sav2_resumes_bit_for_bit_from_a_checkpoint(tmp_path, flow):
         stepper.step(state)
     save_checkpoint(tmp_path / "c.h5", state)
     resumed, _ = load_checkpoint(tmp_path / "c.h5", domain)
-    assert "sav_r" in resumed.memory
+    assert ("sav_r" in resumed.memory) == (flow is None)  # under flow the step is the plain IMEX midpoint
     stepper = make()
     for _ in range(10):
         stepper.step(resumed)
