@@ -1,6 +1,7 @@
 """Work–precision: CPU time against error for FEM options and the FD reference scheme.
 
     python benchmarks/work_precision.py [--quick] [--reuse-reference]
+    python benchmarks/work_precision.py --schemes [--report]
 
 Two problems, each against a converged reference computed in the same run:
 
@@ -24,10 +25,21 @@ best of up to three repeats for runs under 0.5 s. The same run measures FEM at i
 defaults (h = 1, dt = 1, lumped mass, right diagonals, windows, direct solver) and the FD
 reference at the paper's h = 1, dt = 0.1: ``speedup_vs_fd`` is the ratio of their times
 when every FEM error of the lattice (r(t) and period) is at most the FD's; otherwise the
-cheapest FEM point at or below the FD's errors is used (both are reported). Only one time
-scheme (first order: Lie splitting + linearly implicit Euler) is offered, so the time
-scheme's order is not a variable here. Every point lists the command that reproduces it
-(``femphase run`` on examples/single.toml or examples/hexagonal.toml with ``--set``).
+cheapest FEM point at or below the FD's errors is used (both are reported). These two
+sweeps run the first-order scheme ``euler`` (the default before issue 12) unless a point
+says otherwise, so the time scheme's order is not a variable there. Every point lists the
+command that reproduces it (``femphase run`` on examples/single.toml or
+examples/hexagonal.toml with ``--set``).
+
+``--schemes``: the time schemes on the lattice problem (b) at h = 1 — first order
+``euler`` at fixed dt, second order ``sav2`` at fixed dt, ``adaptive`` (outer step = the
+frame interval 10) at three tolerances. Errors against two references: ``time`` is sav2 at
+h = 1, dt = 0.25 computed in this run (the same spatial discretisation, so only the time
+error remains; second order, so ~1/16 of sav2's error at dt = 1), ``converged`` the stored
+h = 0.5, dt = 0.2 reference of ``results/work_precision.json`` (space and time together).
+Points run two at a time (CPU time per process). Writes
+``results/work_precision_schemes.json``, ``results/work_precision_schemes.png`` and the
+README section; ``--report`` rewrites the section from the JSON.
 """
 
 from __future__ import annotations
@@ -80,6 +92,12 @@ class Point:
         return "FEM " + (", ".join(parts) if parts else "default")
 
     @property
+    def numerics(self) -> dict:
+        """The scene's numerics table: the options, with the first-order scheme unless they
+        name one (module docstring)."""
+        return {"scheme": "euler", **self.options} if self.method == "fem" else dict(self.options)
+
+    @property
     def is_default(self) -> bool:
         return self.method == "fem" and self.h == 1.0 and self.dt == 1.0 and not self.options
 
@@ -94,13 +112,14 @@ class Point:
             sets = [f"phases.{i}.{key}={value:g}" for i, duration in enumerate((RELAX, SHEAR))
                     for key, value in (("duration", duration), ("frame_interval", FRAME), ("dt", self.dt))]
             scene = "examples/hexagonal.toml"
-        sets += [f"domain.h={self.h:g}"] + [f"numerics.{k}={json.dumps(v)}" for k, v in sorted(self.options.items())]
+        sets += [f"domain.h={self.h:g}"] + [f"numerics.{k}={json.dumps(v)}" for k, v in sorted(self.numerics.items())
+                                            if self.method == "fem"]
         method = " --method fd" if self.method == "fd" else ""
         return f"femphase run {scene} -o out{method} " + " ".join(f"--set {s}" for s in sets)
 
 
 def scene_for(point: Point):
-    tables = {"name": f"work-precision {point.problem}", "numerics": dict(point.options), "output": {"fields": False}}
+    tables = {"name": f"work-precision {point.problem}", "numerics": point.numerics, "output": {"fields": False}}
     if point.problem == "particle":
         return scene_from_dict({
             **tables, "domain": {"Lx": 40.0, "Ly": 40.0, "h": point.h},
@@ -329,13 +348,97 @@ def report(result: dict) -> str:
     return "\n".join(text)
 
 
+# -- the time schemes (--schemes) ---------------------------------------------------------------
+SCHEME_POINTS = ([Point("lattice", "fem", 1.0, dt, {"scheme": "euler"}) for dt in (1.0, 0.5, 0.25, 0.1)]
+                 + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2"}) for dt in (5.0, 2.5, 1.0)]
+                 + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": tol})
+                    for tol in (3e-2, 1e-2, 3e-3)])
+SCHEMES_OUT = RESULTS / "work_precision_schemes.json"
+
+
+def scheme_rows(points: list[Point], converged: dict, in_time: dict) -> list[dict]:
+    rows = []
+    for p in points:
+        row = {"label": p.label, "dt": p.dt, "options": p.options, "command": p.command()}
+        if p.failure:
+            rows.append({**row, "failure": p.failure})
+            continue
+        rows.append({**row, "seconds": p.seconds, "errors": lattice_errors(p, converged),
+                     "time_errors": lattice_errors(p, in_time)})
+    return rows
+
+
+def is_default_scheme(row: dict) -> bool:
+    """Whether a row runs the scheme and tolerance a scene gets by default."""
+    from femphase.stepping import Numerics
+
+    defaults = Numerics()
+    options = row["options"]
+    return (options.get("scheme") == defaults.scheme
+            and options.get("tolerance_t", defaults.tolerance_t) == defaults.tolerance_t
+            and (defaults.scheme != "adaptive" or row["dt"] == FRAME))
+
+
+def schemes_report(result: dict) -> str:
+    percent = lambda x: f"{100 * x:.2g} %"  # noqa: E731
+    rows = []
+    for row in result["rows"]:
+        name = row["label"].removeprefix("FEM ") + (" **(default)**" if is_default_scheme(row) else "")
+        if "failure" in row:
+            rows.append([name, f"{row['dt']:g}", "—", "did not finish", "", "", "", f"`{row['command']}`"])
+            continue
+        t, c = row["time_errors"], row["errors"]
+        rows.append([name, f"{row['dt']:g}", f"{row['seconds']:.1f}", percent(t["elongation"]), percent(t["period"]),
+                     percent(c["elongation"]), percent(c["period"]), f"`{row['command']}`"])
+    return "\n".join([
+        f"Lattice over one period at h = 1 (`python benchmarks/work_precision.py --schemes`, "
+        f"{result['cpu_seconds'] / 60:.0f} CPU-min); errors **in time** against sav2 at dt = 0.25 "
+        f"({result['reference_seconds']:.0f} CPU s), and against the stored h = 0.5 run (**converged**).\n",
+        markdown_table(["scheme", "dt", "CPU s", "r(t), in time", "period, in time", "r(t), converged",
+                        "period, converged", "command"], rows),
+        "", "![time schemes](results/work_precision_schemes.png)"])
+
+
+def schemes_main(report_only: bool) -> None:
+    if report_only:
+        update_readme("work_precision_schemes", schemes_report(json.loads(SCHEMES_OUT.read_text())))
+        return
+    from concurrent.futures import ProcessPoolExecutor
+
+    started = time.process_time()
+    converged = json.loads((RESULTS / "work_precision.json").read_text())["lattice"]["reference"]
+    reference = Point("lattice", "fem", 1.0, 0.25, {"scheme": "sav2"})
+    # the longest runs first, two processes: the machine's two cores
+    with ProcessPoolExecutor(2) as pool:
+        done = list(pool.map(run, [reference] + SCHEME_POINTS))
+    reference, points = done[0], done[1:]
+    result = {"rows": scheme_rows(points, converged, reference.result), "reference_seconds": reference.seconds,
+              "reference": "time_errors: sav2 at h = 1, dt = 0.25 (this run); errors: work_precision.json lattice "
+                           "reference (h = 0.5, dt = 0.2)",
+              "cpu_seconds": time.process_time() - started + sum(p.seconds for p in done),
+              "command": "python benchmarks/work_precision.py --schemes"}
+    SCHEMES_OUT.write_text(json.dumps(result, indent=1) + "\n")
+    finished = [p for p in points if not p.failure]
+    for p in finished:
+        p.errors = lattice_errors(p, reference.result)
+    plot([(f"lattice, h = 1: {k} error in time", finished, k) for k in ("elongation", "period")],
+         RESULTS / "work_precision_schemes.png")
+    markdown = schemes_report(result)
+    print(markdown)
+    update_readme("work_precision_schemes", markdown)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--schemes", action="store_true", help="the time schemes on the lattice (module docstring)")
     parser.add_argument("--quick", action="store_true", help="a few coarse points, no fine references")
     parser.add_argument("--report", action="store_true", help="only rewrite the README section from the JSON")
     parser.add_argument("--reuse-reference", action="store_true",
                         help="take the references from results/work_precision.json instead of recomputing them")
     args = parser.parse_args()
+    if args.schemes:
+        schemes_main(args.report)
+        return
     started = time.process_time()
     out = RESULTS / "work_precision.json"
     if args.report:
