@@ -178,7 +178,8 @@ class RelaxedSAV2(TimeScheme):
     def __init__(self, stepper: "Stepper") -> None:
         super().__init__(stepper)
         if stepper.numerics.mass != "lumped":
-            raise SceneError("numerics.mass", stepper.numerics.mass, '"lumped" with numerics.scheme = "sav2"')
+            raise SceneError("numerics.mass", stepper.numerics.mass,
+                             f'"lumped" with numerics.scheme = "{self.name}" (or scheme = "euler" for the consistent mass)')
         flow, dt = stepper.flow, stepper.dt
         self.half = None if flow.is_still else stepper.domain.advection(flow, 0.5 * dt, stepper.numerics)
         self._half_bound = 0.5 * stepper.energy.curvature_bound(stepper.smallest_radius, stepper.pairs)
