@@ -23,8 +23,10 @@ def small_system(centres, length=40.0, width=40.0, h=1.0, radius=8.0, initial_ra
 
 
 def stepper(domain, state, dt=1.0, flow=None, params=ModelParameters(), **numerics):
-    """The stepper of ``domain`` for ``state``'s particles (``numerics``: Numerics fields)."""
-    return Stepper(domain, params, Numerics(**numerics), dt, flow, state.radii)
+    """The stepper of ``domain`` for ``state``'s particles (``numerics``: Numerics fields; the
+    first-order scheme "euler" unless they name one: the tests using this helper check its
+    stabilisation, solvers and splitting)."""
+    return Stepper(domain, params, Numerics(**{"scheme": "euler", **numerics}), dt, flow, state.radii)
 
 
 def energy_of(state: State, params: ModelParameters) -> EnergyParts:

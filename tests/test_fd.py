@@ -37,6 +37,7 @@ def single_particle_scene(method_dt: float, duration: float, frame: float, **par
         "domain": {"Lx": 32.0, "Ly": 32.0, "h": 1.0},
         "particles": {"layout": "single", **particles},
         "output": {"fields": False, "checkpoint": False},
+        "numerics": {"scheme": "euler"},  # the FEM side: the first-order step these tests bound
         "phases": [{"name": "relax", "duration": duration, "dt": method_dt, "frame_interval": frame}],
     })
 

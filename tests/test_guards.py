@@ -18,8 +18,10 @@ PAIR = {"domain": {"Lx": 40.0, "Ly": 30.0}, "particles": {"layout": "list", "cen
 
 
 def scene(tables, phases, **numerics):
-    return scene_from_dict({"name": "guard", **tables, "numerics": numerics, "output": {"fields": False},
-                            "phases": phases})
+    """A scene with the first-order scheme unless ``numerics`` names another: the saturation
+    these guards watch is that scheme's stabilisation."""
+    return scene_from_dict({"name": "guard", **tables, "numerics": {"scheme": "euler", **numerics},
+                            "output": {"fields": False}, "phases": phases})
 
 
 def run(sc, guard=None, trackers=()):

@@ -74,7 +74,7 @@ def equilibrium(h: float) -> tuple[np.ndarray, np.ndarray, dict]:
     start = interface_profile(y - 0.5 * LY, 2.0 * PARAMS.interface_width)
     # one flat field in grid order (dof = iy * nx + ix)
     state = State(domain, [domain.full_window()], [np.repeat(start, grid.nx)], np.array([PARAMS.radius]))
-    stepper = Stepper(domain, PARAMS, Numerics(windows=False), DT, None, state.radii)
+    stepper = Stepper(domain, PARAMS, Numerics(scheme="euler", windows=False), DT, None, state.radii)
     change = np.inf
     while change > TOLERANCE:
         if state.step == MAX_STEPS:

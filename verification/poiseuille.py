@@ -61,7 +61,7 @@ RELAX, FLOW, AVERAGED = 300.0, 1000.0, 20
 VELOCITIES = (0.01, 0.1, 0.3, 1.0)
 SAMPLES = (1, 2)
 COMPARED_VELOCITY = 0.3
-PARAMS, NUMERICS = ModelParameters(), Numerics()
+PARAMS, NUMERICS = ModelParameters(), Numerics(scheme="euler")  # as the stored results
 
 
 class Run:
