@@ -10,6 +10,7 @@ import re
 import socket
 import subprocess
 import sys
+import types
 from importlib import metadata
 from pathlib import Path
 
@@ -226,3 +227,23 @@ def test_status_log_from_python_logs_increasing_times(caplog):
     assert times[0] == 0.0 and times[-1] == 30.0 and times == sorted(times) and len(times) >= 30
     with pytest.raises(ValueError, match="interval"):
         StatusLog(-1.0)
+
+
+def test_status_lines_come_every_interval_of_wall_time_with_the_rate_and_eta(caplog, monkeypatch):
+    clock = types.SimpleNamespace(now=0.0)
+    monkeypatch.setattr("femphase.logs.wallclock", types.SimpleNamespace(monotonic=lambda: clock.now))
+
+    class Tick(Tracker):  # every step takes 0.25 s of (fake) wall time
+        def after_step(self, state):
+            clock.now += 0.25
+
+    scene = load_scene(SCENE, SHORT)
+    with caplog.at_level(logging.INFO, logger="femphase"):
+        Simulation(scene).run(scene.initial_state(), [Tick(), StatusLog(interval=1.0)])
+    lines = [r.getMessage() for r in caplog.records if r.name == "femphase"]
+    steps = [int(re.search(r"step=(\d+)/30", line)[1]) for line in lines if line.startswith("status:")]
+    assert steps == [4, 8, 12, 16, 24, 28]  # a line per second; the phase ends at 20 and 30 reset the count
+    assert [line.split(":")[0] for line in lines if not line.startswith("status:")] == [
+        "start", "phase 0", "phase 1", "phase 1"]
+    first = next(line for line in lines if line.startswith("status:"))
+    assert "ms/step=250 " in first and first.endswith(" eta=6s")  # 26 steps to go at 0.25 s
