@@ -194,7 +194,8 @@ def test_an_interrupted_run_logs_where_it_stopped(tmp_path):
     assert not [h for h in logging.getLogger("femphase").handlers if not isinstance(h, logging.NullHandler)]
 
 
-def test_console_shows_status_lines_once_without_a_terminal_and_none_with_q(tmp_path, capsys):
+def test_console_shows_status_lines_once_without_a_terminal_and_none_with_q_or_a_bar(tmp_path, capsys,
+                                                                                   monkeypatch):
     # dt = 4 > dt* = 3 for one particle: an accuracy warning, on the console and in run.log
     sets = SHORT + ["phases.1.dt=4", "phases.1.duration=12", "phases.1.frame_interval=4"]
     args = ["run", str(SCENE), "-o", str(tmp_path / "loud"), "--status-interval", "0"]
@@ -206,10 +207,14 @@ def test_console_shows_status_lines_once_without_a_terminal_and_none_with_q(tmp_
     warned = [line for line in err if line.startswith("femphase: warning: ") and "phases.1.dt" in line]
     assert len(warned) == 1 and any(warned[0].removeprefix("femphase: warning: ") in line for line in log)
 
-    assert _run(tmp_path / "quiet", sets=sets) == 0
-    err = capsys.readouterr().err
-    assert "status:" not in err and "start:" not in err and err.count("femphase: warning: ") == 1
-    assert _status_lines((tmp_path / "quiet" / "run.log").read_text())
+    for name, flags in (("quiet", ["-q"]), ("terminal", [])):  # the progress bar shows the progress
+        if name == "terminal":
+            monkeypatch.setattr(sys.stderr, "isatty", lambda: True)
+        args = ["run", str(SCENE), "-o", str(tmp_path / name), "--status-interval", "0", *flags]
+        assert main(args + [item for a in sets for item in ("--set", a)]) == 0
+        err = capsys.readouterr().err
+        assert "status:" not in err and "start:" not in err and err.count("femphase: warning: ") == 1, name
+        assert _status_lines((tmp_path / name / "run.log").read_text())
 
 
 def test_the_library_configures_no_logging_and_the_cli_leaves_none_behind(tmp_path):
