@@ -1,6 +1,7 @@
 """The ``femphase`` command line.
 
     femphase run SCENE.toml -o DIR [--set key=value ...] [--resume | --overwrite] [--method fem|fd]
+                 [--status-interval SECONDS] [-q]
 
 Exit codes: 0 done; 2 bad input (a scene key or value, a command-line value, a run directory
 that cannot be used: one message naming the key, the value and what is valid); 3 the run
@@ -9,11 +10,16 @@ SIGTERM (``timeout``, Slurm, ``docker stop``): the run stops after the current s
 checkpoint of it, marks run.json "interrupted" and can be continued with ``--resume``;
 1 an internal error (a bug: rerun with ``--traceback`` and report it). Nothing already
 computed is removed by any error.
+
+Console (stderr): on a terminal a progress bar; without one (a batch job) the status lines
+of :class:`femphase.logs.StatusLog` instead; with ``-q`` neither. Warnings and errors always.
+The run directory's run.log has the status lines, warnings and errors in every case.
 """
 
 from __future__ import annotations
 
 import argparse
+import logging
 import os
 import sys
 import traceback
@@ -32,7 +38,8 @@ def _run(args: argparse.Namespace) -> int:
     scene = scene_from_dict(read_scene_data(args.scene, args.set), Path(args.scene).parent)
     progress = False if args.quiet else None
     state = run_scene(scene, args.output, resume=args.resume, overwrite=args.overwrite, method=args.method,
-                      progress=progress, argv=sys.argv[1:] if args.argv is None else args.argv)
+                      progress=progress, argv=sys.argv[1:] if args.argv is None else args.argv, sets=args.set,
+                      status_interval=args.status_interval)
     print(f"femphase: {scene.name}: reached t = {state.time:g} after {state.step} steps; output in {args.output}")
     return 0
 
@@ -55,7 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--method", default="fem", choices=["fem", "fd"],
                      help="fem: the finite-element solver with the scene's numerics.scheme; fd: the paper's "
                           "finite-difference scheme (numerics.scheme = \"fd-heun\")")
-    run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    run.add_argument("-q", "--quiet", action="store_true",
+                     help="no progress bar and no status lines on the console (run.log has them)")
+    run.add_argument("--status-interval", type=_seconds, default=30.0, metavar="SECONDS",
+                     help="wall time between status lines in run.log (and on the console without a "
+                          "terminal); 0: every step (default: 30)")
     run.set_defaults(func=_run, argv=None)
     from . import compare, ode, plot
 
@@ -64,8 +75,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _seconds(text: str) -> float:
+    value = float(text)
+    if not value >= 0:  # also NaN
+        raise argparse.ArgumentTypeError(f"a number of seconds >= 0, not {text!r}")
+    return value
+
+
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    print(f"femphase: warning: {message}", file=sys.stderr)
+    # through the logger: the console shows it, and a running run's run.log keeps it
+    logging.getLogger("femphase").warning("%s", message)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -76,6 +95,14 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if argv is not None:
         args.argv = list(argv)
+    from .logs import LOGGER, console_handler
+
+    # status lines on the console only where no progress bar shows them (tqdm draws only on
+    # a terminal), and not with -q
+    status_lines = not getattr(args, "quiet", True) and not sys.stderr.isatty()
+    console, level = console_handler(logging.INFO if status_lines else logging.WARNING), LOGGER.level
+    LOGGER.addHandler(console)
+    LOGGER.setLevel(logging.INFO)
     try:
         return args.func(args)
     except BaseException as exc:  # every error ends in one message and a documented code
@@ -86,6 +113,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"femphase: {message}", file=sys.stderr)
         return code
+    finally:  # main may be called again in this process (tests): no second handler
+        LOGGER.removeHandler(console)
+        LOGGER.setLevel(level)
 
 
 def _report(exc: BaseException) -> tuple[int | None, str]:

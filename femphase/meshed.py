@@ -38,6 +38,9 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from skfem import MeshTri
 
+# the grid kind first, whichever module is imported first: registries list (and
+# docs/scenes.md documents) the domain kinds in registration order
+from . import channel  # noqa: F401
 from .advection import GalerkinPade
 from .analysis.shape import shape_tensors
 from .discretisation import P1Operators, assemble_operators, element_gradients

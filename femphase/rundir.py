@@ -11,8 +11,11 @@ DIR/
   checkpoint.h5      the last checkpoint (:func:`femphase.io.save_checkpoint`), with the
                      scene that wrote it and the size of every output at that moment
   run.json           status ("running", "completed", "failed", "interrupted"), progress,
-                     and the history of segments (one per start or resume); replaced
-                     atomically at every frame
+                     start and end times, and the history of segments (one per start or
+                     resume, each with its command line, wall time and provenance:
+                     versions, host, threads); replaced atomically at every frame
+  run.log            the log (:class:`RunLog`): a header line per segment, status lines,
+                     warnings, how each segment ended; appended, never cut
 
 Guarantees. Every file is either appended (the CSVs, flushed at every frame) or replaced
 atomically (write to a temporary name, then ``os.replace``), so a kill at any instant leaves
@@ -21,12 +24,15 @@ CSV and the number of field frames when it was written. ``--resume`` cuts every 
 to that record and continues from the checkpoint, so after any sequence of kills, interrupts
 and resumes the outputs equal those of an uninterrupted run (bit for bit: the stepping is
 deterministic). A frame's outputs are written before its checkpoint, so at most the frames
-after the last checkpoint are lost.
+after the last checkpoint are lost. run.json and run.log record wall times and hosts, so
+they differ between runs; they are not among the outputs a resume reproduces.
 """
 
 from __future__ import annotations
 
+import datetime
 import json
+import logging
 import os
 import time as wallclock
 from pathlib import Path
@@ -37,11 +43,16 @@ import numpy as np
 
 from .errors import SceneError
 from .io import _jsonable, atomic_write, failpoint
+from .provenance import now
 
 CHECKPOINT = "checkpoint.h5"
+RUN_LOG = "run.log"
 #: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
-OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json")
+OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json", RUN_LOG)
 FIELDS_DIR = "fields"
+#: The package logger (as :data:`femphase.logs.LOGGER`; that module imports the simulation,
+#: which imports this one).
+_LOGGER = logging.getLogger("femphase")
 
 
 def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None:
@@ -296,12 +307,19 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
 
 
 class Status:
-    """run.json: the run's status and history of segments, replaced atomically."""
+    """run.json: the run's status, times and history of segments, replaced atomically.
+
+    ``base``: the fields of this segment's run (version, method, scene); ``previous``: the
+    run.json of a resumed run, whose segments and start time are kept. Times are ISO 8601
+    with the UTC offset (:func:`femphase.provenance.now`), wall times in seconds."""
 
     def __init__(self, directory: Path, base: dict, previous: dict | None) -> None:
         self.path = Path(directory) / "run.json"
+        previous = previous or {}
         self.data = dict(base)
-        self.data["segments"] = list((previous or {}).get("segments", []))
+        self.data["segments"] = list(previous.get("segments", []))
+        self.data["started"] = previous.get("started") or now()
+        self.data["ended"] = None
         self.started = wallclock.perf_counter()
 
     @staticmethod
@@ -313,15 +331,54 @@ class Status:
             return None
 
     def begin_segment(self, segment: dict) -> None:
-        self.data["segments"].append({**segment, "started": _now()})
+        self.data["segments"].append({**segment, "started": now(), "ended": None, "status": "running"})
 
     def update(self, **values) -> None:
+        """Set top-level fields (``status`` among them: a status other than "running" ends
+        the segment, with its end time) and write run.json."""
         self.data.update(values)
         segment = self.data["segments"][-1]
         segment["wall_time_s"] = wallclock.perf_counter() - self.started
         segment["time"], segment["step"] = self.data.get("time"), self.data.get("steps")
+        if values.get("status", "running") != "running":
+            segment["status"] = values["status"]
+            segment["ended"] = self.data["ended"] = now()
+        self.data["wall_time_s"] = sum(s.get("wall_time_s", 0.0) for s in self.data["segments"])
         atomic_write(self.path, json.dumps(self.data, indent=2, default=_jsonable) + "\n")
 
 
-def _now() -> str:
-    return wallclock.strftime("%Y-%m-%dT%H:%M:%S%z")
+class RunLog:
+    """run.log: the records of the ``femphase`` logger (INFO and above) while a run writes
+    its directory, appended (a resumed run continues the file; nothing cuts it, so a kill
+    may leave a partial last line). Each segment starts with a header line ``=== segment K
+    …`` and ends with a line saying how it ended (ERROR for a failure, with the step and
+    time). Lines: ISO 8601 time with UTC offset, level, message.
+
+    While open, the femphase logger's level is lowered to INFO if it was above (logging's
+    default is WARNING), so that status lines reach the file; :meth:`close` restores it."""
+
+    def __init__(self, directory: Path, header: str) -> None:
+        self.handler = logging.FileHandler(Path(directory) / RUN_LOG, mode="a", encoding="utf-8")
+        self.handler.setLevel(logging.INFO)
+        self.handler.setFormatter(_RunLogFormatter("%(asctime)s %(levelname)s %(message)s"))
+        self.write(logging.INFO, header)
+        self.level = _LOGGER.level
+        if _LOGGER.getEffectiveLevel() > logging.INFO:
+            _LOGGER.setLevel(logging.INFO)
+        _LOGGER.addHandler(self.handler)
+
+    def write(self, level: int, message: str) -> None:
+        """A line in run.log only (the header and the end: the console has its own)."""
+        self.handler.handle(_LOGGER.makeRecord(_LOGGER.name, level, __file__, 0, message, (), None))
+
+    def close(self, level: int, message: str) -> None:
+        """Write the segment's last line and detach from the logger."""
+        _LOGGER.removeHandler(self.handler)
+        _LOGGER.setLevel(self.level)
+        self.write(level, message)
+        self.handler.close()
+
+
+class _RunLogFormatter(logging.Formatter):
+    def formatTime(self, record: logging.LogRecord, datefmt: str | None = None) -> str:
+        return datetime.datetime.fromtimestamp(record.created).astimezone().isoformat(timespec="milliseconds")

@@ -8,6 +8,8 @@ frames in memory, and are composed by the caller.
 
 from __future__ import annotations
 
+import logging
+import shlex
 import signal
 import threading
 from contextlib import contextmanager
@@ -23,7 +25,8 @@ from .energy import FreeEnergy
 from .errors import Interrupted, SceneError
 from .io import atomic_write, load_checkpoint, point_data, read_checkpoint_metadata, save_checkpoint, to_toml
 from .observables import OBSERVABLES, Observable, resolve
-from .rundir import CHECKPOINT, Outputs, Status, prepare_directory, resume_position
+from .provenance import provenance
+from .rundir import CHECKPOINT, Outputs, RunLog, Status, prepare_directory, resume_position
 from .scene import Phase, Scene, check_numerics
 from .state import State
 from .stepping import Stepper
@@ -214,17 +217,20 @@ class FrameRecorder(Tracker):
 
 class RunDirectory(Tracker):
     """Writes a run directory (:mod:`femphase.rundir`): appends every frame's rows and field
-    frame, then its checkpoint; keeps run.json's status current.
+    frame, then its checkpoint; keeps run.json's status current; appends the femphase
+    logger's records to run.log while it runs (:class:`femphase.rundir.RunLog`).
 
     ``resume_from``: the checkpoint's record of the outputs (a resumed run cuts them back to
-    it); ``changes``: what the resumed scene changed (run.json's segment records them);
-    ``overwrite``: replace a run already in the directory (else it is refused,
+    it); ``changes``: what the resumed scene changed; ``argv``: the command line (without
+    the program) and ``sets``: its ``--set`` assignments (run.json's segment records all
+    three); ``overwrite``: replace a run already in the directory (else it is refused,
     :func:`femphase.rundir.prepare_directory`)."""
 
     def __init__(self, directory: str | Path, resume_from: dict | None = None, changes: list[str] | None = None,
-                 argv: list[str] | None = None, overwrite: bool = False) -> None:
+                 argv: list[str] | None = None, overwrite: bool = False, sets: list[str] | None = None) -> None:
         self.directory = Path(directory)
         self.resume_from, self.changes, self.argv, self.overwrite = resume_from, list(changes or []), argv, overwrite
+        self.sets = list(sets or [])
         self.needs = frozenset(OBSERVABLES.names())
 
     def start(self, simulation: Simulation, state: State) -> None:
@@ -244,10 +250,19 @@ class RunDirectory(Tracker):
             "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
             "settings": scene.to_dict(),
         }, Status.read(self.directory) if self.resume_from is not None else None)
+        origin = provenance()
         self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
-                                   "from_step": state.step, "changes": self.changes, "argv": self.argv})
+                                   "from_step": state.step, "changes": self.changes, "argv": self.argv,
+                                   "set": self.sets, "provenance": origin})
         self.first_step = state.step
         self.status.update(status="running", message="", time=state.time, steps=state.step)
+        # last: a refusal above must leave run.log untouched, and nothing below can fail
+        self.log = RunLog(self.directory, (
+            f"=== segment {len(self.status.data['segments'])}: "
+            f"{'resumed' if self.resume_from is not None else 'started'} at t = {state.time:g} (step {state.step});"
+            f" femphase {origin['femphase_version']} (git {origin['git_commit'] or 'unknown'}), Python {origin['python']},"
+            f" host {origin['host']}, pid {origin['pid']}"
+            + (f"; argv: {shlex.join(self.argv)}" if self.argv is not None else "") + " ==="))
 
     def frame(self, frame: Frame) -> None:
         state = frame.state
@@ -269,17 +284,23 @@ class RunDirectory(Tracker):
         })
 
     def finish(self, state: State, error: Exception | None) -> None:
-        if isinstance(error, Interrupted) and self.simulation.scene.output.checkpoint:
-            self._checkpoint(state)  # a consistent state between two steps: keep it
-        self.outputs.close()
         if error is None:
-            status, message = "completed", ""
+            status, message, level = "completed", "", logging.INFO
         elif isinstance(error, (Interrupted, KeyboardInterrupt)):
-            status, message = "interrupted", str(error) or "interrupted (KeyboardInterrupt)"
+            status, message, level = "interrupted", str(error) or "interrupted (KeyboardInterrupt)", logging.WARNING
         else:
-            status, message = "failed", str(error) or type(error).__name__
-        self.status.update(status=status, message=message, time=state.time, steps=state.step,
-                           steps_this_segment=state.step - self.first_step)
+            status, message, level = "failed", str(error) or type(error).__name__, logging.ERROR
+        try:
+            if isinstance(error, Interrupted) and self.simulation.scene.output.checkpoint:
+                self._checkpoint(state)  # a consistent state between two steps: keep it
+            self.outputs.close()
+            self.status.update(status=status, message=message, time=state.time, steps=state.step,
+                               steps_this_segment=state.step - self.first_step)
+        finally:  # the logger must not keep writing into this directory
+            segment = self.status.data["segments"][-1]
+            self.log.close(level, f"=== segment {len(self.status.data['segments'])} {status} after step {state.step} "
+                                  f"(t = {state.time:g}), {segment['wall_time_s']:.1f} s wall time"
+                                  + (f": {message}" if message else "") + " ===")
 
 
 @contextmanager
@@ -310,12 +331,16 @@ def stop_on_signals():
 
 
 def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, overwrite: bool = False,
-              method: str = "fem", progress: bool | None = None, argv: list[str] | None = None) -> State:
+              method: str = "fem", progress: bool | None = None, argv: list[str] | None = None,
+              sets: list[str] | None = None, status_interval: float | None = 30.0) -> State:
     """Run a scene into a run directory (what ``femphase run`` does), on any domain.
 
     A directory that already holds a run is refused unless ``resume`` (continue from its
     checkpoint; the scene may change only compatibly, :func:`femphase.rundir.resume_position`)
-    or ``overwrite``. Nothing in the directory is touched before every check has passed."""
+    or ``overwrite``. Nothing in the directory is touched before every check has passed.
+    ``progress``: the tqdm bar (None: only on a terminal); ``argv`` and ``sets``: the command
+    line and its ``--set`` assignments, for run.json; ``status_interval``: seconds of wall
+    time between status lines in the log (:class:`femphase.logs.StatusLog`; None: none)."""
     directory = Path(directory)
     simulation = Simulation(scene, method)
     check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
@@ -336,11 +361,15 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
         record = metadata["outputs"]
     else:
         state = scene.initial_state()
-    trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite)]
+    trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite, sets)]
     if progress is not False:
         trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))
-    from .guards import AccuracyGuard  # here: femphase.guards imports this module
+    # here: both modules import this one
+    from .guards import AccuracyGuard
+    from .logs import StatusLog
 
+    if status_interval is not None:
+        trackers.append(StatusLog(status_interval))  # after RunDirectory: its first line goes to run.log
     trackers.append(AccuracyGuard())  # last: a frame is written before a strict stop
     with stop_on_signals() as stop:
         return simulation.run(state, trackers, initial_frame=not resume, stop=stop)
