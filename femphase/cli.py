@@ -57,9 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "finite-difference scheme (numerics.scheme = \"fd-heun\")")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_run, argv=None)
-    from . import compare, ode, plot
+    from . import aggregate, compare, ode, plot
 
-    for module in (ode, compare, plot):
+    for module in (ode, compare, plot, aggregate):
         module.register_cli(commands)
     return parser
 
