@@ -84,7 +84,6 @@ SAMPLE_SUFFIX = ".seed"
 AVERAGED_FRACTION = 0.2
 #: Files of a run directory that the aggregate is computed from (newer ones make it stale).
 RUN_INPUTS = ("particles.csv", "global.csv", "run.json", "scene.toml")
-SWEEP_FIGURES = ("sweep_order", "sweep_dynamics", "sweep_period")
 
 
 @dataclass(frozen=True)

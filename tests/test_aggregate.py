@@ -14,8 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-xr = pytest.importorskip("xarray")
+import xarray as xr
 
 from femphase import __version__
 from femphase.aggregate import (GLOBAL_COLUMNS, PARTICLE_COLUMNS, SUMMARY_COLUMNS, aggregate, averaging_window,
