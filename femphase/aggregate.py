@@ -572,7 +572,7 @@ FIGURE_PANELS = {
     "sweep_order": [("order parameter (last fifth of the last phase)", [("Psi6_mean", "Ψ6"), ("Psi2_mean", "Ψ2^L")])],
     "sweep_dynamics": [("mean elongation r (bulk)", [("elongation_mean", "r")]),
                        ("T1 rate (1/(particle · time unit))", [("t1_rate", "T1 rate")])],
-    "sweep_period": [("period of r̄(t) (time units)", [("period", "period")])],
+    "sweep_period": [("period of the bulk-mean r(t) (time units)", [("period", "period")])],
 }
 
 

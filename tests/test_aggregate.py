@@ -238,8 +238,13 @@ def test_plot_on_a_sweep_writes_the_figures_and_aggregates_first(sweep, tmp_path
     for name in ("sweep_order", "sweep_dynamics"):
         assert (tmp_path / f"{name}.svg").stat().st_size > 1000
     assert not (tmp_path / "sweep_period.svg").exists() and "no sweep_period figure" in out
+    written = (sweep / "sweep.nc").stat().st_mtime_ns
     assert main(["plot", str(sweep)]) == 0
     assert (sweep / "figures" / "sweep_order.png").is_file()
+    assert (sweep / "sweep.nc").stat().st_mtime_ns == written  # current: not aggregated again
+    os.utime(sweep / "runs" / KILLED / "particles.csv")  # a run wrote more: aggregate again
+    assert main(["plot", str(sweep)]) == 0
+    assert (sweep / "sweep.nc").stat().st_mtime_ns > written
 
 
 def test_period_figure_when_a_period_was_measured(tmp_path):
