@@ -458,7 +458,7 @@ def build_dataset(sweep: Sweep, tables: dict[str, RunTables], summary: list[dict
             known = GLOBAL_COLUMNS.get(column, Column("energy units", f"energy term {column}"))
             fill(name, ("time",), (time.size,), known.attrs("global.csv", column))[run.position][frames] = values
         for column, values in run_tables.particles.items():
-            known = PARTICLE_COLUMNS.get(column, Column("", column))
+            known = PARTICLE_COLUMNS.get(column, Column("unknown", f"{column}: a column of the scene's own observable"))
             target = fill(column, ("time", "particle"), (time.size, n_particles), known.attrs("particles.csv", column))
             target[run.position][frames, : values.shape[1]] = values
     by_position = {run.position: row for run, row in zip(sweep.runs, summary)}
@@ -646,7 +646,8 @@ def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str
             ax.set_xlabel(x_key)
             ax.set_ylabel(ylabel)
             ax.legend(fontsize=7)
-        over = f"mean over {', '.join(averaged)} ± 1 s.d. (ddof = 1; bars and band)" if averaged else "one run per point"
+        over = (f"mean over {', '.join(averaged)} ± 1 s.d. (ddof = 1; bars and band)" if averaged
+                else "one run per point")
         fig.suptitle(f"{len(done)} of {len(rows)} runs done; {over}", fontsize=9)
         paths[figure] = _save(fig, Path(output) / f"{figure}.{fmt}")
     return paths
