@@ -397,8 +397,9 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
 # -- the sweep's dataset and summary table -----------------------------------------------------
 @dataclass
 class Aggregate:
-    """A sweep's dataset (module docstring) and its summary, one dict per run in index order."""
+    """A sweep's index, dataset (module docstring) and summary, one dict per run in index order."""
 
+    sweep: Sweep
     dataset: xr.Dataset
     summary: list[dict]
 
@@ -420,7 +421,7 @@ def aggregate(directory: str | Path) -> Aggregate:
                "error": run.error or ""}
         row.update(summarise_run(run_data(run.directory, tables[run.id])))
         summary.append(row)
-    return Aggregate(build_dataset(sweep, tables, summary), summary)
+    return Aggregate(sweep, build_dataset(sweep, tables, summary), summary)
 
 
 def _coordinate(values: list) -> np.ndarray:
@@ -562,7 +563,7 @@ def write_aggregate(directory: str | Path) -> dict[str, Path]:
     tmp = paths["dataset"].with_name(f".{DATASET}.tmp")
     result.dataset.to_netcdf(tmp, engine="h5netcdf")
     os.replace(tmp, paths["dataset"])
-    atomic_write(paths["summary"], summary_csv(result.summary, list(read_sweep(directory).axes)))
+    atomic_write(paths["summary"], summary_csv(result.summary, list(result.sweep.axes)))
     return paths
 
 
