@@ -68,9 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="wall time between status lines in run.log (and on the console without a "
                           "terminal); 0: every step (default: 30)")
     run.set_defaults(func=_run, argv=None)
-    from . import compare, ode, plot
+    from . import aggregate, compare, ode, plot
 
-    for module in (ode, compare, plot):
+    for module in (ode, compare, plot, aggregate):
         module.register_cli(commands)
     return parser
 

@@ -205,9 +205,13 @@ def _jsonable(value):
 
 
 def read_csv(path: Path) -> dict[str, np.ndarray]:
-    """A run directory's CSV as columns of floats (pandas reads the same files directly)."""
-    with Path(path).open() as handle:
-        reader = csv.reader(handle)
-        header = next(reader)
-        rows = np.array([[float(x) for x in row] for row in reader]).reshape(-1, len(header))
+    """A run directory's CSV as columns of floats (pandas reads the same files directly).
+
+    A last line without its newline is a row still being appended (a frame's rows are
+    written in two flushes, :meth:`femphase.rundir.Outputs.append_rows`) and is left out, so
+    the CSVs of a run under way (a sweep being aggregated) can be read."""
+    text = Path(path).read_text()
+    reader = csv.reader(text[: text.rfind("\n") + 1].splitlines())
+    header = next(reader)
+    rows = np.array([[float(x) for x in row] for row in reader]).reshape(-1, len(header))
     return {name: rows[:, k] for k, name in enumerate(header)}

@@ -558,7 +558,12 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
 
 
 def run_cli(args: argparse.Namespace) -> int:
-    """`femphase plot DIR`: write the four figures and list them."""
+    """`femphase plot DIR`: write the four figures and list them (a sweep's figures when DIR
+    holds sweep.json, :mod:`femphase.aggregate`)."""
+    from .aggregate import SWEEP_INDEX, plot_cli
+
+    if (args.directory / SWEEP_INDEX).is_file():
+        return plot_cli(args)
     try:
         paths = plot_run(args.directory, args.output, ode_rate=args.ode_rate, ode_k=args.ode_k, fmt=args.format)
     except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
@@ -574,7 +579,8 @@ def register_cli(subparsers: argparse._SubParsersAction) -> None:
         "plot", help="figures of a run directory (snapshot, r(t) vs the ODE, limit cycle, order)",
         description=__doc__.split("\n\n")[0],
     )
-    parser.add_argument("directory", type=Path, help="run directory written by `femphase run`")
+    parser.add_argument("directory", type=Path, help="run directory written by `femphase run`, or a sweep "
+                        "directory (sweep.json; its figures are described in docs/aggregation.md)")
     parser.add_argument("-o", "--output", type=Path, default=None, help="output directory (default DIR/figures)")
     parser.add_argument("--ode-rate", type=float, default=None,
                         help="shear rate γ̇ of the ODE model (default: the run's shear rate)")

@@ -1,0 +1,708 @@
+"""Aggregate a sweep directory: ``femphase aggregate DIR``, and ``femphase plot DIR`` on a sweep.
+
+A sweep directory (written by ``femphase sweep SWEEP.toml -o DIR``) holds ``sweep.json``::
+
+    {"format": "femphase-sweep", "version": 1, "mode": "product" | "zip",
+     "axes": {key: [values, ...]},
+     "runs": [{"id", "directory": "runs/<id>", "values": {key: value},
+               "status": "pending" | "done" | "failed" | "interrupted", "error": str | null}]}
+
+and one ordinary run directory per run (docs/outputs.md). Keys are ``--set`` scene keys
+(``phases.1.flow.rate``); in product mode the runs cover the Cartesian product of the axes,
+in zip mode run k takes the k-th value of every axis. Keys ending in ``.seed`` (e.g.
+``particles.seed``) are *sample* axes: repetitions of one physical setting.
+
+``femphase aggregate DIR`` writes
+
+``sweep.nc``     one xarray Dataset (netCDF-4 through h5netcdf): dims = the sweep's (product
+                 mode: one dim per axis, named by its key, its values as coordinate; zip
+                 mode: one dim ``run`` with every axis as a coordinate along it) × ``time``
+                 (the union of all runs' frame times, NaN where a run has no such frame) ×
+                 ``particle`` (id; NaN beyond a run's N). Variables: every column of
+                 global.csv (sweep × time) and of particles.csv (sweep × time × particle),
+                 per run ``run_id``, ``status`` (sweep.json's), ``run_status`` (run.json's),
+                 ``error``, and the summary columns below. Units and meanings are variable
+                 attributes, from :data:`PARTICLE_COLUMNS`, :data:`GLOBAL_COLUMNS` and
+                 :data:`SUMMARY_COLUMNS` (tests check them against docs/outputs.md).
+``summary.csv``  one row per run: ``run_id``, the axis values, ``status``, ``run_status``,
+                 ``error`` and :data:`SUMMARY_COLUMNS`.
+
+The averaging window (:func:`averaging_window`): the paper averages Ψ6 and Ψ2^L over the
+last 50 of the 250 frames of its shear phase. femphase averages over the last fifth of the
+frames of the scene's last phase (those after its start; rounded up, at least one frame),
+which is the same for the paper's protocol. A run that has not finished (status other than
+"done") is averaged over the last fifth of the frames it has written in its last phase, and
+NaN if it never reached it; its row says so in ``status``, ``window_start``/``window_end``.
+
+``femphase plot DIR`` on a sweep directory (it has sweep.json) aggregates first when
+summary.csv is missing or older than any run's outputs, then draws, against the swept key
+(the first axis that is not a sample axis), the mean over the sample axes of the runs that
+are done, with ±1 sample standard deviation (ddof = 1, the paper's Fig. 1a band) shaded:
+``sweep_order`` (Ψ6, Ψ2^L), ``sweep_dynamics`` (mean elongation, T1 rate) and
+``sweep_period`` (only when some run has a detectable period). Other non-sample axes give
+one curve per combination of their values.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import math
+import os
+import sys
+import time as wallclock
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import __version__
+from .errors import InputError
+
+if TYPE_CHECKING:
+    import xarray as xr
+
+    from .plot import RunData
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+SWEEP_INDEX = "sweep.json"
+DATASET = "sweep.nc"
+SUMMARY = "summary.csv"
+SWEEP_FORMAT, SWEEP_VERSION = "femphase-sweep", 1
+MODES = ("product", "zip")
+STATUSES = ("pending", "done", "failed", "interrupted")
+#: An axis whose key ends like this repeats one setting with another random sample.
+SAMPLE_SUFFIX = ".seed"
+#: The fraction of the last phase's frames that the summary averages over (the paper: 50 of 250).
+AVERAGED_FRACTION = 0.2
+#: Files of a run directory that the aggregate is computed from (newer ones make it stale).
+RUN_INPUTS = ("particles.csv", "global.csv", "run.json", "scene.toml")
+
+
+@dataclass(frozen=True)
+class Column:
+    """A column's unit, as docs/outputs.md writes it ("—" for a pure number), and meaning."""
+
+    unit: str
+    meaning: str
+
+    def attrs(self, source: str, column: str) -> dict[str, str]:
+        """netCDF attributes: ``units`` ("1" for a pure number, CF's convention), ``long_name``,
+        and where the values came from."""
+        return {"units": "1" if self.unit == "—" else self.unit, "long_name": self.meaning,
+                "source": f"{source} column {column}" if column else source}
+
+
+#: particles.csv (docs/outputs.md, whose table tests/test_aggregate.py checks against this one).
+PARTICLE_COLUMNS = {
+    "x": Column("lattice units", "phi-weighted centroid x (circular mean over the period)"),
+    "y": Column("lattice units", "phi-weighted centroid y"),
+    "area": Column("lattice units²", "particle area: integral of phi_i^2"),
+    "elongation": Column("—", "elongation r = lambda1/lambda2 - 1 of the shape tensor"),
+    "orientation": Column("radians", "nematic angle of the elongation axis from x, in (-pi/2, pi/2]"),
+    "wall_contact": Column("0 or 1", "1 when phi_i exceeds the window threshold on a wall dof"),
+    "psi6_abs": Column("—", "|psi6_j|: bond order over the Delaunay neighbours"),
+    "psi2_abs": Column("—", "|psi2_j|: nematic order of neighbouring elongation axes (e^{2i theta})"),
+}
+#: global.csv (docs/outputs.md).
+GLOBAL_COLUMNS = {
+    "step": Column("—", "steps completed since the start of the run"),
+    "free_energy": Column("energy units", "discrete free energy F_h"),
+    "interface": Column("energy units", "interface energy (double well + gradient)"),
+    "area": Column("energy units", "area term's energy sum_i mu (1 - int phi_i^2 / pi R_i^2)^2"),
+    "repulsion": Column("energy units", "repulsion energy over ordered pairs"),
+    "Psi6": Column("—", "global bond order Psi6 = |mean_j psi6_j|"),
+    "Psi2": Column("—", "global nematic order Psi2^L = |mean_j psi2_j| (e^{2i theta})"),
+    "lattice_angle": Column("radians", "lattice angle of lanes sliding along x, in [pi/4, pi/3]"),
+    "t1_count": Column("count", "running number of T1 events since the run started"),
+}
+#: global.csv columns renamed in the dataset: ``area`` is the particles' area there.
+GLOBAL_RENAMES = {"area": "area_energy"}
+#: summary.csv's measured columns (docs/aggregation.md). "window" is :func:`averaging_window`.
+SUMMARY_COLUMNS = {
+    "n_frames": Column("count", "frames the run has written"),
+    "n_particles": Column("count", "particles of the run"),
+    "window_frames": Column("count", "frames averaged: the last fifth of the last phase's frames"),
+    "window_start": Column("time units", "time of the first frame averaged"),
+    "window_end": Column("time units", "time of the last frame averaged"),
+    "Psi6_mean": Column("—", "Psi6 averaged over the window's frames"),
+    "Psi6_std": Column("—", "standard deviation (ddof = 0) of Psi6 over the window's frames"),
+    "Psi2_mean": Column("—", "Psi2^L averaged over the window's frames"),
+    "Psi2_std": Column("—", "standard deviation (ddof = 0) of Psi2^L over the window's frames"),
+    "elongation_mean": Column("—", "elongation r of the bulk particles, averaged over them and the window"),
+    "period": Column("time units", "period of the bulk-mean r(t) after shear onset; NaN if none is detectable"),
+    "t1_rate": Column("1/(particle · time unit)", "T1 events per particle per time unit over the window"),
+}
+#: Summary columns that count (written as integers).
+_COUNTS = ("n_frames", "n_particles", "window_frames")
+#: Per-run text columns of summary.csv and the dataset.
+TEXT_COLUMNS = ("status", "run_status", "error")
+
+
+# -- the sweep index ---------------------------------------------------------------------
+@dataclass(frozen=True)
+class SweepRun:
+    """One run of a sweep: its index entry and its place in the sweep's dims."""
+
+    id: str
+    directory: Path
+    values: dict
+    status: str
+    error: str | None
+    position: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A sweep directory's index (sweep.json), checked."""
+
+    directory: Path
+    mode: str
+    axes: dict[str, list]
+    runs: list[SweepRun]
+
+    @property
+    def dims(self) -> tuple[str, ...]:
+        return tuple(self.axes) if self.mode == "product" else ("run",)
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return tuple(len(v) for v in self.axes.values()) if self.mode == "product" else (len(self.runs),)
+
+    @property
+    def sample_keys(self) -> list[str]:
+        return [key for key in self.axes if key.endswith(SAMPLE_SUFFIX)]
+
+
+def read_sweep(directory: str | Path) -> Sweep:
+    """Read and check ``DIR/sweep.json`` (module docstring). InputError naming the bad entry,
+    its value and what is valid when the directory is not a sweep or the index is malformed."""
+    directory = Path(directory)
+    path = directory / SWEEP_INDEX
+    if not path.is_file():
+        what = "does not exist" if not directory.exists() else f"has no {SWEEP_INDEX}"
+        raise InputError(f"sweep directory {str(directory)!r} {what}: expected the output directory of "
+                         "`femphase sweep SWEEP.toml -o DIR`")
+    try:
+        index = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{str(path)!r} is not readable JSON ({exc})") from None
+    if not isinstance(index, dict):
+        raise InputError(f"{str(path)!r} holds {type(index).__name__}, expected a JSON object")
+
+    def bad(entry: str, value: object, valid: str) -> InputError:
+        return InputError(f"{str(path)!r}: {entry} = {value!r} is invalid: {valid}")
+
+    if index.get("format") != SWEEP_FORMAT:
+        raise bad("format", index.get("format"), f"{SWEEP_FORMAT!r}")
+    if index.get("version") != SWEEP_VERSION:
+        raise bad("version", index.get("version"), f"{SWEEP_VERSION} (the version this femphase reads)")
+    mode, axes, runs = index.get("mode"), index.get("axes"), index.get("runs")
+    if mode not in MODES:
+        raise bad("mode", mode, " or ".join(repr(m) for m in MODES))
+    if not isinstance(axes, dict) or not axes or not all(isinstance(v, list) and v for v in axes.values()):
+        raise bad("axes", axes, "an object of scene keys, each with a non-empty list of values")
+    lengths = {key: len(values) for key, values in axes.items()}
+    if mode == "zip" and len(set(lengths.values())) > 1:
+        raise bad("axes", lengths, "axes of equal length in zip mode")
+    if not isinstance(runs, list):
+        raise bad("runs", runs, "a list of runs")
+    n_zip = next(iter(lengths.values()))
+    if mode == "zip" and len(runs) != n_zip:
+        raise bad("runs", f"{len(runs)} runs", f"{n_zip} runs, one per value of the zipped axes")
+    checked, seen = [], {}
+    for k, run in enumerate(runs):
+        if not isinstance(run, dict) or not isinstance(run.get("id"), str) or not run["id"]:
+            raise bad(f"runs[{k}]", run, "an object with a non-empty string id")
+        values = run.get("values")
+        if not isinstance(values, dict) or set(values) != set(axes):
+            raise bad(f"runs[{k}].values", values, f"a value for each axis, {sorted(axes)}")
+        if run.get("status") not in STATUSES:
+            raise bad(f"runs[{k}].status", run.get("status"), ", ".join(STATUSES))
+        if mode == "product":
+            for key, value in values.items():
+                if value not in axes[key]:
+                    raise bad(f"runs[{k}].values[{key!r}]", value, f"one of the axis values {axes[key]}")
+            position = tuple(axes[key].index(values[key]) for key in axes)
+        else:
+            position = (k,)
+            for key, value in values.items():
+                if value != axes[key][k]:
+                    raise bad(f"runs[{k}].values[{key!r}]", value, f"{axes[key][k]!r}, the axis' value {k} (zip mode)")
+        if position in seen:
+            raise bad(f"runs[{k}].values", values, f"values of no other run (run {seen[position]!r} has them)")
+        seen[position] = run["id"]
+        directory_name = run.get("directory") or f"runs/{run['id']}"
+        checked.append(SweepRun(run["id"], directory / directory_name, values, run["status"], run.get("error"),
+                                position))
+    return Sweep(directory, mode, dict(axes), checked)
+
+
+# -- one run's tables ----------------------------------------------------------------------
+@dataclass
+class RunTables:
+    """A run directory's CSVs on its frame times (the union of both files' times).
+
+    time       (F,) frame times (time units)
+    globals    global.csv column → (F,), NaN where the file lacks the frame
+    particles  particles.csv column → (F, N), NaN where the file lacks the row
+    """
+
+    time: np.ndarray
+    globals: dict[str, np.ndarray]
+    particles: dict[str, np.ndarray]
+
+    @property
+    def n_particles(self) -> int:
+        return next(iter(self.particles.values())).shape[1] if self.particles else 0
+
+
+def merge_times(*times: np.ndarray) -> np.ndarray:
+    """The sorted union of frame times, times within compare.TIME_TOLERANCE taken as one (the
+    first): runs with different time steps reach the same frame time up to round-off."""
+    from .compare import TIME_TOLERANCE
+
+    merged = np.sort(np.concatenate([np.asarray(t, dtype=float).ravel() for t in times] + [np.empty(0)]))
+    if merged.size == 0:
+        return merged
+    return merged[np.concatenate([[True], np.diff(merged) > TIME_TOLERANCE])]
+
+
+def _frame_index(times: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """Index into ``frames`` (sorted, from :func:`merge_times` of ``times``) of each time."""
+    from .compare import match_times
+
+    rows, index = match_times(np.asarray(times, dtype=float), frames)
+    if rows.size != len(times):  # merge_times covers every time: a miss is a bug here
+        raise AssertionError("frame times not covered by their union")
+    return index
+
+
+def read_run_tables(directory: str | Path) -> RunTables:
+    """The CSVs of a run directory (docs/outputs.md) as :class:`RunTables`; no frames when the
+    directory or its CSVs do not exist yet (a pending run)."""
+    from .io import read_csv
+
+    directory = Path(directory)
+    tables = {name: read_csv(directory / name) if (directory / name).is_file() else {}
+              for name in ("particles.csv", "global.csv")}
+    rows, frame_rows = tables["particles.csv"], tables["global.csv"]
+    time = merge_times(rows.get("time", np.empty(0)), frame_rows.get("time", np.empty(0)))
+    globals_ = {}
+    if frame_rows:
+        at = _frame_index(frame_rows["time"], time)
+        for name, values in frame_rows.items():
+            if name != "time":
+                globals_[name] = np.full(time.size, np.nan)
+                globals_[name][at] = values
+    particles = {}
+    if rows and rows["id"].size:
+        at, ids = _frame_index(rows["time"], time), rows["id"].astype(int)
+        for name, values in rows.items():
+            if name not in ("time", "id"):
+                particles[name] = np.full((time.size, ids.max() + 1), np.nan)
+                particles[name][at, ids] = values
+    return RunTables(time, globals_, particles)
+
+
+def run_data(directory: str | Path, tables: RunTables) -> RunData | None:
+    """The run as :class:`femphase.plot.RunData` (the frames particles.csv has complete), for
+    the analyses of femphase.plot; None without scene.toml or a complete frame."""
+    from .plot import RunData
+
+    directory = Path(directory)
+    if not (directory / "scene.toml").is_file() or "x" not in tables.particles:
+        return None
+    complete = np.isfinite(tables.particles["x"]).all(axis=1)
+    if not complete.any():
+        return None
+    info_path = directory / "run.json"
+    return RunData(directory, tomllib.loads((directory / "scene.toml").read_text()),
+                   json.loads(info_path.read_text()) if info_path.is_file() else {},
+                   tables.time[complete], tables.particles["x"][complete], tables.particles["y"][complete],
+                   tables.particles["elongation"][complete], tables.particles["orientation"][complete],
+                   {name: values[complete] for name, values in tables.globals.items()})
+
+
+# -- per-run summaries ---------------------------------------------------------------------
+def averaging_window(time: np.ndarray, phases: list[dict]) -> np.ndarray:
+    """Indices of the frames averaged: the last fifth (:data:`AVERAGED_FRACTION`, rounded up)
+    of the frames after the start of the last phase (the frame at its start ends the phase
+    before). The paper's 250 frames of shear give its last 50. Empty when no frame is in
+    the last phase."""
+    from .compare import TIME_TOLERANCE
+
+    start = sum(float(phase["duration"]) for phase in phases[:-1])
+    in_last = np.flatnonzero(np.asarray(time) > start + TIME_TOLERANCE)
+    return in_last[in_last.size - math.ceil(AVERAGED_FRACTION * in_last.size):]
+
+
+def t1_rate(run: RunData, window: np.ndarray) -> float:
+    """T1 events per particle per time unit over the window: the events
+    (:func:`femphase.analysis.lattice.t1_event_times`) from the frame before the window (the
+    reference topology; the window's first frame when it is the run's first) to its last
+    frame, over N times that time span. NaN for fewer than 3 particles or an empty span."""
+    from .analysis.lattice import t1_event_times
+
+    if run.n_particles < 3 or window.size == 0:
+        return float("nan")
+    frames = np.arange(max(window[0] - 1, 0), window[-1] + 1)
+    span = float(run.time[frames[-1]] - run.time[frames[0]])
+    if span <= 0:
+        return float("nan")
+    centroids = np.stack([run.x[frames], run.y[frames]], axis=-1)
+    return t1_event_times(list(centroids), run.time[frames], run.length).size / (run.n_particles * span)
+
+
+def summarise_run(run: RunData | None) -> dict[str, float]:
+    """The :data:`SUMMARY_COLUMNS` of one run (NaN, and counts 0, for what it lacks).
+
+    Ψ6 and Ψ2^L: global.csv's columns, or computed from particles.csv when the run did not
+    write them (:func:`femphase.plot.order_series`), averaged with
+    :func:`femphase.analysis.lattice.frame_average` over :func:`averaging_window`. Elongation:
+    mean over the window and the bulk particles (farther than 2R from the walls at shear
+    onset, :meth:`femphase.plot.RunData.bulk_particles`: at a wall r is not an aspect
+    ratio). Period: :func:`femphase.plot.measured_period`, the period of the bulk-mean r(t)
+    after shear onset with its first quarter discarded, NaN when none is detectable.
+    T1 rate: :func:`t1_rate`."""
+    from .analysis.lattice import frame_average
+    from .plot import measured_period, order_series
+
+    out = {name: 0 if name in _COUNTS else float("nan") for name in SUMMARY_COLUMNS}
+    if run is None:
+        return out
+    out["n_frames"], out["n_particles"] = len(run.time), run.n_particles
+    period = measured_period(run)
+    out["period"] = float("nan") if period is None else period
+    window = averaging_window(run.time, run.scene["phases"])
+    if window.size == 0:
+        return out
+    out["window_frames"] = int(window.size)
+    out["window_start"], out["window_end"] = float(run.time[window[0]]), float(run.time[window[-1]])
+    series = order_series(run)
+    for name in ("Psi6", "Psi2"):
+        out[f"{name}_mean"], out[f"{name}_std"] = frame_average(series[name][window])
+    out["elongation_mean"] = float(run.elongation[window][:, run.bulk_particles()].mean())
+    out["t1_rate"] = t1_rate(run, window)
+    return out
+
+
+# -- the sweep's dataset and summary table -----------------------------------------------------
+@dataclass
+class Aggregate:
+    """A sweep's index, dataset (module docstring) and summary, one dict per run in index order."""
+
+    sweep: Sweep
+    dataset: xr.Dataset
+    summary: list[dict]
+
+
+def _run_status(directory: Path) -> str:
+    from .rundir import Status
+
+    info = Status.read(directory)
+    return str(info.get("status", "")) if info else ""
+
+
+def aggregate(directory: str | Path) -> Aggregate:
+    """Read a sweep directory into a dataset and its per-run summary (nothing is written)."""
+    sweep = read_sweep(directory)
+    tables = {run.id: read_run_tables(run.directory) for run in sweep.runs}
+    summary = []
+    for run in sweep.runs:
+        row = {"run_id": run.id, **run.values, "status": run.status, "run_status": _run_status(run.directory),
+               "error": run.error or ""}
+        row.update(summarise_run(run_data(run.directory, tables[run.id])))
+        summary.append(row)
+    return Aggregate(sweep, build_dataset(sweep, tables, summary), summary)
+
+
+def _coordinate(values: list) -> np.ndarray:
+    """An axis' values as a netCDF-writable coordinate (JSON text for lists and tables)."""
+    if all(isinstance(v, (bool, int, float, str)) for v in values):
+        return np.asarray(values)
+    return np.asarray([json.dumps(v) for v in values])
+
+
+def build_dataset(sweep: Sweep, tables: dict[str, RunTables], summary: list[dict]) -> xr.Dataset:
+    """The sweep's Dataset (module docstring) from its runs' tables and summary rows."""
+    import xarray as xr
+
+    time = merge_times(*(t.time for t in tables.values()))
+    n_particles = max((t.n_particles for t in tables.values()), default=0)
+    dims, shape = sweep.dims, sweep.shape
+    variables: dict[str, tuple] = {}
+
+    def fill(name: str, extra_dims: tuple[str, ...], extra_shape: tuple[int, ...], attrs: dict, dtype=float):
+        if name not in variables:
+            empty = np.full(shape + extra_shape, np.nan if dtype is float else ("" if dtype is str else 0),
+                            dtype=object if dtype is str else dtype)
+            variables[name] = (dims + extra_dims, empty, attrs)
+        return variables[name][1]
+
+    particle_names = {c for t in tables.values() for c in t.particles}
+    for run in sweep.runs:
+        run_tables = tables[run.id]
+        frames = _frame_index(run_tables.time, time) if run_tables.time.size else np.empty(0, int)
+        for column, values in run_tables.globals.items():
+            name = GLOBAL_RENAMES.get(column, column)
+            if name in particle_names:  # a scene's own energy term named like a particle column
+                name = f"{name}_global"
+            # a column not in the table is a scene's own energy term (docs/outputs.md)
+            known = GLOBAL_COLUMNS.get(column, Column("energy units", f"energy term {column}"))
+            fill(name, ("time",), (time.size,), known.attrs("global.csv", column))[run.position][frames] = values
+        for column, values in run_tables.particles.items():
+            known = PARTICLE_COLUMNS.get(column, Column("unknown", f"{column}: a column of the scene's own observable"))
+            target = fill(column, ("time", "particle"), (time.size, n_particles), known.attrs("particles.csv", column))
+            target[run.position][frames, : values.shape[1]] = values
+    by_position = {run.position: row for run, row in zip(sweep.runs, summary)}
+    run_attrs = {"run_id": "the run's id in sweep.json (its directory is runs/<id>)",
+                 "status": "the run's status in sweep.json (pending, done, failed, interrupted)",
+                 "run_status": "status in the run's run.json (running, completed, failed, interrupted)",
+                 "error": "the run's error in sweep.json"}
+    for name, meaning in run_attrs.items():
+        source = "run.json" if name == "run_status" else "sweep.json"
+        target = fill(name, (), (), {"long_name": meaning, "source": source}, dtype=str)
+        for position, row in by_position.items():
+            target[position] = row[name]
+    for name, column in SUMMARY_COLUMNS.items():
+        target = fill(name, (), (), column.attrs("summary", ""), dtype=int if name in _COUNTS else float)
+        for position, row in by_position.items():
+            target[position] = row[name]
+    coords: dict[str, object] = {"time": ("time", time, {"units": "time units", "long_name": "frame time"}),
+                                 "particle": ("particle", np.arange(n_particles),
+                                              {"long_name": "particle id (particles.csv column id)"})}
+    if sweep.mode == "product":
+        for key, values in sweep.axes.items():
+            coords[key] = (key, _coordinate(values), {"long_name": f"swept scene key {key}"})
+    else:
+        coords["run"] = ("run", np.arange(len(sweep.runs)), {"long_name": "run index in sweep.json (zip mode)"})
+        for key, values in sweep.axes.items():
+            coords[key] = ("run", _coordinate(values), {"long_name": f"swept scene key {key}"})
+    dataset = xr.Dataset({name: xr.Variable(*spec) for name, spec in variables.items()},
+                         coords={name: xr.Variable(*spec) for name, spec in coords.items()})
+    dataset.attrs.update({
+        "title": f"femphase sweep {sweep.directory.resolve().name}",
+        "sweep": str(sweep.directory.resolve()),
+        "sweep_mode": sweep.mode,
+        "sweep_axes": json.dumps(sweep.axes),
+        "sample_axes": json.dumps(sweep.sample_keys),
+        "femphase_version": __version__,
+        "created": wallclock.strftime("%Y-%m-%dT%H:%M:%SZ", wallclock.gmtime()),
+        "averaging": "summary variables: the last fifth of the frames of each run's last phase "
+                     "(docs/aggregation.md)",
+    })
+    return dataset
+
+
+# -- files -------------------------------------------------------------------------------------
+def _cell(value: object) -> str:
+    """summary.csv's text of a value: numbers as Python writes them back exactly (NaN as
+    "nan", which numpy, pandas and :func:`read_summary` read), lists and tables as JSON."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, (bool, np.bool_)):
+        return str(value).lower()
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value))
+    return json.dumps(value)
+
+
+def summary_csv(summary: list[dict], keys: list[str]) -> str:
+    """summary.csv's text: one row per run (module docstring)."""
+    columns = ["run_id", *keys, *TEXT_COLUMNS, *SUMMARY_COLUMNS]
+    text = io.StringIO()
+    writer = csv.writer(text, lineterminator="\n")
+    writer.writerow(columns)
+    for row in summary:
+        writer.writerow([_cell(row[column]) for column in columns])
+    return text.getvalue()
+
+
+def read_summary(path: str | Path) -> list[dict]:
+    """summary.csv's rows as dicts: text columns as strings, the rest as floats where they are
+    numbers (an axis of strings stays strings)."""
+    def value(column: str, text: str) -> object:
+        if column == "run_id" or column in TEXT_COLUMNS:
+            return text
+        try:
+            return float(text)
+        except ValueError:
+            return text
+
+    with Path(path).open(newline="") as handle:
+        return [{column: value(column, text) for column, text in row.items()} for row in csv.DictReader(handle)]
+
+
+def is_current(sweep: Sweep) -> bool:
+    """sweep.nc and summary.csv exist and are newer than sweep.json and every run's inputs."""
+    outputs = [sweep.directory / DATASET, sweep.directory / SUMMARY]
+    if not all(path.is_file() for path in outputs):
+        return False
+    written = min(path.stat().st_mtime_ns for path in outputs)
+    inputs = [sweep.directory / SWEEP_INDEX] + [run.directory / name for run in sweep.runs for name in RUN_INPUTS]
+    return all(path.stat().st_mtime_ns <= written for path in inputs if path.is_file())
+
+
+def write_aggregate(directory: str | Path) -> dict[str, Path]:
+    """Write DIR/sweep.nc and DIR/summary.csv (each replaced atomically); returns their paths."""
+    from .io import atomic_write
+
+    directory = Path(directory)
+    result = aggregate(directory)
+    paths = {"dataset": directory / DATASET, "summary": directory / SUMMARY}
+    tmp = paths["dataset"].with_name(f".{DATASET}.tmp")
+    result.dataset.to_netcdf(tmp, engine="h5netcdf")
+    os.replace(tmp, paths["dataset"])
+    atomic_write(paths["summary"], summary_csv(result.summary, list(result.sweep.axes)))
+    return paths
+
+
+# -- figures ------------------------------------------------------------------------------------
+#: figure → panels, each (y label, [(summary column, legend label)]).
+FIGURE_PANELS = {
+    "sweep_order": [("order parameter (last fifth of the last phase)", [("Psi6_mean", "Ψ6"), ("Psi2_mean", "Ψ2^L")])],
+    "sweep_dynamics": [("mean elongation r (bulk)", [("elongation_mean", "r")]),
+                       ("T1 rate (1/(particle · time unit))", [("t1_rate", "T1 rate")])],
+    "sweep_period": [("period of the bulk-mean r(t) (time units)", [("period", "period")])],
+}
+
+
+@dataclass
+class Curve:
+    """Sample statistics of one summary column along the swept key, for one combination of the
+    other swept keys: at each x the mean, the sample standard deviation (ddof = 1; NaN for
+    one sample) and the number of samples."""
+
+    x: list
+    mean: np.ndarray
+    sd: np.ndarray
+    n: np.ndarray
+
+
+def sample_curves(rows: list[dict], column: str, x_key: str, curve_keys: list[str]) -> dict[tuple, Curve]:
+    """The rows' finite values of ``column`` grouped by the other swept keys' values (the
+    curves) and by ``x_key`` (the points), averaged over what remains: the sample axes."""
+    groups: dict[tuple, dict] = {}
+    for row in rows:
+        value = row[column]
+        if isinstance(value, float) and np.isfinite(value):
+            groups.setdefault(tuple(row[k] for k in curve_keys), {}).setdefault(row[x_key], []).append(value)
+    curves = {}
+    for label, by_x in groups.items():
+        xs = sorted(by_x, key=lambda v: (isinstance(v, str), v if not isinstance(v, str) else 0, str(v)))
+        samples = [np.asarray(by_x[x]) for x in xs]
+        curves[label] = Curve(xs, np.array([s.mean() for s in samples]),
+                              np.array([s.std(ddof=1) if s.size > 1 else np.nan for s in samples]),
+                              np.array([s.size for s in samples]))
+    return curves
+
+
+def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str = "png") -> dict[str, Path]:
+    """Draw :data:`FIGURE_PANELS` from summary rows (module docstring) into ``output``; the
+    period figure only when some run that is done has a period. Returns {figure: path}."""
+    from .plot import _pyplot, _save
+
+    samples = [k for k in keys if k.endswith(SAMPLE_SUFFIX)]
+    swept = [k for k in keys if k not in samples]
+    x_key = swept[0] if swept else keys[0]
+    curve_keys = swept[1:]
+    averaged = [k for k in samples if k != x_key]
+    done = [row for row in rows if row["status"] == "done"]
+    if not done:
+        statuses = sorted({row["status"] for row in rows})
+        raise InputError(f"no run of the sweep is done (statuses: {', '.join(statuses) or 'no runs'}); "
+                         "nothing to plot yet")
+    x_all = sorted({row[x_key] for row in done}, key=str)
+    numeric = all(isinstance(x, float) for x in x_all)
+    plt = _pyplot()
+    paths = {}
+    for figure, panels in FIGURE_PANELS.items():
+        columns = [column for _, entries in panels for column, _ in entries]
+        if not any(isinstance(row[c], float) and np.isfinite(row[c]) for row in done for c in columns):
+            continue  # e.g. no run has a detectable period: no figure rather than an empty one
+        fig, axes = plt.subplots(1, len(panels), figsize=(4.8 * len(panels), 3.8), squeeze=False)
+        for ax, (ylabel, entries) in zip(axes[0], panels):
+            for column, name in entries:
+                for label, curve in sample_curves(done, column, x_key, curve_keys).items():
+                    x = curve.x if numeric else [x_all.index(v) for v in curve.x]
+                    text = name + "".join(f", {k} = {v:g}" if isinstance(v, float) else f", {k} = {v}"
+                                          for k, v in zip(curve_keys, label))
+                    n = f"{curve.n.min()}–{curve.n.max()}" if curve.n.min() != curve.n.max() else f"{curve.n[0]}"
+                    # error bars too: a band needs two neighbouring points with a spread to show
+                    bars = ax.errorbar(x, curve.mean, yerr=curve.sd, marker="o", capsize=3, label=f"{text} (n = {n})")
+                    ax.fill_between(x, curve.mean - curve.sd, curve.mean + curve.sd, color=bars.lines[0].get_color(),
+                                    alpha=0.2, lw=0)
+            if not numeric:
+                ax.set_xticks(range(len(x_all)), [str(v) for v in x_all])
+            ax.set_xlabel(x_key)
+            ax.set_ylabel(ylabel)
+            ax.legend(fontsize=7)
+        over = (f"mean over {', '.join(averaged)} ± 1 s.d. (ddof = 1; bars and band)" if averaged
+                else "one run per point")
+        fig.suptitle(f"{len(done)} of {len(rows)} runs done; {over}", fontsize=9)
+        paths[figure] = _save(fig, Path(output) / f"{figure}.{fmt}")
+    return paths
+
+
+def plot_sweep(directory: str | Path, output: str | Path | None = None, fmt: str = "png") -> dict[str, Path]:
+    """Figures of a sweep directory (module docstring), aggregating first unless sweep.nc and
+    summary.csv are newer than every input. ``output`` defaults to DIR/figures."""
+    directory = Path(directory)
+    sweep = read_sweep(directory)
+    if not is_current(sweep):
+        write_aggregate(directory)
+    return plot_summary(read_summary(directory / SUMMARY), list(sweep.axes),
+                        directory / "figures" if output is None else output, fmt)
+
+
+# -- command line ---------------------------------------------------------------------------------
+def plot_cli(args: argparse.Namespace) -> int:
+    """`femphase plot DIR` on a sweep directory (dispatched from :func:`femphase.plot.run_cli`)."""
+    if args.ode_rate is not None:
+        raise InputError(f"--ode-rate = {args.ode_rate!r} applies to a run directory, not to the sweep "
+                         f"{str(args.directory)!r}; plot one of its runs/<id> for the ODE comparison")
+    try:
+        paths = plot_sweep(args.directory, args.output, fmt=args.format)
+    except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
+        raise InputError(str(exc)) from None
+    for path in paths.values():
+        print(path)
+    if "sweep_period" not in paths:
+        print("femphase: no run that is done has a detectable period: no sweep_period figure")
+    return 0
+
+
+def run_cli(args: argparse.Namespace) -> int:
+    """`femphase aggregate DIR`: write sweep.nc and summary.csv and say what they hold."""
+    try:
+        paths = write_aggregate(args.directory)
+    except (ValueError, OSError) as exc:
+        raise InputError(str(exc)) from None
+    rows = read_summary(paths["summary"])
+    counts = {status: sum(row["status"] == status for row in rows) for status in STATUSES}
+    print(f"{len(rows)} runs ({', '.join(f'{n} {s}' for s, n in counts.items() if n)})")
+    for path in paths.values():
+        print(path)
+    return 0
+
+
+def register_cli(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `aggregate` subcommand to the femphase command line."""
+    parser = subparsers.add_parser(
+        "aggregate", help="collect a sweep's runs into sweep.nc (xarray/netCDF) and summary.csv",
+        description="Write DIR/sweep.nc (every run's global.csv and particles.csv on the sweep's axes × time "
+                    "× particle) and DIR/summary.csv (one row per run: Ψ6, Ψ2^L and elongation averaged over "
+                    "the last fifth of the last phase, period, T1 rate). docs/aggregation.md.",
+    )
+    parser.add_argument("directory", type=Path, help="sweep directory written by `femphase sweep` (holds sweep.json)")
+    parser.set_defaults(func=run_cli)
