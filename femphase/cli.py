@@ -1,14 +1,16 @@
 """The ``femphase`` command line.
 
     femphase run SCENE.toml -o DIR [--set key=value ...] [--resume | --overwrite] [--method fem|fd]
+    femphase sweep SWEEP.toml -o DIR [--workers N | --scheduler ADDRESS]   (femphase/sweep.py)
 
 Exit codes: 0 done; 2 bad input (a scene key or value, a command-line value, a run directory
 that cannot be used: one message naming the key, the value and what is valid); 3 the run
 blew up (the last good checkpoint is kept); 130 interrupted by SIGINT (Ctrl-C), 143 by
 SIGTERM (``timeout``, Slurm, ``docker stop``): the run stops after the current step, keeps a
 checkpoint of it, marks run.json "interrupted" and can be continued with ``--resume``;
-1 an internal error (a bug: rerun with ``--traceback`` and report it). Nothing already
-computed is removed by any error.
+1 an internal error (a bug: rerun with ``--traceback`` and report it); 4 (``femphase sweep``)
+some runs failed or were interrupted (sweep.json says which and why; rerun to continue).
+Nothing already computed is removed by any error.
 """
 
 from __future__ import annotations
@@ -57,9 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
                           "finite-difference scheme (numerics.scheme = \"fd-heun\")")
     run.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     run.set_defaults(func=_run, argv=None)
-    from . import compare, ode, plot
+    from . import compare, ode, plot, sweep
 
-    for module in (ode, compare, plot):
+    for module in (ode, compare, plot, sweep):
         module.register_cli(commands)
     return parser
 
