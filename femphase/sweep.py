@@ -82,10 +82,10 @@ import shutil
 import sys
 import time as wallclock
 import uuid
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Iterator
 
 from .errors import FemphaseError, Interrupted, SceneError
 from .io import _jsonable, atomic_write, toml_value
@@ -214,7 +214,8 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
         lengths = ", ".join(f"{k}: {len(v)}" for k, v in axes.items())
         raise SweepError("sweep.mode", mode, f'axes of one length for "zip" (they have {lengths}), or "product"')
     combos = zip(*axes.values()) if mode == "zip" else itertools.product(*axes.values())
-    runs = [_run(scene, overrides, dict(zip(axes, combo)), _labels(list(axes))) for combo in combos]
+    labels = _labels(list(axes))
+    runs = [_run(scene, overrides, dict(zip(axes, combo)), labels) for combo in combos]
     ids = [run.id for run in runs]
     duplicates = sorted({i for i in ids if ids.count(i) > 1})
     if duplicates:
@@ -239,11 +240,11 @@ def _labels(keys: list[str]) -> dict[str, str]:
 
 
 def _spell(value) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, float, str)):
-        return str(value) if not isinstance(value, float) else repr(value)
-    return toml_value(value)
+    """A value as a run id spells it: floats as Python's shortest repr, booleans, lists and
+    tables as TOML."""
+    if isinstance(value, (bool, list, dict)):
+        return toml_value(value)
+    return repr(value) if isinstance(value, float) else str(value)
 
 
 def _run(scene: Path, overrides: dict, values: dict, labels: dict[str, str]) -> Run:
@@ -319,7 +320,9 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     a sweep file that changed other than by adding values, or a changed base scene."""
     stored = directory / "sweep.json"
     if not stored.exists():
-        existing = [p.name for p in directory.iterdir() if p.name != "locks"] if directory.is_dir() else []
+        # what a start that stopped before its first index left is no sweep yet
+        own = {"locks", "sweep.toml", "sweep-set.json", "base-scene.toml"}
+        existing = [p.name for p in directory.iterdir() if p.name not in own] if directory.is_dir() else []
         if existing:
             raise SweepError("-o", str(directory), f"a new or empty directory, or one of a sweep (it holds "
                              f"{', '.join(sorted(existing)[:5])} but no sweep.json)")
@@ -411,8 +414,9 @@ def _branch(shared: Path, directory: Path) -> None:
 
 
 def _outcome(action: Callable[[], None]) -> dict:
-    """Run ``action``; its outcome as an index status, error message and wall time."""
-    started = wallclock.perf_counter()
+    """Run ``action``; its outcome as an index status, error message, wall and CPU time
+    (of the worker process, which runs one task at a time)."""
+    started, cpu = wallclock.perf_counter(), wallclock.process_time()
     try:
         action()
         status, error = "done", None
@@ -422,7 +426,8 @@ def _outcome(action: Callable[[], None]) -> dict:
         status, error = "failed", str(exc)
     except Exception as exc:  # a bug in one run must not stop the others: report it in the index
         status, error = "failed", f"internal error ({type(exc).__name__}: {exc})"
-    return {"status": status, "error": error, "seconds": wallclock.perf_counter() - started}
+    return {"status": status, "error": error, "seconds": wallclock.perf_counter() - started,
+            "cpu_seconds": wallclock.process_time() - cpu}
 
 
 def _execute_shared(data: dict, base_dir: str, directory: str) -> dict:
@@ -440,8 +445,8 @@ def _execute_run(data: dict, base_dir: str, directory: str, shared: str | None =
     directory = Path(directory)
     scene = scene_from_dict(data, base_dir)
     if relaxation is not None and relaxation["status"] != "done":
-        return {**relaxation, "status": "failed", "error": f"its shared relaxation {shared} did not finish: "
-                f"{relaxation['error']}", "seconds": 0.0}
+        return {"status": "failed", "error": f"its shared relaxation {shared} did not finish: "
+                f"{relaxation['error']}", "seconds": 0.0, "cpu_seconds": 0.0}
     # one process per run directory, even when a worker thought dead is still running
     with _locked(directory.parent.parent / "locks" / f"{directory.name}.lock"):
         fresh = (lambda: _branch(Path(shared), directory)) if shared else None
@@ -532,16 +537,18 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
                 outcome = future.result()
             except Exception as exc:  # the task itself was lost: its worker died again and again
                 outcome = {"status": "interrupted", "error": f"its worker died ({type(exc).__name__}: {exc}); "
-                           "rerun the sweep to resume it", "seconds": float("nan")}
+                           "rerun the sweep to resume it", "seconds": float("nan"), "cpu_seconds": float("nan")}
             finished += 1
             statuses[run.id] = (outcome["status"], outcome["error"])
             _write_index(directory, _index(sweep, statuses))
-            log(f"femphase sweep: [{finished}/{len(todo)}] {run.id}: {outcome['status']} "
-                f"({outcome['seconds']:.1f} s)" + (f": {outcome['error']}" if outcome["error"] else ""))
+            log(f"femphase sweep: [{finished}/{len(todo)}] {run.id}: {outcome['status']} ({outcome['seconds']:.1f} s, "
+                f"CPU {outcome['cpu_seconds']:.1f} s)" + (f": {outcome['error']}" if outcome["error"] else ""))
     except BaseException:  # Ctrl-C: record what did not finish; the run directories resume
         for future, run in futures.items():
             if not future.done():
-                statuses[run.id] = ("interrupted", "the sweep was stopped before this run finished")
+                status, error = run_status(directory / "runs" / run.id, run.total_steps)
+                statuses[run.id] = (status, error or ("the sweep was stopped during this run"
+                                                      if status == "interrupted" else None))
         _write_index(directory, _index(sweep, statuses))
         client.cancel(list(futures) + list(relaxations.values()))
         raise
@@ -552,8 +559,13 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
 def run_cli(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers", args.workers, "a whole number ≥ 1 (worker processes)")
-    index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler, workers=args.workers,
-                      log=lambda line: print(line, flush=True))
+    try:
+        index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler,
+                          workers=args.workers, log=lambda line: print(line, flush=True))
+    except KeyboardInterrupt:
+        print(f"femphase sweep: interrupted; rerun the same command to continue (sweep.json in {args.output} "
+              "says where each run stands)", file=sys.stderr)
+        return 130
     counts = {s: sum(r["status"] == s for r in index["runs"]) for s in ("done", "failed", "interrupted", "pending")}
     print("femphase sweep: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; index in "
           f"{Path(args.output) / 'sweep.json'}")

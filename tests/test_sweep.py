@@ -113,10 +113,16 @@ def test_schema_errors_name_the_key_before_anything_runs(tmp_path, text, key):
     assert not (tmp_path / "out").exists()
 
 
-def test_cli_reports_a_bad_axis_key_with_exit_code_2(tmp_path, capsys):
+def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
     path = write(tmp_path, SWEEP.replace("particles.seed", "particles.sed"))
     assert main(["sweep", str(path), "-o", str(tmp_path / "out")]) == 2
     assert "'axes.particles.sed'" in capsys.readouterr().err
+    path = write(tmp_path)
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--workers", "0"]) == 2
+    assert "'--workers'" in capsys.readouterr().err
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--set", "phases.1.flow.rate=2"]) == 2
+    assert "axes.phases.1.flow.rate" in capsys.readouterr().err  # an axis is not also set
+    assert not (tmp_path / "out").exists()
 
 
 def test_run_ids_labels_zip_and_sharing(tmp_path):
