@@ -79,6 +79,7 @@ import json
 import os
 import re
 import shutil
+import signal
 import sys
 import time as wallclock
 import uuid
@@ -470,7 +471,8 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
             yield connected
         return
     n = workers or os.cpu_count() or 1
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+    # dashboard on a free port: a fixed one clashes with other sweeps on the machine
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                       env=WORKER_ENV) as cluster, Client(cluster) as local:
         log(f"femphase sweep: a local Dask cluster of {n} worker processes")
         yield local
@@ -559,13 +561,22 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
 def run_cli(args: argparse.Namespace) -> int:
     if args.workers is not None and args.workers < 1:
         raise SweepError("--workers", args.workers, "a whole number ≥ 1 (worker processes)")
+    terminated: list[int] = []
+
+    def terminate(number, frame):  # SIGTERM (Slurm, timeout) stops the sweep as Ctrl-C does
+        terminated.append(number)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, terminate)
     try:
         index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler,
                           workers=args.workers, log=lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         print(f"femphase sweep: interrupted; rerun the same command to continue (sweep.json in {args.output} "
               "says where each run stands)", file=sys.stderr)
-        return 130
+        return 143 if terminated else 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     counts = {s: sum(r["status"] == s for r in index["runs"]) for s in ("done", "failed", "interrupted", "pending")}
     print("femphase sweep: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; index in "
           f"{Path(args.output) / 'sweep.json'}")

@@ -59,7 +59,7 @@ def write(folder: Path, sweep: str = SWEEP) -> Path:
 
 @pytest.fixture(scope="module")
 def client():
-    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
                                        env=WORKER_ENV)
     with cluster, distributed.Client(cluster) as connected:
         yield connected
