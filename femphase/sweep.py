@@ -19,10 +19,11 @@ A sweep file (TOML) names a base scene and the scene keys to vary::
 Keys are the dotted keys of ``femphase run --set`` (``docs/scenes.md``); written unquoted,
 TOML makes them nested tables, which are read back as the same dotted keys (a table in
 ``[set]`` therefore updates the scene's table key by key). ``--set KEY=VALUE`` on the
-command line adds to ``[set]`` (and wins over it), e.g. for a short smoke test of a sweep. Axes are ordered as written; in
-"product" mode the last axis varies fastest. Every run's scene is built and validated
-before any run starts: a bad key or value stops the sweep with a
-:class:`~femphase.errors.SceneError` naming the axis (exit 2).
+command line adds to ``[set]`` (and wins over it), e.g. for a short smoke test of a sweep.
+Axes are ordered as written; in "product" mode the last axis varies fastest. Every run's
+scene is built and validated before any run starts: a bad key or value stops the sweep with
+a :class:`SweepError` (a :class:`~femphase.errors.SceneError`) naming the sweep key, e.g.
+``axes.particles.sed``, and the run (exit 2).
 
 DIR, the sweep directory:
 
@@ -51,7 +52,8 @@ start from one run of the first phase alone, ``shared/<hash>/`` (hash of that on
 scene), computed once under a file lock; each run copies its outputs and checkpoint and
 continues with ``resume=True``. The outputs are bit-identical to running the whole scene
 (``tests/test_sweep.py``): a resumed run continues exactly (:mod:`femphase.rundir`).
-Scenes with one phase, or with ``output.checkpoint = false``, are never shared.
+Scenes with one phase, or with ``output.checkpoint = false``, are never shared, nor is a
+first phase no other run has.
 
 **Resuming.** Rerunning the same command continues the sweep: a run whose run.json says
 "completed" with all its steps is skipped, one with a checkpoint (interrupted, killed) is
@@ -434,9 +436,8 @@ def _outcome(action: Callable[[], None]) -> dict:
 def _execute_shared(data: dict, base_dir: str, directory: str) -> dict:
     """Dask task: the shared relaxation of ``data``'s scene into ``directory``, once."""
     directory = Path(directory)
-    scene = _relaxation(scene_from_dict(data, base_dir))
     with _locked(directory.parent.parent / "locks" / f"shared-{directory.name}.lock"):
-        return _outcome(lambda: _ensure(scene, directory))
+        return _outcome(lambda: _ensure(_relaxation(scene_from_dict(data, base_dir)), directory))
 
 
 def _execute_run(data: dict, base_dir: str, directory: str, shared: str | None = None,
@@ -444,14 +445,14 @@ def _execute_run(data: dict, base_dir: str, directory: str, shared: str | None =
     """Dask task: the run of ``data``'s scene into ``directory`` (branching from the
     relaxation in ``shared``, whose task's outcome is ``relaxation``)."""
     directory = Path(directory)
-    scene = scene_from_dict(data, base_dir)
     if relaxation is not None and relaxation["status"] != "done":
         return {"status": "failed", "error": f"its shared relaxation {shared} did not finish: "
                 f"{relaxation['error']}", "seconds": 0.0, "cpu_seconds": 0.0}
+    fresh = (lambda: _branch(Path(shared), directory)) if shared else None
     # one process per run directory, even when a worker thought dead is still running
     with _locked(directory.parent.parent / "locks" / f"{directory.name}.lock"):
-        fresh = (lambda: _branch(Path(shared), directory)) if shared else None
-        return _outcome(lambda: _ensure(scene, directory, fresh))
+        # the scene is built inside: an error there (a mesh file missing on this node) is the run's
+        return _outcome(lambda: _ensure(scene_from_dict(data, base_dir), directory, fresh))
 
 
 # -- the driver ---------------------------------------------------------------------------
@@ -537,8 +538,8 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
             run = futures[future]
             try:
                 outcome = future.result()
-            except Exception as exc:  # the task itself was lost: its worker died again and again
-                outcome = {"status": "interrupted", "error": f"its worker died ({type(exc).__name__}: {exc}); "
+            except Exception as exc:  # the task was lost (its workers died, KilledWorker), not the run
+                outcome = {"status": "interrupted", "error": f"its task was lost ({type(exc).__name__}: {exc}); "
                            "rerun the sweep to resume it", "seconds": float("nan"), "cpu_seconds": float("nan")}
             finished += 1
             statuses[run.id] = (outcome["status"], outcome["error"])
