@@ -172,6 +172,29 @@ def test_branched_runs_equal_serial_runs_and_a_rerun_skips_done_runs(tmp_path, c
         run_sweep(write(tmp_path, SWEEP.replace("[1, 2]", "[1]")), out, client)
     with pytest.raises(SweepError, match="set.phases.1.duration"):
         run_sweep(path, out, client, assignments=["phases.1.duration=100"])
+    lines.clear()
+    index = run_sweep(write(tmp_path, SWEEP.replace("[0.3, 1.0]", "[0.3, 1.0, 2.0]")), out, client, log=lines.append)
+    assert "6 runs, 4 done, 2 to run" in lines[0]
+    assert [r["id"] for r in index["runs"] if r["status"] == "done"] == IDS + ["rate=2.0_seed=1", "rate=2.0_seed=2"]
+    assert [s["step"] for s in segments(out / "runs" / "rate=2.0_seed=1")] == [20, 320]  # the same relaxation
+    assert len(list((out / "shared").iterdir())) == 2
+
+
+def test_two_workers_asking_for_one_relaxation_compute_it_once(tmp_path):
+    from femphase.sweep import _execute_shared
+
+    sweep = load_sweep(write(tmp_path))
+    run = sweep.runs[0]
+    target = tmp_path / "out" / "shared" / run.shared
+    outcomes = []
+    threads = [threading.Thread(target=lambda: outcomes.append(_execute_shared(run.data, str(tmp_path), str(target))))
+               for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert [o["status"] for o in outcomes] == ["done", "done"]
+    assert [s["step"] for s in segments(target)] == [20]  # computed by one, skipped by the other
 
 
 def test_a_worker_killed_mid_run_is_replaced_and_its_run_resumed(tmp_path, client, serial):
