@@ -2,14 +2,16 @@
 
     femphase run SCENE.toml -o DIR [--set key=value ...] [--resume | --overwrite] [--method fem|fd]
                  [--status-interval SECONDS] [-q]
+    femphase sweep SWEEP.toml -o DIR [--workers N | --scheduler ADDRESS]   (femphase/sweep.py)
 
 Exit codes: 0 done; 2 bad input (a scene key or value, a command-line value, a run directory
 that cannot be used: one message naming the key, the value and what is valid); 3 the run
 blew up (the last good checkpoint is kept); 130 interrupted by SIGINT (Ctrl-C), 143 by
 SIGTERM (``timeout``, Slurm, ``docker stop``): the run stops after the current step, keeps a
 checkpoint of it, marks run.json "interrupted" and can be continued with ``--resume``;
-1 an internal error (a bug: rerun with ``--traceback`` and report it). Nothing already
-computed is removed by any error.
+1 an internal error (a bug: rerun with ``--traceback`` and report it); 4 (``femphase sweep``)
+some runs failed or were interrupted (sweep.json says which and why; rerun to continue).
+Nothing already computed is removed by any error.
 
 Console (stderr): on a terminal a progress bar; without one (a batch job) the status lines
 of :class:`femphase.logs.StatusLog` instead; with ``-q`` neither. Warnings and errors always.
@@ -68,9 +70,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="wall time between status lines in run.log (and on the console without a "
                           "terminal); 0: every step (default: 30)")
     run.set_defaults(func=_run, argv=None)
-    from . import aggregate, compare, ode, plot
+    from . import aggregate, compare, ode, plot, sweep
 
-    for module in (ode, compare, plot, aggregate):
+    for module in (ode, compare, plot, sweep, aggregate):
         module.register_cli(commands)
     return parser
 

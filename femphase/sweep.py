@@ -1,0 +1,601 @@
+"""Parameter sweeps: many runs of one scene, executed on Dask, resumable.
+
+    femphase sweep SWEEP.toml -o DIR [--set KEY=VALUE ...] [--workers N | --scheduler ADDRESS]
+
+A sweep file (TOML) names a base scene and the scene keys to vary::
+
+    [sweep]
+    scene = "../../examples/random.toml"   # the base scene, relative to the sweep file
+    mode = "product"                       # "product" (default): every combination of the
+                                           # axes; "zip": the i-th values of all axes together
+    [set]                                  # optional: --set overrides of every run
+    "output.fields" = false
+    "phases.1.duration" = 100000.0
+
+    [axes]                                 # --set keys → lists of values (TOML-typed)
+    "phases.1.flow.rate" = [0.0161, 0.1083, 1.0]
+    "particles.seed" = [1, 2, 3]           # samples are an ordinary axis
+
+Keys are the dotted keys of ``femphase run --set`` (``docs/scenes.md``); written unquoted,
+TOML makes them nested tables, which are read back as the same dotted keys (a table in
+``[set]`` therefore updates the scene's table key by key). ``--set KEY=VALUE`` on the
+command line adds to ``[set]`` (and wins over it), e.g. for a short smoke test of a sweep.
+Axes are ordered as written; in "product" mode the last axis varies fastest. Every run's
+scene is built and validated before any run starts: a bad key or value stops the sweep with
+a :class:`SweepError` (a :class:`~femphase.errors.SceneError`) naming the sweep key, e.g.
+``axes.particles.sed``, and the run (exit 2).
+
+DIR, the sweep directory:
+
+* ``sweep.toml``: the sweep file as given; ``sweep-set.json``: the command line's ``--set``
+  assignments; ``base-scene.toml``: the base scene as given;
+* ``sweep.json``, the index (written by the process that runs the sweep, replaced atomically
+  whenever a run finishes)::
+
+      {"format": "femphase-sweep", "version": 1, "mode": "product" | "zip",
+       "axes": {key: [values...]},
+       "runs": [{"id": "rate=0.1_seed=3", "directory": "runs/rate=0.1_seed=3",
+                 "values": {key: value}, "status": "pending" | "done" | "failed" | "interrupted",
+                 "error": str | null}]}
+
+* ``runs/<id>/``: an ordinary run directory (:mod:`femphase.rundir`), written by
+  :func:`femphase.simulation.run_scene` as ``femphase run`` writes it. The id is
+  ``label=value`` per axis joined by ``_``; the label is the shortest dotted suffix of the
+  key that tells the axes apart (``phases.1.flow.rate`` → ``rate``), values are spelled as
+  Python spells them (``0.1083``, ``1e-05``, ``true``) with characters other than
+  ``A-Z a-z 0-9 . + -`` replaced by ``-``.
+* ``shared/<hash>/``: relaxations shared by several runs (below); ``locks/``: lock files.
+
+**Shared relaxations.** Runs whose scenes agree on everything but their phases after the
+first (the same model, domain, particles incl. the seed, numerics, output and first phase)
+start from one run of the first phase alone, ``shared/<hash>/`` (hash of that one-phase
+scene), computed once under a file lock; each run copies its outputs and checkpoint and
+continues with ``resume=True``. The outputs are bit-identical to running the whole scene
+(``tests/test_sweep.py``): a resumed run continues exactly (:mod:`femphase.rundir`).
+Scenes with one phase, or with ``output.checkpoint = false``, are never shared, nor is a
+first phase no other run has.
+
+**Resuming.** Rerunning the same command continues the sweep: a run whose run.json says
+"completed" with all its steps is skipped, one with a checkpoint (interrupted, killed) is
+resumed, a failed one is started again. The state of each run is read from its run
+directory, not from the index. The sweep file may change only by adding values (new runs);
+any other change (of ``[sweep]``, ``[set]``, ``--set``, the axes' keys or their order, a
+removed value) or a changed base scene is refused: start a new DIR. A second ``femphase
+sweep`` on a DIR in use is refused.
+
+**Execution.** Every run is one Dask task (a shared relaxation one more, which its runs
+depend on). By default a ``LocalCluster`` of ``--workers`` processes (default: the number
+of cores), one thread each, BLAS pinned to one thread; ``--scheduler ADDRESS`` uses a
+running cluster instead (e.g. on SLURM with dask-jobqueue: ``docs/sweeps.md``). A worker
+that dies (killed, out of memory) is replaced and its run resumed from its checkpoint on
+another worker; a lock per run keeps two processes out of one run directory.
+"""
+
+from __future__ import annotations
+
+import argparse
+import fcntl
+import hashlib
+import itertools
+import json
+import os
+import re
+import shutil
+import signal
+import sys
+import time as wallclock
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from .errors import FemphaseError, Interrupted, SceneError
+from .io import _jsonable, atomic_write, toml_value
+from .rundir import CHECKPOINT, OUTPUTS, Status
+from .scene import Scene, read_scene_data, scene_from_dict, set_value
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+FORMAT, VERSION = "femphase-sweep", 1
+MODES = ("product", "zip")
+TABLES = {"sweep": ("scene", "mode"), "set": None, "axes": None}
+#: Environment of LocalCluster workers: one BLAS thread per worker process (as ``femphase run``).
+WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: Exit code of ``femphase sweep`` when some runs did not finish (sweep.json says why).
+EXIT_INCOMPLETE = 4
+
+
+class SweepError(SceneError):
+    """A sweep file key or value, or a sweep directory, is invalid (exit 2)."""
+
+    def __init__(self, key: str, value: object, valid: str) -> None:
+        super().__init__(key, value, valid)
+        self.args = (f"sweep key '{key}' = {value!r} is invalid: {valid}",)
+
+
+@dataclass(frozen=True)
+class Run:
+    """One run of a sweep: its id, axis values, validated scene data and number of steps;
+    ``relaxation``: the hash of its first phase's scene when it has later phases to branch
+    from it; ``shared``: that hash when other runs share it (None: it runs alone)."""
+
+    id: str
+    values: dict
+    data: dict
+    total_steps: int
+    relaxation: str | None = None
+    shared: str | None = None
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A validated sweep file. ``document`` is its parsed TOML, ``text`` the file as given;
+    ``assignments`` the command line's ``--set``; ``scene`` the base scene file; ``set``
+    (of the file and the command line) and ``axes`` map dotted keys to values."""
+
+    path: Path
+    text: str
+    document: dict
+    assignments: tuple[str, ...]
+    scene: Path
+    mode: str
+    set: dict
+    axes: dict
+    runs: tuple[Run, ...]
+
+    @property
+    def base_dir(self) -> Path:
+        """Where relative paths of the scene (a mesh file) are resolved."""
+        return self.scene.parent
+
+
+def _flatten(table: dict, prefix: str = "") -> dict:
+    """Nested tables → dotted keys (``phases.1.flow.rate = 1`` in TOML is a nested table)."""
+    flat = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update(_flatten(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _overrides(document: dict, assignments: list[str] | tuple[str, ...]) -> dict:
+    """The [set] table of a sweep file, then ``--set`` assignments, as dotted key → value."""
+    command_line: dict = {}
+    for assignment in assignments:
+        set_value(command_line, assignment)
+    return {**_flatten(document.get("set", {})), **_flatten(command_line)}
+
+
+def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) -> Sweep:
+    """Read a sweep file and validate it, the ``--set`` ``assignments`` added to its [set],
+    and the scene of every run (nothing is run)."""
+    path = Path(path)
+    if not path.is_file():
+        raise SweepError("sweep", str(path), "a TOML sweep file that exists")
+    try:
+        text = path.read_text(encoding="utf-8")
+        document = tomllib.loads(text)
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise SweepError("sweep", str(path), f"a readable UTF-8 TOML file ({exc})") from None
+    for name, value in document.items():
+        if name not in TABLES:
+            raise SweepError(name, value, f"not a known table; valid: {', '.join(f'[{t}]' for t in TABLES)}")
+        if not isinstance(value, dict):
+            raise SweepError(name, value, f"a table [{name}]")
+    head = document.get("sweep", {})
+    for key, value in head.items():
+        if key not in TABLES["sweep"]:
+            raise SweepError(f"sweep.{key}", value, f"not a known key; valid: {', '.join(TABLES['sweep'])}")
+    if not isinstance(head.get("scene"), str) or not head["scene"].strip():
+        raise SweepError("sweep.scene", head.get("scene"), "the base scene file, a path relative to the sweep file")
+    scene = (path.parent / head["scene"]).resolve()
+    if not scene.is_file():
+        raise SweepError("sweep.scene", head["scene"], f"a scene file that exists ({scene} does not)")
+    mode = head.get("mode", "product")
+    if mode not in MODES:
+        raise SweepError("sweep.mode", mode, f"one of {MODES}")
+    overrides = _overrides(document, assignments)
+    axes = _flatten(document.get("axes", {}))
+    if not axes:
+        raise SweepError("axes", {}, 'at least one axis: a dotted scene key and its values, e.g. '
+                         '"phases.1.flow.rate" = [0.1, 1.0]')
+    for key, values in axes.items():
+        if not isinstance(values, list) or not values:
+            raise SweepError(f"axes.{key}", values, "a non-empty list of values, e.g. [0.1, 1.0]")
+        spelled = [json.dumps(v, sort_keys=True, default=str) for v in values]
+        if len(set(spelled)) != len(spelled):
+            raise SweepError(f"axes.{key}", values, "distinct values (a value is listed twice)")
+        if key in overrides:
+            raise SweepError(f"axes.{key}", values, f"a key not also in [set] (set.{key} = {overrides[key]!r})")
+    if mode == "zip" and len({len(v) for v in axes.values()}) > 1:
+        lengths = ", ".join(f"{k}: {len(v)}" for k, v in axes.items())
+        raise SweepError("sweep.mode", mode, f'axes of one length for "zip" (they have {lengths}), or "product"')
+    combos = zip(*axes.values()) if mode == "zip" else itertools.product(*axes.values())
+    labels = _labels(list(axes))
+    runs = [_run(scene, overrides, dict(zip(axes, combo)), labels) for combo in combos]
+    ids = [run.id for run in runs]
+    duplicates = sorted({i for i in ids if ids.count(i) > 1})
+    if duplicates:
+        raise SweepError("axes", list(axes), f"values whose run ids differ after sanitising ({duplicates[0]!r} "
+                         "twice): spell them differently")
+    shared = [run.relaxation for run in runs]
+    runs = [replace(run, shared=run.relaxation if shared.count(run.relaxation) > 1 else None) for run in runs]
+    return Sweep(path, text, document, tuple(assignments), scene, mode, overrides, axes, tuple(runs))
+
+
+def _labels(keys: list[str]) -> dict[str, str]:
+    """Each key's shortest dotted suffix that no other key ends with."""
+    labels = {}
+    for key in keys:
+        parts = key.split(".")
+        for n in range(1, len(parts) + 1):
+            label = ".".join(parts[-n:])
+            if not any(other != key and (other == label or other.endswith("." + label)) for other in keys):
+                break
+        labels[key] = label
+    return labels
+
+
+def _spell(value) -> str:
+    """A value as a run id spells it: floats as Python's shortest repr, booleans, lists and
+    tables as TOML."""
+    if isinstance(value, (bool, list, dict)):
+        return toml_value(value)
+    return repr(value) if isinstance(value, float) else str(value)
+
+
+def _run(scene: Path, overrides: dict, values: dict, labels: dict[str, str]) -> Run:
+    """The run of ``values``: its id and validated scene data (SweepError naming the axis)."""
+    run_id = "_".join(f"{labels[k]}={re.sub(r'[^A-Za-z0-9.+-]+', '-', _spell(v))}" for k, v in values.items())
+    if len(run_id) > 120:  # file-name limits: keep it readable, make it unique
+        run_id = f"{run_id[:100]}-{hashlib.sha256(run_id.encode()).hexdigest()[:12]}"
+    sources = {f"set.{k}": v for k, v in overrides.items()} | {f"axes.{k}": v for k, v in values.items()}
+    try:
+        data = read_scene_data(scene, [f"{k.partition('.')[2]}={toml_value(v)}" for k, v in sources.items()])
+        validated = scene_from_dict(data, scene.parent)
+    except SceneError as exc:
+        source = _source(exc, sources)
+        if source is None:
+            raise SweepError("sweep.scene", str(scene), f"a valid base scene: {exc}") from None
+        raise SweepError(source, sources[source], f"{exc.valid} (scene key '{exc.key}', run {run_id})") from None
+    relaxation = None
+    # a relaxation is shared through its checkpoint, and only makes sense before other phases
+    if len(validated.phases) > 1 and validated.output.checkpoint:
+        text = json.dumps(_relaxation(validated).to_dict(), sort_keys=True, default=_jsonable)
+        relaxation = hashlib.sha256(text.encode()).hexdigest()[:16]
+    return Run(run_id, values, data, sum(p.n_steps for p in validated.phases), relaxation)
+
+
+def _source(error: SceneError, sources: dict) -> str | None:
+    """The sweep key ("set.…" or "axes.…") that set the scene key ``error`` names, or one
+    inside it (a bad list index) or around it (a key set to a table); None: the base scene."""
+    bad = error.key if error.key != "--set" else str(error.value).partition("=")[0]
+    for source in sources:
+        key = source.partition(".")[2]
+        if key == bad or key.startswith(bad + ".") or bad.startswith(key + "."):
+            return source
+    return None
+
+
+def _relaxation(scene: Scene) -> Scene:
+    """The scene's first phase alone: what runs sharing it compute once."""
+    return replace(scene, phases=scene.phases[:1])
+
+
+# -- the sweep directory ------------------------------------------------------------------
+
+def _index(sweep: Sweep, statuses: dict[str, tuple[str, str | None]]) -> dict:
+    return {"format": FORMAT, "version": VERSION, "mode": sweep.mode, "axes": sweep.axes,
+            "runs": [{"id": run.id, "directory": f"runs/{run.id}", "values": run.values,
+                      "status": statuses[run.id][0], "error": statuses[run.id][1]} for run in sweep.runs]}
+
+
+def _write_index(directory: Path, index: dict) -> None:
+    atomic_write(directory / "sweep.json", json.dumps(index, indent=2, default=_jsonable) + "\n")
+
+
+@contextmanager
+def _locked(path: Path, blocking: bool = True) -> Iterator[bool]:
+    """An exclusive ``flock`` on ``path`` (created) while inside; yields False when
+    ``blocking`` is off and another process holds it. The kernel drops the lock when its
+    process dies, so a killed worker never leaves a stale lock."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+        except BlockingIOError:
+            yield False
+            return
+        yield True
+    finally:
+        os.close(handle)  # releases the lock
+
+
+def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
+    """The runs recorded in an existing sweep directory (id → entry of sweep.json); refuses
+    a sweep file that changed other than by adding values, or a changed base scene."""
+    stored = directory / "sweep.json"
+    if not stored.exists():
+        # what a start that stopped before its first index left is no sweep yet
+        own = {"locks", "sweep.toml", "sweep-set.json", "base-scene.toml"}
+        existing = [p.name for p in directory.iterdir() if p.name not in own] if directory.is_dir() else []
+        if existing:
+            raise SweepError("-o", str(directory), f"a new or empty directory, or one of a sweep (it holds "
+                             f"{', '.join(sorted(existing)[:5])} but no sweep.json)")
+        return {}
+    try:
+        index = json.loads(stored.read_text())
+        old = tomllib.loads((directory / "sweep.toml").read_text(encoding="utf-8"))
+        old_set = _overrides(old, json.loads((directory / "sweep-set.json").read_text()))
+        old_scene = (directory / "base-scene.toml").read_text(encoding="utf-8")
+    except (OSError, ValueError) as exc:
+        raise SweepError("-o", str(directory), f"a sweep directory with readable sweep.json, sweep.toml, "
+                         f"sweep-set.json and base-scene.toml ({exc})") from None
+    hint = (f"as in the sweep of {directory}, which accepts added values only (start a new directory for "
+            "another sweep)")
+    # the mode spelled out or left at its default is the same sweep
+    head, old_head = ({"mode": "product", **document.get("sweep", {})} for document in (sweep.document, old))
+    for table, new, before in (("sweep", head, old_head), ("set", sweep.set, old_set)):
+        for key in sorted(set(new) | set(before)):
+            if new.get(key) != before.get(key):
+                raise SweepError(f"{table}.{key}", new.get(key), f"{before.get(key)!r} {hint}")
+    old_axes = list(_flatten(old.get("axes", {})))
+    if old_axes != list(sweep.axes):
+        raise SweepError("axes", list(sweep.axes), f"the axes {old_axes}, in that order, {hint}")
+    if old_scene != sweep.scene.read_text(encoding="utf-8"):
+        raise SweepError("sweep.scene", str(sweep.scene), f"the base scene as it was when the sweep of {directory} "
+                         "started (base-scene.toml there): it was changed since; start a new directory")
+    runs = {run.id: run for run in sweep.runs}
+    recorded = {entry["id"]: entry for entry in index.get("runs", [])}
+    for run_id, entry in recorded.items():
+        if run_id not in runs or json.loads(json.dumps(runs[run_id].values, default=_jsonable)) != entry["values"]:
+            raise SweepError("axes", sweep.axes, f"values that include those of run {run_id!r} "
+                             f"({entry['values']}) {hint}")
+    return recorded
+
+
+def run_status(directory: Path, total_steps: int) -> tuple[str, str | None]:
+    """(status, error) of the run directory ``directory`` for the index: "done" when it
+    completed all ``total_steps``, "failed" (with run.json's message), "interrupted" when it
+    holds a checkpoint to resume from, else "pending"."""
+    info = Status.read(directory) or {}
+    if info.get("status") == "completed" and info.get("steps") == total_steps:
+        return "done", None
+    if info.get("status") == "failed":
+        return "failed", info.get("message") or "failed"
+    if (directory / CHECKPOINT).is_file():
+        return "interrupted", info.get("message") or None
+    return "pending", None
+
+
+# -- what a worker runs ------------------------------------------------------------------
+
+def _ensure(scene: Scene, directory: Path, fresh: Callable[[], None] | None = None) -> None:
+    """Bring ``directory`` to the end of ``scene``: skip it when done, start it again when
+    failed or without a checkpoint (``fresh()`` prepares a branch instead), else resume."""
+    status, _ = run_status(directory, sum(p.n_steps for p in scene.phases))
+    if status == "done":
+        return
+    from .simulation import run_scene
+
+    if status in ("failed", "pending") and fresh is not None:
+        fresh()
+        status = "interrupted"
+    run_scene(scene, directory, resume=status == "interrupted", overwrite=status != "interrupted",
+              progress=False, argv=["sweep", directory.name])
+
+
+def _clear(directory: Path) -> None:
+    """Remove femphase's outputs from a run directory (only those)."""
+    for name in OUTPUTS:
+        target = directory / name
+        if target.is_dir():
+            shutil.rmtree(target)
+        elif target.exists():
+            target.unlink()
+
+
+def _branch(shared: Path, directory: Path) -> None:
+    """Start ``directory`` as a copy of the shared relaxation: every output, the checkpoint
+    last (a kill mid-copy leaves no checkpoint, so the copy is redone)."""
+    _clear(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    for name in OUTPUTS:
+        source = shared / name
+        if name == CHECKPOINT or not source.exists():
+            continue
+        (shutil.copytree if source.is_dir() else shutil.copy2)(source, directory / name)
+    shutil.copy2(shared / CHECKPOINT, directory / f".{CHECKPOINT}.tmp")
+    os.replace(directory / f".{CHECKPOINT}.tmp", directory / CHECKPOINT)
+
+
+def _outcome(action: Callable[[], None]) -> dict:
+    """Run ``action``; its outcome as an index status, error message, wall and CPU time
+    (of the worker process, which runs one task at a time)."""
+    started, cpu = wallclock.perf_counter(), wallclock.process_time()
+    try:
+        action()
+        status, error = "done", None
+    except Interrupted as exc:
+        status, error = "interrupted", str(exc)
+    except FemphaseError as exc:
+        status, error = "failed", str(exc)
+    except Exception as exc:  # a bug in one run must not stop the others: report it in the index
+        status, error = "failed", f"internal error ({type(exc).__name__}: {exc})"
+    return {"status": status, "error": error, "seconds": wallclock.perf_counter() - started,
+            "cpu_seconds": wallclock.process_time() - cpu}
+
+
+def _execute_shared(data: dict, base_dir: str, directory: str) -> dict:
+    """Dask task: the shared relaxation of ``data``'s scene into ``directory``, once."""
+    directory = Path(directory)
+    with _locked(directory.parent.parent / "locks" / f"shared-{directory.name}.lock"):
+        return _outcome(lambda: _ensure(_relaxation(scene_from_dict(data, base_dir)), directory))
+
+
+def _execute_run(data: dict, base_dir: str, directory: str, shared: str | None = None,
+                 relaxation: dict | None = None) -> dict:
+    """Dask task: the run of ``data``'s scene into ``directory`` (branching from the
+    relaxation in ``shared``, whose task's outcome is ``relaxation``)."""
+    directory = Path(directory)
+    if relaxation is not None and relaxation["status"] != "done":
+        return {"status": "failed", "error": f"its shared relaxation {shared} did not finish: "
+                f"{relaxation['error']}", "seconds": 0.0, "cpu_seconds": 0.0}
+    fresh = (lambda: _branch(Path(shared), directory)) if shared else None
+    # one process per run directory, even when a worker thought dead is still running
+    with _locked(directory.parent.parent / "locks" / f"{directory.name}.lock"):
+        # the scene is built inside: an error there (a mesh file missing on this node) is the run's
+        return _outcome(lambda: _ensure(scene_from_dict(data, base_dir), directory, fresh))
+
+
+# -- the driver ---------------------------------------------------------------------------
+
+@contextmanager
+def _client(client, scheduler: str | None, workers: int | None, log: Callable[[str], None]):
+    """The Dask client to use: the one given, one of the cluster at ``scheduler``, or a new
+    LocalCluster of ``workers`` processes (closed on exit)."""
+    if client is not None:
+        yield client
+        return
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler is not None:
+        with Client(scheduler) as connected:
+            log(f"femphase sweep: using the Dask cluster at {scheduler}")
+            yield connected
+        return
+    n = workers or os.cpu_count() or 1
+    # dashboard on a free port: a fixed one clashes with other sweeps on the machine
+    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                      env=WORKER_ENV) as cluster, Client(cluster) as local:
+        log(f"femphase sweep: a local Dask cluster of {n} worker processes")
+        yield local
+
+
+def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, assignments: list[str] = (),
+              scheduler: str | None = None, workers: int | None = None,
+              log: Callable[[str], None] = print) -> dict:
+    """Run (or continue) a sweep into ``directory``; returns the index (sweep.json's content).
+
+    ``sweep``: a :class:`Sweep` or the path of a sweep file (with ``assignments``, ``--set``
+    overrides of every run, when a path).
+    ``client``: a ``dask.distributed.Client`` to submit to; else one of the cluster at
+    ``scheduler``, else a LocalCluster of ``workers`` processes (default: one per core).
+    ``log`` receives one line per finished run. Nothing runs before the sweep file and every
+    run's scene are validated, and an existing ``directory`` checked (SweepError)."""
+    sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep, assignments)
+    directory = Path(directory).resolve()
+    if directory.exists() and not directory.is_dir():
+        raise SweepError("-o", str(directory), "a directory (this path is a file)")
+    recorded = _check_directory(sweep, directory)
+    with _locked(directory / "locks" / "sweep.lock", blocking=False) as mine:
+        if not mine:
+            raise SweepError("-o", str(directory), "a sweep directory no other femphase sweep is running on")
+        atomic_write(directory / "sweep.toml", sweep.text)
+        atomic_write(directory / "sweep-set.json", json.dumps(list(sweep.assignments)) + "\n")
+        atomic_write(directory / "base-scene.toml", sweep.scene.read_text(encoding="utf-8"))
+        statuses = {run.id: run_status(directory / "runs" / run.id, run.total_steps) for run in sweep.runs}
+        for run_id, entry in recorded.items():  # the last session's error, until the run is retried
+            if statuses[run_id][0] != "done" and entry.get("error") and not statuses[run_id][1]:
+                statuses[run_id] = (statuses[run_id][0], entry["error"])
+        todo = [run for run in sweep.runs if statuses[run.id][0] != "done"]
+        _write_index(directory, _index(sweep, statuses))
+        log(f"femphase sweep: {len(sweep.runs)} runs, {len(sweep.runs) - len(todo)} done, {len(todo)} to run")
+        if todo:
+            with _client(client, scheduler, workers, log) as dask:
+                _submit(sweep, directory, todo, statuses, dask, log)
+        return _index(sweep, statuses)
+
+
+def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, client, log) -> None:
+    """Submit ``todo`` (relaxations first), update the index as each run finishes."""
+    from dask.distributed import as_completed
+
+    token = uuid.uuid4().hex[:8]  # task keys unique to this session
+    base_dir = str(sweep.base_dir)
+    relaxations = {}
+    for run in todo:
+        if run.shared and run.shared not in relaxations:
+            relaxations[run.shared] = client.submit(
+                _execute_shared, run.data, base_dir, str(directory / "shared" / run.shared),
+                key=f"femphase-relaxation-{run.shared}-{token}", pure=False)
+    futures = {}
+    for run in todo:
+        shared = str(directory / "shared" / run.shared) if run.shared else None
+        future = client.submit(_execute_run, run.data, base_dir, str(directory / "runs" / run.id), shared,
+                               relaxations.get(run.shared), key=f"femphase-run-{run.id}-{token}", pure=False)
+        futures[future] = run
+    finished = 0
+    try:
+        for future in as_completed(list(futures)):
+            run = futures[future]
+            try:
+                outcome = future.result()
+            except Exception as exc:  # the task was lost (its workers died, KilledWorker), not the run
+                outcome = {"status": "interrupted", "error": f"its task was lost ({type(exc).__name__}: {exc}); "
+                           "rerun the sweep to resume it", "seconds": float("nan"), "cpu_seconds": float("nan")}
+            finished += 1
+            statuses[run.id] = (outcome["status"], outcome["error"])
+            _write_index(directory, _index(sweep, statuses))
+            log(f"femphase sweep: [{finished}/{len(todo)}] {run.id}: {outcome['status']} ({outcome['seconds']:.1f} s, "
+                f"CPU {outcome['cpu_seconds']:.1f} s)" + (f": {outcome['error']}" if outcome["error"] else ""))
+    except BaseException:  # Ctrl-C: record what did not finish; the run directories resume
+        for future, run in futures.items():
+            if not future.done():
+                status, error = run_status(directory / "runs" / run.id, run.total_steps)
+                statuses[run.id] = (status, error or ("the sweep was stopped during this run"
+                                                      if status == "interrupted" else None))
+        _write_index(directory, _index(sweep, statuses))
+        client.cancel(list(futures) + list(relaxations.values()))
+        raise
+
+
+# -- command line -------------------------------------------------------------------------
+
+def run_cli(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.workers < 1:
+        raise SweepError("--workers", args.workers, "a whole number ≥ 1 (worker processes)")
+    terminated: list[int] = []
+
+    def terminate(number, frame):  # SIGTERM (Slurm, timeout) stops the sweep as Ctrl-C does
+        terminated.append(number)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, terminate)
+    try:
+        index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler,
+                          workers=args.workers, log=lambda line: print(line, flush=True))
+    except KeyboardInterrupt:
+        print(f"femphase sweep: interrupted; rerun the same command to continue (sweep.json in {args.output} "
+              "says where each run stands)", file=sys.stderr)
+        return 143 if terminated else 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    counts = {s: sum(r["status"] == s for r in index["runs"]) for s in ("done", "failed", "interrupted", "pending")}
+    print("femphase sweep: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; index in "
+          f"{Path(args.output) / 'sweep.json'}")
+    return 0 if counts["done"] == len(index["runs"]) else EXIT_INCOMPLETE
+
+
+def register_cli(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `sweep` subcommand to the femphase command line."""
+    parser = subparsers.add_parser("sweep", help="run a sweep file's runs on Dask (resumable)",
+                                   description=__doc__.split("\n\n")[0])
+    parser.add_argument("sweep", help="sweep file (TOML), e.g. verification/sweeps/fig1a.toml")
+    parser.add_argument("-o", "--output", required=True, help="sweep directory (rerun the command to continue it)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scene value in every run (after the sweep file's [set]), e.g. "
+                             "--set phases.1.duration=100")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster "
+                       "(default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="a running Dask scheduler, e.g. tcp://10.0.0.1:8786 (dask-jobqueue, docs/sweeps.md)")
+    parser.set_defaults(func=run_cli)

@@ -1,0 +1,228 @@
+"""femphase sweep: the schema's errors, runs on a Dask LocalCluster that loses a worker
+mid-run, resuming, and shared relaxations, each against serial runs of the same scenes."""
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from femphase.cli import main
+from femphase.scene import load_scene
+from femphase.simulation import run_scene
+from femphase.sweep import WORKER_ENV, SweepError, load_sweep, run_sweep
+
+distributed = pytest.importorskip("distributed")
+
+# two particles in a small channel: a relaxation, then shear; ~1.5 s per run
+SCENE = """
+name = "tiny"
+[domain]
+Lx = 40.0
+Ly = 40.0
+h = 1.0
+[particles]
+layout = "random"
+N = 2
+seed = 1
+[[phases]]
+name = "relax"
+duration = 20.0
+dt = 1.0
+frame_interval = 10.0
+[[phases]]
+name = "shear"
+duration = 300.0
+dt = 1.0
+frame_interval = 20.0
+flow = { type = "shear", rate = 0.5 }
+"""
+SWEEP = """
+[sweep]
+scene = "tiny.toml"
+[axes]
+"phases.1.flow.rate" = [0.3, 1.0]
+"particles.seed" = [1, 2]
+"""
+IDS = ["rate=0.3_seed=1", "rate=0.3_seed=2", "rate=1.0_seed=1", "rate=1.0_seed=2"]
+
+
+def write(folder: Path, sweep: str = SWEEP) -> Path:
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "tiny.toml").write_text(SCENE)
+    (folder / "sweep.toml").write_text(sweep)
+    return folder / "sweep.toml"
+
+
+@pytest.fixture(scope="module")
+def client():
+    cluster = distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                       env=WORKER_ENV)
+    with cluster, distributed.Client(cluster) as connected:
+        yield connected
+
+
+@pytest.fixture(scope="module")
+def serial(tmp_path_factory):
+    """Each run of SWEEP by plain run_scene (no sweep, no branching): run id → directory."""
+    folder = tmp_path_factory.mktemp("serial")
+    path = write(folder)
+    out = {}
+    for run in load_sweep(path).runs:
+        scene = load_scene(folder / "tiny.toml", [f"{k}={v}" for k, v in run.values.items()])
+        run_scene(scene, folder / run.id, progress=False)
+        out[run.id] = folder / run.id
+    return out
+
+
+def assert_same_outputs(sweep_dir: Path, serial: dict) -> None:
+    for run_id, reference in serial.items():
+        for name in ("particles.csv", "global.csv"):
+            assert (sweep_dir / "runs" / run_id / name).read_bytes() == (reference / name).read_bytes(), (run_id, name)
+
+
+def segments(directory: Path) -> list[dict]:
+    return json.loads((directory / "run.json").read_text())["segments"]
+
+
+@pytest.mark.parametrize("text, key", [
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.sed" = [1, 2]', "axes.particles.sed"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"phases.1.flow.rat" = [1.0]', "axes.phases.1.flow.rat"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"phases.5.dt" = [1.0]', "axes.phases.5.dt"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.seed" = [1, -1]', "axes.particles.seed"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.seed" = 3', "axes.particles.seed"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.seed" = [1, 1]', "axes.particles.seed"),
+    ('[sweep]\nscene = "tiny.toml"\n[set]\n"model.mu" = "x"\n[axes]\n"particles.seed" = [1]', "set.model.mu"),
+    ('[sweep]\nscene = "tiny.toml"\nmode = "zip"\n[axes]\n"particles.seed" = [1, 2]\n"phases.1.dt" = [1.0]',
+     "sweep.mode"),
+    ('[sweep]\nscene = "tiny.toml"\nmode = "cartesian"\n[axes]\n"particles.seed" = [1]', "sweep.mode"),
+    ('[sweep]\nscene = "missing.toml"\n[axes]\n"particles.seed" = [1]', "sweep.scene"),
+    ('[sweep]\nscene = "tiny.toml"\n[axis]\n"particles.seed" = [1]', "axis"),
+    ('[sweep]\nscene = "tiny.toml"\n', "axes"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"name" = ["a b", "a-b"]', "axes"),
+])
+def test_schema_errors_name_the_key_before_anything_runs(tmp_path, text, key):
+    path = write(tmp_path, text)
+    with pytest.raises(SweepError) as caught:
+        run_sweep(path, tmp_path / "out")  # no client: it would start a cluster after validation
+    assert caught.value.key == key
+    assert f"'{key}'" in str(caught.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
+    path = write(tmp_path, SWEEP.replace("particles.seed", "particles.sed"))
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out")]) == 2
+    assert "'axes.particles.sed'" in capsys.readouterr().err
+    path = write(tmp_path)
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--workers", "0"]) == 2
+    assert "'--workers'" in capsys.readouterr().err
+    assert main(["sweep", str(path), "-o", str(tmp_path / "out"), "--set", "phases.1.flow.rate=2"]) == 2
+    assert "axes.phases.1.flow.rate" in capsys.readouterr().err  # an axis is not also set
+    assert not (tmp_path / "out").exists()
+
+
+def test_run_ids_labels_zip_and_sharing(tmp_path):
+    product = load_sweep(write(tmp_path / "a"))
+    assert [run.id for run in product.runs] == IDS
+    # runs of one seed share its relaxation; different seeds do not
+    shared = {run.id: run.shared for run in product.runs}
+    assert shared["rate=0.3_seed=1"] == shared["rate=1.0_seed=1"] != shared["rate=0.3_seed=2"] is not None
+    zipped = load_sweep(write(tmp_path / "b", '[sweep]\nscene = "tiny.toml"\nmode = "zip"\n[axes]\n'
+                              '"phases.0.dt" = [1.0, 2.0]\n"phases.1.dt" = [1.0, 4.0]\n'))
+    assert [run.id for run in zipped.runs] == ["0.dt=1.0_1.dt=1.0", "0.dt=2.0_1.dt=4.0"]
+    assert all(run.shared is None for run in zipped.runs)  # their first phases differ
+
+
+def test_branched_runs_equal_serial_runs_and_a_rerun_skips_done_runs(tmp_path, client, serial):
+    path, out = write(tmp_path), tmp_path / "out"
+    index = run_sweep(path, out, client)
+    assert index["format"] == "femphase-sweep" and index["version"] == 1 and index["mode"] == "product"
+    assert index["axes"] == {"phases.1.flow.rate": [0.3, 1.0], "particles.seed": [1, 2]}
+    assert [(r["id"], r["directory"], r["status"], r["error"]) for r in index["runs"]] == [
+        (i, f"runs/{i}", "done", None) for i in IDS]
+    assert json.loads((out / "sweep.json").read_text()) == index
+    assert (out / "sweep.toml").read_text() == path.read_text()
+    # two relaxations (one per seed), each computed once: one segment, phase 0 only
+    relaxations = sorted((out / "shared").iterdir())
+    assert len(relaxations) == 2
+    for relaxation in relaxations:
+        assert [s["step"] for s in segments(relaxation)] == [20]
+    for run_id in IDS:  # each run: the copied relaxation, then its own shear
+        assert [(s["resumed"], s["step"]) for s in segments(out / "runs" / run_id)] == [(False, 20), (True, 320)]
+    assert_same_outputs(out, serial)
+
+    # a rerun skips done runs (their files untouched) and reruns a failed one
+    info = out / "runs" / IDS[1] / "run.json"
+    failed = json.loads(info.read_text())
+    info.write_text(json.dumps({**failed, "status": "failed", "message": "a test's failure"}))
+    stamps = {i: (out / "runs" / i / "particles.csv").stat().st_mtime_ns for i in IDS}
+    lines = []
+    index = run_sweep(path, out, client, log=lines.append)
+    assert all(r["status"] == "done" for r in index["runs"])
+    assert "4 runs, 3 done, 1 to run" in lines[0]
+    assert [i for i in IDS if (out / "runs" / i / "particles.csv").stat().st_mtime_ns != stamps[i]] == [IDS[1]]
+    assert_same_outputs(out, serial)
+
+    # a changed sweep is refused unless it only adds values
+    with pytest.raises(SweepError, match="added values only"):
+        run_sweep(write(tmp_path, SWEEP.replace("[1, 2]", "[1]")), out, client)
+    with pytest.raises(SweepError, match="set.phases.1.duration"):
+        run_sweep(path, out, client, assignments=["phases.1.duration=100"])
+    lines.clear()
+    index = run_sweep(write(tmp_path, SWEEP.replace("[0.3, 1.0]", "[0.3, 1.0, 2.0]")), out, client, log=lines.append)
+    assert "6 runs, 4 done, 2 to run" in lines[0]
+    assert [r["id"] for r in index["runs"] if r["status"] == "done"] == IDS + ["rate=2.0_seed=1", "rate=2.0_seed=2"]
+    assert [s["step"] for s in segments(out / "runs" / "rate=2.0_seed=1")] == [20, 320]  # the same relaxation
+    assert len(list((out / "shared").iterdir())) == 2
+
+
+def test_two_workers_asking_for_one_relaxation_compute_it_once(tmp_path):
+    from femphase.sweep import _execute_shared
+
+    sweep = load_sweep(write(tmp_path))
+    run = sweep.runs[0]
+    target = tmp_path / "out" / "shared" / run.shared
+    outcomes = []
+    threads = [threading.Thread(target=lambda: outcomes.append(_execute_shared(run.data, str(tmp_path), str(target))))
+               for _ in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    assert [o["status"] for o in outcomes] == ["done", "done"]
+    assert [s["step"] for s in segments(target)] == [20]  # computed by one, skipped by the other
+
+
+def test_a_worker_killed_mid_run_is_replaced_and_its_run_resumed(tmp_path, client, serial):
+    path, out = write(tmp_path), tmp_path / "out"
+    result: dict = {}
+    thread = threading.Thread(target=lambda: result.update(index=run_sweep(path, out, client)))
+    thread.start()
+    pids = client.run(os.getpid)
+    killed = None
+    deadline = time.monotonic() + 60
+    while killed is None and thread.is_alive() and time.monotonic() < deadline:
+        # a run of phase 1 under way (past a checkpoint) on a worker: kill that worker
+        for address, keys in client.processing().items():
+            for key in keys:
+                run_id = next((i for i in IDS if f"-{i}-" in str(key)), None)
+                directory = out / "runs" / str(run_id)
+                if run_id and (directory / "run.json").exists():
+                    info = json.loads((directory / "run.json").read_text())
+                    if info["status"] == "running" and 40 <= info["steps"] <= 220:
+                        os.kill(pids[address], signal.SIGKILL)
+                        killed = run_id
+                        break
+            if killed:
+                break
+        time.sleep(0.02)
+    thread.join(timeout=120)
+    assert killed is not None, "no run was caught under way"
+    assert [r["status"] for r in result["index"]["runs"]] == ["done"] * 4
+    steps = [(s["resumed"], s["step"]) for s in segments(out / "runs" / killed)]
+    assert len(steps) == 3 and steps[-1] == (True, 320), steps  # relaxation, killed segment, resumed
+    assert_same_outputs(out, serial)
