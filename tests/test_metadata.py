@@ -30,8 +30,10 @@ from femphase.simulation import RunDirectory, Simulation, Tracker
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "single.toml"
-#: examples/single.toml cut to 20 + 10 steps, a frame every 5
-SHORT = ["phases.0.duration=20", "phases.1.duration=10", "phases.0.frame_interval=5", "phases.1.frame_interval=5"]
+#: examples/single.toml cut to 20 + 10 steps of the first-order scheme (whose saturation
+#: guard the error tests trigger), a frame every 5
+SHORT = ["phases.0.duration=20", "phases.1.duration=10", "phases.0.frame_interval=5", "phases.1.frame_interval=5",
+         'numerics.scheme="euler"', "phases.0.dt=1", "phases.1.dt=1"]
 STATUS = re.compile(r" INFO (status|start|resume|phase \d+:\w+ (?:start|end)): t=(\S+) step=(\d+)/(\d+) phase=\d+:\w+ "
                     r"ms/step=\S+ windows=1 mean_dofs=\d+ rss=\d+MB peak=\d+MB eta=\S+$")
 
@@ -117,7 +119,7 @@ def test_every_dependency_a_run_imports_is_recorded(tmp_path):
     declared = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]["dependencies"]
     names = {re.split(r"[<>=!~;\[ ]", d, maxsplit=1)[0].lower() for d in declared}
     script = (f"import sys, json; from importlib import metadata; from femphase.cli import main; "
-              f"main({['run', str(SCENE), '-o', str(tmp_path / 'run'), '-q', '--set', 'phases.0.duration=2', '--set', 'phases.1.duration=2']!r}); "
+              f"main({['run', str(SCENE), '-o', str(tmp_path / 'run'), '-q', '--set', 'phases.0.duration=20', '--set', 'phases.1.duration=20']!r}); "
               "found = metadata.packages_distributions(); "
               "print(json.dumps(sorted({d.lower() for m in list(sys.modules) for d in found.get(m, [])})))")
     env = dict(os.environ, PYTHONPATH=str(ROOT))

@@ -120,7 +120,7 @@ def test_on_the_structured_mesh_the_meshed_domain_steps_like_the_structured_one(
     run(stepper(disc, grid_state), grid_state, 60)
     domain = MeshDomain.from_mesh(*structured_channel(40.0, 40.0, 1.0))
     state = discs(domain, [[20, 20]], 4.0)
-    run(Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii), state, 60)
+    run(Stepper(domain, PARAMS, Numerics(scheme="euler"), 1.0, None, state.radii), state, 60)
     x, y = domain.coordinates
     on_grid = grid_state.global_field(0)[np.rint(y).astype(int) * 40 + np.rint(x).astype(int)]
     assert np.abs(state.global_field(0) - on_grid).max() < 1e-4
