@@ -1,21 +1,26 @@
-"""Cost per step against the number of particles N and the mesh spacing h, and a profile.
+"""Cost against the number of particles N and the mesh spacing h, peak memory, and a profile.
 
     python benchmarks/scaling.py [--quick]
 
-* N = 10 … 1000 on hexagonal lattices in channels grown at the paper's density
-  (Lx = 70, Ly = 2.4·N: N = 100 is the paper's 70 × 240, N = 1000 is 70 × 2400), h = 1;
-* h = 2, 1, 0.5 for the paper's N = 100 scene.
+* N = 100, 400, 1600 (``--quick``: 100, 400) on hexagonal lattices at the paper's density in
+  channels grown in both directions: 70 × 240 (the paper's), 140 × 480, 280 × 960, h = 1,
+  each in its own subprocess (so the peak memory, the maximum resident set size, is its
+  own). Each is relaxed 100 time units at dt = 1 (windows reach their working size), then
+  sheared at the paper's velocity gradient (u = 0.1487·y/240 whatever Ly):
+  ``euler_ms_per_step``, the first-order scheme at dt = 1 (median over ``STEPS`` steps);
+  ``default_ms_per_time_unit``, the default scheme (numerics defaults, outer step
+  ``FRAME``) over ``SHEAR_TIME`` time units; ``frame_ms``, a frame with every observable
+  (shape, energy, order) and the field data of fields.xdmf (`femphase.io.point_data`).
+  Frames compute energies and field data window by window, so they should grow linearly
+  in N (before the one-core redesign they built dense N × nodes arrays: ~10 GB at N = 1600).
+* h = 2, 1, 0.5 for the paper's N = 100 scene, first-order scheme at dt = 1.
 
-Every scene is relaxed 100 time units at dt = 1 (so the windows have their working size),
-then sheared at the paper's velocity gradient (u = 0.1487·y/240, the same γ̇ as in the
-paper's channel, whatever Ly) with the default numerics and dt = 1; the first shear step
-(factorisations) is not timed. Times are CPU seconds of this process (less disturbed by the
-other processes on the shared machine than wall time), the median over the timed steps, and
-are also given relative to N = 100 at h = 1 measured in the same run. Exponents are
-least-squares slopes of log(cost) against log N and log(1/h).
+The first shear step (factorisations) is not timed. Times are CPU seconds of the process
+(less disturbed by the other processes on the shared machine than wall time). Exponents
+are least-squares slopes of log(cost) against log N and log(1/h).
 
 The profile (cProfile, ``PROFILE_STEPS`` shear steps of benchmarks/step_time.py's scenario:
-N = 100, h = 1, dt = 1, γ̇ = 0.1487) splits the step into its parts.
+N = 100, h = 1, first-order scheme at dt = 1, γ̇ = 0.1487) splits the step into its parts.
 """
 
 from __future__ import annotations
@@ -24,7 +29,11 @@ import argparse
 import cProfile
 import json
 import pstats
+import resource
+import subprocess
+import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import common  # noqa: F401  (pins BLAS threads before numpy loads)
@@ -39,40 +48,96 @@ from common import markdown_table, update_readme
 RESULTS = Path(__file__).parent / "results"
 PAPER_RATE, PAPER_LY = 0.1487, 240.0
 PROFILE_STEPS = 300
+SIZES = (100, 400, 1600)
+STEPS, SHEAR_TIME, FRAME = 20, 100.0, 10.0
 
 
 def grown_channel(n: int, h: float = 1.0):
-    """N particles at the paper's density: Lx = 70, Ly = 2.4 N, 5 per row."""
+    """N particles at the paper's density: Lx = 70, Ly = 2.4 N, 5 per row (the h sweep)."""
     return scene_from_dict({
         "name": f"scaling N = {n}", "domain": {"Lx": 70.0, "Ly": 2.4 * n, "h": h},
         "particles": {"layout": "hexagonal", "N": n, "per_row": 5}, "output": {"fields": False},
+        "numerics": {"scheme": "euler"},
         "phases": [{"name": "shear", "duration": 1.0, "dt": 1.0, "frame_interval": 1.0,
                     "flow": {"type": "shear", "rate": PAPER_RATE / PAPER_LY, "scale": "shear_rate"}}],
     })
 
 
-def sheared_stepper(scene, relax_steps: int = 100):
-    """(state relaxed for ``relax_steps`` at dt = 1, the shear stepper after its first step)."""
+def square_channel(n: int):
+    """N particles at the paper's density in a channel grown in both directions (N = 100·k²:
+    70k × 240k, 5k per row), default numerics."""
+    scale = int(round(np.sqrt(n / 100)))
+    return scene_from_dict({
+        "name": f"scaling N = {n}", "domain": {"Lx": 70.0 * scale, "Ly": PAPER_LY * scale},
+        "particles": {"layout": "hexagonal", "N": n, "per_row": 5 * scale},
+        "output": {"fields": True, "observables": ["shape", "energy", "order"]},
+        "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0,
+                    "flow": {"type": "shear", "rate": PAPER_RATE / PAPER_LY, "scale": "shear_rate"}}],
+    })
+
+
+def sheared_stepper(scene, relax_steps: int = 100, **numerics):
+    """(state relaxed for ``relax_steps`` at dt = 1 by the first-order scheme, the shear
+    stepper after its first step); ``numerics`` overrides the scene's for the shear."""
     simulation = Simulation(scene)
     state = scene.initial_state()
-    relax = Stepper(simulation.domain, scene.model, scene.numerics, 1.0, None, state.radii)
+    relax = Stepper(simulation.domain, scene.model, replace(scene.numerics, scheme="euler"), 1.0, None, state.radii)
     for _ in range(relax_steps):
         relax.step(state)
-    stepper = simulation.stepper(scene.phases[0], state.radii)
+    phase = scene.phases[0]
+    stepper = Stepper(simulation.domain, scene.model, replace(scene.numerics, **numerics), phase.dt,
+                      scene.flow(phase), state.radii)
     stepper.step(state)  # builds the factorisations: set-up, not per-step cost
-    return state, stepper
+    return state, stepper, simulation
 
 
-def time_per_step(scene, steps: int) -> dict:
-    state, stepper = sheared_stepper(scene)
+def timed_steps(stepper, state, steps: int) -> list[float]:
     samples = []
     for _ in range(steps):
         started = time.process_time()
         stepper.step(state)
         samples.append(time.process_time() - started)
+    return samples
+
+
+def time_per_step(scene, steps: int) -> dict:
+    state, stepper, _ = sheared_stepper(scene)
+    samples = timed_steps(stepper, state, steps)
     return {"N": state.n_particles, "h": scene.domain.spacing, "Ly": scene.domain.width, "steps": steps,
             "nodes": scene.domain.grid.n_nodes, "window_dofs": int(sum(f.size for f in state.fields)),
             "ms_per_step": 1e3 * float(np.median(samples)), "mean_ms": 1e3 * float(np.mean(samples))}
+
+
+def measure_size(n: int, steps: int, shear_time: float) -> dict:
+    """The by-N row of one size (run in a subprocess: its peak memory is its own)."""
+    from femphase.io import point_data
+    from femphase.simulation import Frame
+    from femphase.stepping import Numerics
+
+    scene = square_channel(n)
+    state, stepper, simulation = sheared_stepper(scene, scheme="euler")
+    euler = timed_steps(stepper, state, steps)
+    default = Numerics()
+    phase = replace(scene.phases[0], dt=FRAME)
+    stepper = Stepper(simulation.domain, scene.model, scene.numerics, FRAME, scene.flow(phase), state.radii)
+    stepper.step(state)  # set-up
+    shear = sum(timed_steps(stepper, state, round(shear_time / FRAME)))
+    frames = []
+    for _ in range(3):
+        started = time.process_time()
+        frame = Frame(state, phase)
+        for name in ("shape", "energy", "order"):
+            observable = simulation.observable(name)
+            values = observable(state, frame.particle)
+            frame.particle.update({c: values[c] for c in observable.particle_columns})
+        point_data(state, per_particle=False)
+        frames.append(time.process_time() - started)
+    return {"N": n, "domain": f"{scene.domain.period:g} × {scene.domain.width:g}", "nodes": simulation.domain.n_dofs,
+            "window_dofs": int(sum(f.size for f in state.fields)),
+            "euler_ms_per_step": 1e3 * float(np.median(euler)),
+            "default_scheme": f"{default.scheme} (tolerance_t {default.tolerance_t:g}, outer dt {FRAME:g})",
+            "default_ms_per_time_unit": 1e3 * shear / shear_time, "frame_ms": 1e3 * float(np.median(frames)),
+            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0}
 
 
 def fitted_exponent(x: np.ndarray, cost: np.ndarray) -> float:
@@ -82,7 +147,7 @@ def fitted_exponent(x: np.ndarray, cost: np.ndarray) -> float:
 # -- profile ----------------------------------------------------------------------------------
 def profile_parts(steps: int = PROFILE_STEPS) -> dict:
     """Cumulative CPU time of the step's parts over ``steps`` shear steps, in ms per step."""
-    state, stepper = sheared_stepper(common.lattice_scene())
+    state, stepper, _ = sheared_stepper(common.lattice_scene(), scheme="euler")
     profiler = cProfile.Profile()
     profiler.enable()
     for _ in range(steps):
@@ -132,90 +197,96 @@ def plot(result: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
-    for ax, key, x_of, label, exponent in (
-        (axes[0], "by_N", lambda r: r["N"], "particles N (Ly = 2.4 N, h = 1)", result["exponent_N"]),
-        (axes[1], "by_h", lambda r: 1.0 / r["h"], "1/h (N = 100)", result["exponent_h"]),
-    ):
-        rows = result[key]
-        x = np.array([x_of(r) for r in rows])
-        y = np.array([r["ms_per_step"] for r in rows])
-        ax.loglog(x, y, "o", label="measured")
-        fit = np.polyfit(np.log(x), np.log(y), 1)
-        ax.loglog(x, np.exp(np.polyval(fit, np.log(x))), "-", label=f"slope {exponent:.2f}")
-        ax.set_xlabel(label)
-        ax.set_ylabel("CPU ms per step")
-        ax.legend()
+    sizes = np.array([r["N"] for r in result["by_N"]], float)
+    for key, label in (("euler_ms_per_step", "first order, ms per step (dt = 1)"),
+                       ("default_ms_per_time_unit", "default scheme, ms per time unit"),
+                       ("frame_ms", "frame, ms")):
+        cost = np.array([r[key] for r in result["by_N"]])
+        axes[0].loglog(sizes, cost, "o-", label=f"{label}: N^{fitted_exponent(sizes, cost):.2f}")
+    axes[0].loglog(sizes, sizes / sizes[0] * result["by_N"][0]["euler_ms_per_step"], "k:", label="∝ N")
+    axes[0].set_xlabel("particles N (paper's density, h = 1)")
+    axes[0].set_ylabel("CPU ms")
+    rows = result["by_h"]
+    x = np.array([1.0 / r["h"] for r in rows])
+    y = np.array([r["ms_per_step"] for r in rows])
+    axes[1].loglog(x, y, "o-", label=f"slope {result['exponent_h']:.2f}")
+    axes[1].set_xlabel("1/h (N = 100, first order, dt = 1)")
+    axes[1].set_ylabel("CPU ms per step")
+    for ax in axes:
+        ax.legend(fontsize=7)
         ax.grid(True, which="both", alpha=0.3)
-    fig.suptitle("femphase cost per step (dt = 1, shear, windows, defaults)")
+    fig.suptitle("femphase cost against N and h (shear, windows)")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
 
 def report(result: dict) -> str:
-    reference = result["reference_ms"]
-    rows = [[r["N"], f"{r['h']:g}", f"70 × {r['Ly']:g}", f"{r['nodes']:,}", f"{r['window_dofs']:,}",
-             f"{r['ms_per_step']:.3g}", f"{r['ms_per_step'] / reference:.3g}", f"{r['ms_per_step'] / r['N']:.3g}"]
-            for r in result["by_N"] + result["by_h"]]
-    table = markdown_table(["N", "h", "channel", "mesh nodes", "window dofs (all)", "CPU ms/step",
-                            "relative to N = 100, h = 1", "ms per particle"], rows)
+    rows = [[r["N"], r["domain"], f"{r['nodes']:,}", f"{r['window_dofs']:,}", f"{r['euler_ms_per_step']:.3g}",
+             f"{r['default_ms_per_time_unit']:.3g}", f"{r['frame_ms']:.3g}", f"{r['peak_rss_mb']:.0f}"]
+            for r in result["by_N"]]
+    table = markdown_table(["N", "channel", "mesh nodes", "window dofs (all)", "first order, ms/step (dt = 1)",
+                            f"default ({result['by_N'][0]['default_scheme']}), ms per time unit", "ms per frame",
+                            "peak memory (MB)"], rows)
+    exponents = result["exponents_N"]
+    h_rows = [[f"{r['h']:g}", f"{r['nodes']:,}", f"{r['window_dofs']:,}", f"{r['ms_per_step']:.3g}"]
+              for r in result["by_h"]]
     profile = result["profile"]
     parts = [[name, f"{ms:.2f}", f"{ms / profile['total_ms']:.0%}"] for name, ms in
              sorted(profile["parts_ms"].items(), key=lambda item: -item[1])]
     parts.append(["**step (total, under cProfile)**", f"{profile['total_ms']:.2f}", "100%"])
-    step_time = RESULTS / "step_time.json"
-    windows = ""
-    if step_time.exists():  # written by benchmarks/step_time.py
-        st = json.loads(step_time.read_text())
-        windows = (f"From `results/step_time.json` (`step_time.py`, N = 100, h = 1, dt = 1, shear): windows "
-                   f"{st['windows']['median_ms']:.3g} ms/step against the full mesh {st['full_mesh']['median_ms']:.3g} "
-                   f"ms/step in the same run, **speed-up {st['speedup']:.0f}×**; the paper's protocol (1.02e5 time "
-                   f"units at dt = 1) ≈ {st['protocol_minutes']:.0f} min.\n\n")
-    h_rows = sorted(result["by_h"] + [r for r in result["by_N"] if r["N"] == 100], key=lambda r: -r["h"])
-    finest = -fitted_exponent(np.array([r["h"] for r in h_rows[-2:]]), np.array([r["ms_per_step"] for r in h_rows[-2:]]))
-    dofs = -fitted_exponent(np.array([r["h"] for r in h_rows[-2:]]), np.array([r["window_dofs"] for r in h_rows[-2:]]))
-    return (f"{windows}{table}\n\nFitted exponents: cost ∝ N^{result['exponent_N']:.2f} (target ≈ 1), "
-            f"cost ∝ h^-{result['exponent_h']:.2f} over h = 2 … 0.5; between h = 1 and 0.5 alone h^-{finest:.2f}, "
-            f"while the window dofs grow as h^-{dofs:.2f} (the margin is a fixed length, the per-step "
-            f"Python overhead is not per dof, so h = 2 is overhead-bound).\n\n"
-            f"![scaling](results/scaling.png)\n\n"
-            f"Profile of the default run (N = 100, h = 1, dt = 1, γ̇ = 0.1487; cProfile over "
+    return (f"{table}\n\nFitted exponents from N = {rows[0][0]} to {rows[-1][0]}: first order per step "
+            f"N^{exponents['euler_ms_per_step']:.2f}, default scheme per time unit "
+            f"N^{exponents['default_ms_per_time_unit']:.2f}, frames N^{exponents['frame_ms']:.2f} (target ≤ 1.05); "
+            f"peak memory at N = {rows[-1][0]}: {rows[-1][-1]} MB (target < 1500).\n\n"
+            + markdown_table(["h (N = 100)", "mesh nodes", "window dofs (all)", "first order, ms/step (dt = 1)"],
+                             h_rows)
+            + f"\n\ncost ∝ h^-{result['exponent_h']:.2f} over h = 2 … 0.5.\n\n![scaling](results/scaling.png)\n\n"
+            f"Profile of the first-order step (N = 100, h = 1, dt = 1, γ̇ = 0.1487; cProfile over "
             f"{profile['steps']} shear steps, CPU ms per step; cProfile's own overhead inflates the many "
             f"small Python calls):\n\n" + markdown_table(["part", "ms/step", "share"], parts))
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="N ≤ 100 and h ∈ {2, 1} only")
+    parser.add_argument("--quick", action="store_true", help="N ≤ 400 and h ∈ {2, 1} only")
     parser.add_argument("--report", action="store_true", help="only rewrite the README section from the JSON")
+    parser.add_argument("--one", type=int, help=argparse.SUPPRESS)  # the subprocess's size
     args = parser.parse_args()
+    if args.one:
+        print(json.dumps(measure_size(args.one, STEPS, SHEAR_TIME)))
+        return
     if args.report:
         update_readme("scaling", report(json.loads((RESULTS / "scaling.json").read_text())))
         return
     started = time.process_time()
-    counts = (10, 30, 100) if args.quick else (10, 30, 100, 300, 1000)
-    spacings = (2.0, 1.0) if args.quick else (2.0, 1.0, 0.5)
     by_n = []
-    for n in counts:
-        by_n.append(time_per_step(grown_channel(n), steps=60 if n < 1000 else 30))
+    for n in SIZES[:2] if args.quick else SIZES:
+        output = subprocess.run([sys.executable, __file__, "--one", str(n)], check=True, capture_output=True,
+                                text=True).stdout
+        by_n.append(json.loads(output.strip().splitlines()[-1]))
         print(by_n[-1], flush=True)
+    spacings = (2.0, 1.0) if args.quick else (2.0, 1.0, 0.5)
     by_h = []
     for h in spacings:
-        by_h.append(by_n[counts.index(100)] if h == 1.0 else time_per_step(grown_channel(100, h), steps=60 if h >= 1 else 20))
+        by_h.append(time_per_step(grown_channel(100, h), steps=60 if h >= 1 else 20))
         print(by_h[-1], flush=True)
-    result = {"by_N": by_n, "by_h": [r for r in by_h if r["h"] != 1.0],
-              "reference_ms": by_n[counts.index(100)]["ms_per_step"],
-              "exponent_N": fitted_exponent(np.array(counts, float), np.array([r["ms_per_step"] for r in by_n])),
+    sizes = np.array([r["N"] for r in by_n], float)
+    result = {"by_N": by_n, "by_h": by_h,
+              "exponents_N": {key: fitted_exponent(sizes, np.array([r[key] for r in by_n]))
+                              for key in ("euler_ms_per_step", "default_ms_per_time_unit", "frame_ms")},
               "exponent_h": -fitted_exponent(np.array(spacings), np.array([r["ms_per_step"] for r in by_h])),
-              "profile": profile_parts(100 if args.quick else PROFILE_STEPS)}
+              "profile": profile_parts(100 if args.quick else PROFILE_STEPS),
+              "command": "python benchmarks/scaling.py" + (" --quick" if args.quick else "")}
+    # the subprocesses' CPU is not this process's: their timed parts are in the rows
     result["cpu_seconds"] = time.process_time() - started
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "scaling.json").write_text(json.dumps(result, indent=1) + "\n")
     markdown = report(result)
     print(markdown)
     if not args.quick:
-        plot({**result, "by_h": by_h}, RESULTS / "scaling.png")
+        (RESULTS / "scaling.json").write_text(json.dumps(result, indent=1) + "\n")
+        plot(result, RESULTS / "scaling.png")
         update_readme("scaling", markdown)
-    print(f"{result['cpu_seconds'] / 60:.1f} CPU-min")
+    print(f"{result['cpu_seconds'] / 60:.1f} CPU-min in this process")
 
 
 if __name__ == "__main__":
