@@ -644,6 +644,8 @@ def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str
                                     alpha=0.2, lw=0)
             if not numeric:
                 ax.set_xticks(range(len(x_all)), [str(v) for v in x_all])
+            elif min(x_all) > 0 and max(x_all) > 100 * min(x_all):  # rates over decades, as the paper plots them
+                ax.set_xscale("log")
             ax.set_xlabel(x_key)
             ax.set_ylabel(ylabel)
             ax.legend(fontsize=7)

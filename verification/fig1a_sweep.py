@@ -1,0 +1,78 @@
+"""Fig. 1a from a sweep directory: the order parameters against the shear rate.
+
+    femphase sweep verification/sweeps/fig1a_reduced.toml -o verification/runs/fig1a_reduced
+    python -m verification.fig1a_sweep verification/runs/fig1a_reduced
+
+Aggregates the sweep (``femphase aggregate``: Ψ6 and Ψ2^L averaged over the last fifth of
+the shear frames of every run, the paper's last 50 of 250), draws ``femphase plot``'s sweep
+figures into ``verification/results/<sweep name>/``, and writes
+``verification/results/<sweep name>.json`` with, per rate: the samples done, the mean and
+sample standard deviation (ddof = 1, the paper's shading) of Ψ6, Ψ2^L, the mean elongation
+and the T1 rate; it prints the same as a markdown table for verification/README.md.
+Works on a sweep still under way (the runs not done are counted, not averaged).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+from pathlib import Path
+
+from femphase.aggregate import plot_sweep, read_summary, sample_curves
+
+RESULTS = Path(__file__).resolve().parent / "results"
+RATE = "phases.1.flow.rate"
+COLUMNS = {"Psi6_mean": "Ψ6", "Psi2_mean": "Ψ2^L", "elongation_mean": "mean r", "t1_rate": "T1 rate (per particle per 1000 t)"}
+
+
+def rate_table(rows: list[dict]) -> list[dict]:
+    """Per rate: samples done and mean ± s.d. of every column of :data:`COLUMNS`."""
+    done = [row for row in rows if row["status"] == "done"]
+    curves = {column: sample_curves(done, column, RATE, [])[()] for column in COLUMNS}
+    rates = sorted({row[RATE] for row in rows})
+    table = []
+    for rate in rates:
+        entry = {"rate": rate, "runs": sum(row[RATE] == rate for row in rows),
+                 "done": sum(row[RATE] == rate for row in done)}
+        for column, curve in curves.items():
+            if rate in curve.x:
+                k = curve.x.index(rate)
+                entry[column] = {"mean": float(curve.mean[k]), "sd": float(curve.sd[k])}
+        table.append(entry)
+    return table
+
+
+def markdown(table: list[dict]) -> str:
+    def cell(entry: dict, column: str) -> str:
+        if column not in entry:
+            return "–"
+        scale = 1000.0 if column == "t1_rate" else 1.0
+        mean, sd = entry[column]["mean"] * scale, entry[column]["sd"] * scale
+        return f"{mean:.3g} ± {sd:.2g}" if sd == sd else f"{mean:.3g}"
+
+    lines = ["| γ̇ | samples done | " + " | ".join(COLUMNS.values()) + " |", "|" + "---|" * (2 + len(COLUMNS))]
+    lines += [f"| {e['rate']:g} | {e['done']}/{e['runs']} | " + " | ".join(cell(e, c) for c in COLUMNS) + " |"
+              for e in table]
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("directory", type=Path, help="the sweep directory (femphase sweep -o DIR)")
+    args = parser.parse_args()
+    name = args.directory.name
+    figures = plot_sweep(args.directory, RESULTS / name)
+    table = rate_table(read_summary(args.directory / "summary.csv"))
+    sweep = json.loads((args.directory / "sweep.json").read_text())
+    out = RESULTS / f"{name}.json"
+    out.write_text(json.dumps({"sweep": str(args.directory), "axes": sweep["axes"], "rates": table,
+                               "figures": {k: str(v.relative_to(RESULTS.parent)) for k, v in figures.items()},
+                               "command": f"python -m verification.fig1a_sweep {args.directory}"}, indent=1) + "\n")
+    print(markdown(table))
+    print(f"wrote {out} and {', '.join(str(p) for p in figures.values())}")
+    shutil.copy(args.directory / "summary.csv", RESULTS / f"{name}_summary.csv")
+
+
+if __name__ == "__main__":
+    main()
