@@ -630,7 +630,7 @@ def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str
         columns = [column for _, entries in panels for column, _ in entries]
         if not any(isinstance(row[c], float) and np.isfinite(row[c]) for row in done for c in columns):
             continue  # e.g. no run has a detectable period: no figure rather than an empty one
-        fig, axes = plt.subplots(1, len(panels), figsize=(4.8 * len(panels), 3.8), squeeze=False)
+        fig, axes = plt.subplots(1, len(panels), figsize=(max(4.8 * len(panels), 6.4), 3.8), squeeze=False)
         for ax, (ylabel, entries) in zip(axes[0], panels):
             for column, name in entries:
                 for label, curve in sample_curves(done, column, x_key, curve_keys).items():
@@ -651,7 +651,7 @@ def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str
             ax.legend(fontsize=7)
         over = (f"mean over {', '.join(averaged)} ± 1 s.d. (ddof = 1; bars and band)" if averaged
                 else "one run per point")
-        fig.suptitle(f"{len(done)} of {len(rows)} runs done; {over}", fontsize=9)
+        fig.suptitle(f"{len(done)} of {len(rows)} runs done; {over}", fontsize=8)
         paths[figure] = _save(fig, Path(output) / f"{figure}.{fmt}")
     return paths
 
