@@ -141,7 +141,7 @@ def linearly_implicit_step(stepper: "Stepper", phi: np.ndarray, layout: Layout, 
     + M_L s. ``fields``: φ⁰ as WindowedFields, if the caller has them (shares their cached
     sums)."""
     j0 = stepper.mobility
-    nodal = stepper.explicit_derivative(phi, layout, radii) if fields is None else stepper.energy.explicit_derivative(fields)
+    nodal = stepper.energy.explicit_derivative(fields or WindowedFields(phi, layout, radii))
     nodal *= -j0
     if stabilisation:
         nodal += (j0 * stabilisation) * phi
