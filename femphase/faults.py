@@ -74,15 +74,19 @@ def run_uninterrupted(scene: Path, directory: Path) -> None:
     subprocess.run(_command(scene, directory), env=_environment(), check=True, capture_output=True)
 
 
-def kill_and_resume(scene: Path, directory: Path, kills: int, seed: int = 0, timeout: float = 120.0) -> list[dict]:
+def kill_and_resume(scene: Path, directory: Path, kills: int, seed: int = 0, timeout: float = 120.0,
+                    first: int = 0) -> list[dict]:
     """Stop a run of ``scene`` into ``directory`` ``kills`` times (see the module
-    docstring), resuming after each stop, then let it finish. Returns one record per stop:
-    how (``kind``), the exit code, and whether the next start had to be a fresh one."""
+    docstring), resuming after each stop, then let it finish; the stops cycle through
+    :data:`KILLS` from its entry ``first``. Returns one record per attempt: how (``kind``),
+    the exit code, whether the next start had to be a fresh one, and ``stopped``: False for
+    the last attempt if the run finished before its stop came (a failpoint later than the
+    run's last write, or a signal after its end)."""
     rng = np.random.default_rng(seed)
     events: list[dict] = []
     flags: tuple[str, ...] = ()
     for k in range(kills):
-        kind = KILLS[k % len(KILLS)]
+        kind = KILLS[(first + k) % len(KILLS)]
         failpoint = f"{kind.split(':')[1]}:{int(rng.integers(1, 4))}" if kind.startswith("failpoint") else None
         process = subprocess.Popen(_command(scene, directory, *flags), env=_environment(failpoint),
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -98,7 +102,7 @@ def kill_and_resume(scene: Path, directory: Path, kills: int, seed: int = 0, tim
         resumable = (directory / "checkpoint.h5").is_file()
         events.append({"kind": failpoint and f"failpoint {failpoint}" or kind, "exit_code": process.returncode,
                        "resumable": resumable, "status": _status(directory),
-                       "stderr": stderr.decode(errors="replace")[-400:]})
+                       "stderr": stderr.decode(errors="replace")[-400:], "stopped": process.returncode != 0})
         if process.returncode == 0:
             break  # it finished before the stop: nothing more to interrupt
         flags = ("--resume",) if resumable else ("--overwrite",)
@@ -129,12 +133,17 @@ def campaign(scene_text: str, workdir: Path, kills: int, seed: int = 0) -> dict:
     reference = workdir / "uninterrupted"
     run_uninterrupted(scene, reference)
     events, differences, runs = [], [], 0
-    while len(events) < kills:
+    stops = 0
+    while stops < kills:
+        if runs >= 4 * kills:
+            raise RuntimeError(f"{runs} runs finished before their stops came; the scene is too short to interrupt")
         directory = workdir / f"killed-{runs}"
-        events += kill_and_resume(scene, directory, kills - len(events), seed=seed + runs)
+        # a stop that came too late (the run had finished) is tried again in the next run
+        events += kill_and_resume(scene, directory, kills - stops, seed=seed + runs, first=stops)
+        stops = sum(event["stopped"] for event in events)
         differences += [f"{directory.name}: {d}" for d in identical_outputs(reference, directory)]
         runs += 1
-    return {"kill_points": len(events), "runs": runs, "resumes_bit_identical": runs - len({d.split(":")[0] for d in differences}),
+    return {"kill_points": stops, "runs": runs, "resumes_bit_identical": runs - len({d.split(":")[0] for d in differences}),
             "differences": differences, "events": events}
 
 
