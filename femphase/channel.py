@@ -30,7 +30,7 @@ from .domain import DOMAINS, Domain
 from .errors import SceneError
 from .mesh import ChannelGrid, channel_grid, grid_dof_map, load_mesh, structured_channel_mesh
 from .placement import random_centres
-from .solvers import TensorSolver
+from .solvers import TensorBasis, TensorSolver
 from .windows import Layout, Window, WindowPolicy, pad_window, transfer
 
 if TYPE_CHECKING:
@@ -65,6 +65,7 @@ class ChannelDomain(Domain):
         self.period, self.spacing = grid.length, grid.h
         self.lattice = (grid.ny, grid.nx)
         self._layout: Layout | None = None
+        self._tensor_bases: dict[tuple, TensorBasis | None] = {}
 
     @classmethod
     def from_table(cls, table: dict, base_dir: Path, numerics: "Numerics") -> "ChannelDomain":
@@ -138,8 +139,15 @@ class ChannelDomain(Domain):
         return (rows * self.grid.nx + cols).reshape(len(windows), -1)
 
     def layout(self, windows: Sequence[Window]) -> Layout:
-        # the last layout is reused while the windows do not change (most steps)
-        if self._layout is None or self._layout.windows != tuple(windows):
+        # the last layout is reused while the windows do not change (most steps), and moved
+        # while only their positions do (every advection)
+        last, windows = self._layout, tuple(windows)
+        if last is not None and last.windows == windows:
+            return last
+        if last is not None and len(last.windows) == len(windows) and all(
+                self.window_key(old) == self.window_key(new) for old, new in zip(last.windows, windows)):
+            self._layout = last.moved(windows, self._group_dofs, self.operators.lumped_mass)
+        else:
             self._layout = Layout(windows, self.window_key, self._group_dofs, lambda w: w.shape,
                                   self.operators.lumped_mass)
         return self._layout
@@ -164,12 +172,17 @@ class ChannelDomain(Domain):
         return [Window(*map(int, row)) for row in array]
 
     # -- fast paths -----------------------------------------------------------------------
-    def solver(self, window: Window, block: sp.csr_matrix, a: float, b: float, lumped: bool,
+    def solver(self, window: Window, block: Callable[[], sp.csr_matrix], a: float, b: float, lumped: bool,
                method: str, tolerance: float):
         if lumped and (method == "tensor" or (method == "auto" and window.ny + window.nx <= TENSOR_MAX_SIDES)):
-            solver = tensor_solver(block, window, self.grid, a, b)
-            if solver is not None:
-                return solver
+            # the eigenpairs depend on the window's shape only (its key), not on a and b: a
+            # new time step size then costs one division per node, which lets the adaptive
+            # scheme choose its substeps freely
+            key = self.window_key(window)
+            if key not in self._tensor_bases:
+                self._tensor_bases[key] = tensor_basis(block(), window, self.grid, a, b)
+            if self._tensor_bases[key] is not None:
+                return self._tensor_bases[key].solver(a, b)
         return super().solver(window, block, a, b, lumped, method, tolerance)
 
     def advection(self, flow: "Flow", dt: float, numerics: "Numerics"):
@@ -207,10 +220,10 @@ def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:
     return bool(rising.any() and not rising.all())
 
 
-def tensor_solver(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: float, b: float) -> TensorSolver | None:
-    """A :class:`TensorSolver` for ``block`` = a M_L + b K on ``window``'s nodes, or None when
-    the block is not that tensor product (alternating diagonals, a file mesh, a consistent
-    mass), checked entry by entry against the assembled block."""
+def tensor_basis(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: float, b: float) -> TensorBasis | None:
+    """The :class:`TensorBasis` of ``window`` when ``block`` = a M_L + b K on its nodes is the
+    tensor product of 1D P1 operators, None when it is not (alternating diagonals, a file
+    mesh, a consistent mass), checked entry by entry against the assembled block."""
     rows, columns = window.rows(), window.columns(grid.nx)
     factors = []
     for n_nodes, periodic, keep in ((grid.ny, False, rows), (grid.nx, True, columns)):
@@ -220,4 +233,11 @@ def tensor_solver(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: floa
     candidate = a * sp.kron(my, mx) + b * (sp.kron(ky, mx) + sp.kron(my, kx))
     if abs(candidate - block).max() > 1e-12 * abs(block).max():
         return None
-    return TensorSolver(a, b, (my.toarray(), ky.toarray()), (mx.toarray(), kx.toarray()))
+    return TensorBasis((my.toarray(), ky.toarray()), (mx.toarray(), kx.toarray()))
+
+
+def tensor_solver(block: sp.spmatrix, window: Window, grid: ChannelGrid, a: float, b: float) -> TensorSolver | None:
+    """A :class:`TensorSolver` for ``block`` = a M_L + b K on ``window``'s nodes, or None when
+    the block is not that tensor product (:func:`tensor_basis`)."""
+    basis = tensor_basis(block, window, grid, a, b)
+    return None if basis is None else basis.solver(a, b)

@@ -7,6 +7,8 @@ A_periodic = Pᵀ A P. Folding is exact for P1 (the seam's basis functions are s
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,9 +45,11 @@ class P1Operators:
     element_area: np.ndarray
 
 
+@lru_cache(maxsize=8)
 def line_operators(n_nodes: int, h: float, periodic: bool) -> tuple[sp.csr_matrix, sp.csr_matrix]:
     """Lumped mass (diagonal) and stiffness of P1 on a line of ``n_nodes`` nodes, spacing h:
-    periodic (node n_nodes is node 0), or bounded with natural (Neumann) ends.
+    periodic (node n_nodes is node 0), or bounded with natural (Neumann) ends. Cached (every
+    new window shape asks for them): do not modify the matrices returned.
 
     On the structured channel mesh with one diagonal direction, the 2D lumped mass and
     stiffness are the tensor products M_L = My⊗Mx and K = Ky⊗Mx + My⊗Kx of these (the

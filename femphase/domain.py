@@ -149,13 +149,13 @@ class Domain(ABC):
         return x, y
 
     # -- fast paths -----------------------------------------------------------------------
-    def solver(self, window: Hashable, block: sp.csr_matrix, a: float, b: float, lumped: bool,
+    def solver(self, window: Hashable, block: Callable[[], sp.csr_matrix], a: float, b: float, lumped: bool,
                method: str, tolerance: float):
-        """A solver of ``block`` = (the window's submatrix of) a G + b K, G the time mass
-        (lumped or not). The base class factorises or builds an AMG hierarchy
-        (:func:`femphase.solvers.make_solver`); the structured channel has an exact
-        tensor-product solver."""
-        return make_solver(block, method, tolerance)
+        """A solver of the window's submatrix of a G + b K, G the time mass (lumped or not),
+        which ``block()`` extracts (only when needed: the structured channel's tensor solver
+        does not). The base class factorises or builds an AMG hierarchy
+        (:func:`femphase.solvers.make_solver`)."""
+        return make_solver(block(), method, tolerance)
 
     @abstractmethod
     def advection(self, flow: "Flow", dt: float, numerics: "Numerics") -> Advection:

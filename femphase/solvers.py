@@ -78,24 +78,35 @@ class AMGSolver:
         return out.reshape(rhs.shape)
 
 
+class TensorBasis:
+    """The 1D generalised eigenpairs K V = M V Λ, Vᵀ M V = I, of a window's two directions:
+    everything of :class:`TensorSolver` that does not depend on a and b, so a window shape
+    computes it once and every time step size reuses it (:meth:`solver`)."""
+
+    def __init__(self, y: tuple[np.ndarray, np.ndarray], x: tuple[np.ndarray, np.ndarray]) -> None:
+        (mass_y, stiffness_y), (mass_x, stiffness_x) = y, x
+        self.lam_y, self.vy = scipy.linalg.eigh(stiffness_y, mass_y)
+        self.lam_x, self.vx = scipy.linalg.eigh(stiffness_x, mass_x)
+
+    def solver(self, a: float, b: float) -> "TensorSolver":
+        return TensorSolver(a, b, self)
+
+
 class TensorSolver:
     """Exact solver of A = a My⊗Mx + b (Ky⊗Mx + My⊗Kx) on an ny × nx node block (x fastest).
 
     My, Mx are 1D masses (symmetric positive definite, usually diagonal), Ky, Kx symmetric
     positive semi-definite 1D stiffnesses, a > 0, b ≥ 0. With the generalised eigenpairs
-    K V = M V Λ, Vᵀ M V = I in each direction, A⁻¹ = (Vy⊗Vx) diag(1/(a + b(λy + λx))) (Vy⊗Vx)ᵀ.
+    of ``basis`` (:class:`TensorBasis`), A⁻¹ = (Vy⊗Vx) diag(1/(a + b(λy + λx))) (Vy⊗Vx)ᵀ.
     """
 
     name = "tensor"
 
-    def __init__(self, a: float, b: float, y: tuple[np.ndarray, np.ndarray],
-                 x: tuple[np.ndarray, np.ndarray]) -> None:
-        (mass_y, stiffness_y), (mass_x, stiffness_x) = y, x
-        lam_y, self._vy = scipy.linalg.eigh(stiffness_y, mass_y)
-        lam_x, self._vx = scipy.linalg.eigh(stiffness_x, mass_x)
-        self.shape = (lam_y.size, lam_x.size)
-        self.n = lam_y.size * lam_x.size
-        self._inverse = 1.0 / (a + b * (lam_y[:, None] + lam_x[None, :]))
+    def __init__(self, a: float, b: float, basis: TensorBasis) -> None:
+        self._vy, self._vx = basis.vy, basis.vx
+        self.shape = (basis.lam_y.size, basis.lam_x.size)
+        self.n = self.shape[0] * self.shape[1]
+        self._inverse = 1.0 / (a + b * (basis.lam_y[:, None] + basis.lam_x[None, :]))
 
     def solve(self, rhs: np.ndarray, guess: np.ndarray | None = None) -> np.ndarray:
         """Solve A X = rhs for rhs (n,) or (n, k); ``guess`` is ignored."""

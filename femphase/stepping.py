@@ -210,8 +210,7 @@ class Stepper:
               stabilisation: float) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order)."""
-        matrix, time_mass = self.system(shift, stabilisation)
-        lumped = time_mass is None
+        lumped = self.numerics.mass != "consistent"
         rhs = layout.mass * (nodal_rhs + shift * previous if lumped else nodal_rhs)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
@@ -224,18 +223,23 @@ class Stepper:
             out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, current)
         return out
 
+    #: Solvers kept at most (windows come and go, the adaptive scheme changes its step size)
+    SOLVER_CACHE = 4096
+
     def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
         cache_key = (key, shift, stabilisation)
         if cache_key not in self._solvers:
-            matrix, time_mass = self.system(shift, stabilisation)
-            dofs = self.domain.window_dofs(window)
-            block = window_block(matrix, dofs)
+            lumped = self.numerics.mass != "consistent"
             a = shift + self.mobility * stabilisation
-            solver = self.domain.solver(window, block, a, self.mobility * self.energy.diffusivity,
-                                        time_mass is None, self.numerics.solver, self.numerics.tolerance)
-            mass_block = window_block(time_mass, dofs) if time_mass is not None else None
-            if len(self._solvers) > 4096:  # windows come and go: keep the cache bounded
+            solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
+                                                                     self.domain.window_dofs(window)),
+                                        a, self.mobility * self.energy.diffusivity, lumped, self.numerics.solver,
+                                        self.numerics.tolerance)
+            mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
+                                                          self.domain.window_dofs(window))
+            if len(self._solvers) >= self.SOLVER_CACHE:
                 self._solvers.clear()
+                self._systems.clear()
             self._solvers[cache_key] = (solver, mass_block)
         return self._solvers[cache_key]
 

@@ -81,3 +81,24 @@ def test_windows_grow_shrink_and_are_clipped_at_the_walls():
     assert grown.ny > window.ny and grown.ny != grown.nx
     moved = transfer(phi, window, grown, grid.nx)
     assert moved.sum() == pytest.approx(phi.sum())
+
+
+def test_a_moved_layout_is_the_layout_built_from_scratch():
+    """Advection moves windows every substep; the channel then derives the new layout from
+    the last one (Layout.moved) instead of building it. Both must agree exactly."""
+    from femphase.windows import Layout
+
+    domain = ChannelDomain(channel_grid(40, 30, 1.0))
+    windows = [Window(0, 12, 35, 12), Window(8, 12, 3, 12), Window(18, 12, 20, 16), Window(5, 8, 0, 40)]
+    first = domain.layout(windows)
+    shifted = [Window(w.iy0, w.ny, (w.ix0 + k) % 40, w.nx) for w, k in zip(windows, (7, -3, 1, 0))]
+    moved = domain.layout(shifted)
+    fresh = Layout(shifted, domain.window_key, domain._group_dofs, lambda w: w.shape, domain.operators.lumped_mass)
+    assert moved is not first and moved.windows == fresh.windows
+    for name in ("order", "sizes", "offsets", "owner", "node_index", "mass", "overlap_positions"):
+        assert np.array_equal(getattr(moved, name), getattr(fresh, name)), name
+    assert [(k, list(m), a, b, s) for k, m, a, b, s in moved.groups] == \
+        [(k, list(m), a, b, s) for k, m, a, b, s in fresh.groups]
+    # a window of another shape (another key) is not a move: a new layout, built
+    reshaped = domain.layout(shifted[:3] + [Window(5, 12, 0, 40)])
+    assert reshaped.shapes != moved.shapes
