@@ -1,6 +1,6 @@
 """Milliseconds per step and per simulated time unit, measured in one run.
 
-    python benchmarks/step_time.py [--steps N] [--full-steps M] [--shear-time T]
+    python benchmarks/step_time.py [--steps N] [--full-steps M] [--shear-time T] [--random-rates R ...]
 
 The paper's N = 100 hexagonal lattice under shear (γ̇ = 0.1487) at h = 1, first relaxed for
 100 time units so the windows have their working size. In the same process:
@@ -10,6 +10,12 @@ The paper's N = 100 hexagonal lattice under shear (γ̇ = 0.1487) at h = 1, firs
   frame interval) over ``--shear-time`` time units, and the first-order scheme at dt = 1
   over as long and at the paper's dt = 0.1 over a tenth of that: CPU ms per simulated
   time unit.
+
+The paper's Fig. 1a protocol starts from random initial conditions instead: with
+``--random-rates``, ``examples/random.toml`` (seed 1) is relaxed by the default scheme for
+its 2000 time units (CPU timed), then sheared from that state at each rate for
+``--shear-time``: CPU ms per time unit there, and the protocol's CPU minutes (relaxation +
+10⁵ time units) at each rate.
 
 Their ratio is the speed-up of the default over first order at dt = 0.1. It is "at equal
 period error" only if the default's period error is no larger: the errors come from
@@ -84,6 +90,31 @@ def per_time_unit(dt: float, shear_time: float, **numerics) -> float:
     return float(step_ms(stepper, state, round(shear_time / dt), time.process_time).sum() / shear_time)
 
 
+def random_packing(rates: list[float], shear_time: float) -> dict:
+    """The default scheme on examples/random.toml: CPU seconds of its relaxation, and CPU ms
+    per time unit of shear at each rate from the relaxed state."""
+    import copy
+
+    from femphase.scene import load_scene
+
+    scene = load_scene(Path(__file__).parents[1] / "examples" / "random.toml")
+    simulation = Simulation(scene)
+    relaxed = scene.initial_state()
+    relax = simulation.stepper(scene.phases[0], relaxed.radii)
+    started = time.process_time()
+    for _ in range(scene.phases[0].n_steps):
+        relax.step(relaxed)
+    out = {"relax_seconds": time.process_time() - started, "relax_time": scene.phases[0].duration, "ms_per_time_unit": {}}
+    for rate in rates:
+        state = copy.deepcopy(relaxed)
+        phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
+        stepper = simulation.stepper(phase, state.radii)
+        stepper.step(state)  # set-up
+        samples = step_ms(stepper, state, round(shear_time / phase.dt), time.process_time)
+        out["ms_per_time_unit"][str(rate)] = float(samples.sum() / shear_time)
+    return out
+
+
 def period_errors() -> tuple[dict, float] | None:
     """({first-order dt: period error}, the default's period error) from the schemes benchmark."""
     path = RESULTS / "work_precision_schemes.json"
@@ -125,6 +156,8 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=300)
     parser.add_argument("--full-steps", type=int, default=10)
     parser.add_argument("--shear-time", type=float, default=500.0)
+    parser.add_argument("--random-rates", type=float, nargs="*", default=[0.0161, 0.1083, 1.0],
+                        help="shear rates of the random-packing measurement (none: skip it)")
     args = parser.parse_args()
     windows = time_steps(True, args.steps)
     full = time_steps(False, args.full_steps)
@@ -135,6 +168,7 @@ def main() -> None:
     euler_dt1_ms = per_time_unit(1.0, args.shear_time, scheme="euler")
     equal, how = equal_error_speedup(euler_ms, default_ms)
     protocol_minutes = default_ms * 1.02e5 / 1e3 / 60
+    random = random_packing(args.random_rates, args.shear_time) if args.random_rates else None
     print(f"{'mode':<10} {'steps':>6} {'median ms/step':>15} {'mean ms/step':>13} {'dofs/particle':>14}")
     for row in (windows, full):
         print(f"{row['mode']:<10} {row['steps']:>6} {row['median_ms']:>15.2f} {row['mean_ms']:>13.2f} {row['dofs_per_particle']:>14.0f}")
@@ -145,6 +179,12 @@ def main() -> None:
     print(f"ms per time unit at the default scheme: {default_ms:.2f}  "
           f"({default.scheme}, tolerance_t {default.tolerance_t:g}, outer dt {FRAME:g})")
     print(f"speedup of the default over first-order dt = 0.1 at equal period error: {equal:.1f}  ({how})")
+    if random:
+        random["protocol_minutes"] = {rate: (random["relax_seconds"] + ms * 1e2) / 60
+                                      for rate, ms in random["ms_per_time_unit"].items()}
+        print(f"random packing (examples/random.toml, seed 1): relaxation {random['relax_seconds']:.1f} CPU s; "
+              + "; ".join(f"γ̇ = {rate}: {ms:.2f} ms per time unit, protocol {random['protocol_minutes'][rate]:.1f} CPU-min"
+                          for rate, ms in random["ms_per_time_unit"].items()))
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / "step_time.json").write_text(json.dumps({
         "windows": windows, "full_mesh": full, "speedup": speedup,
@@ -152,7 +192,8 @@ def main() -> None:
         "default_ms_per_time_unit": default_ms, "euler_dt_0.1_ms_per_time_unit": euler_ms,
         "euler_dt_1_ms_per_time_unit": euler_dt1_ms, "speedup_over_euler_dt_1": euler_dt1_ms / default_ms,
         "speedup_over_euler_dt_0.1_at_equal_period_error": equal, "equal_error_basis": how,
-        "protocol_minutes": protocol_minutes, "command": "python benchmarks/step_time.py"}, indent=2) + "\n")
+        "protocol_minutes": protocol_minutes, "random_packing": random,
+        "command": "python benchmarks/step_time.py"}, indent=2) + "\n")
 
 
 if __name__ == "__main__":
