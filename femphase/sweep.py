@@ -105,6 +105,12 @@ MODES = ("product", "zip")
 TABLES = {"sweep": ("scene", "mode"), "set": None, "axes": None}
 #: Environment of LocalCluster workers: one BLAS thread per worker process (as ``femphase run``).
 WORKER_ENV = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+#: Dask's nanny starts workers with MALLOC_TRIM_THRESHOLD_=65536 (to hand freed memory back
+#: to the OS). Setting it stops glibc's malloc from adapting its mmap threshold, so every
+#: temporary array above 128 kB is mmap'd and page-faulted afresh: a run's steps took
+#: 2.5–3.5× longer in such a worker (docs/sweeps.md). LocalCluster workers start without it;
+#: workers of other clusters are checked and a warning names the fix.
+SLOW_MALLOC = "MALLOC_TRIM_THRESHOLD_"
 #: Exit code of ``femphase sweep`` when some runs did not finish (sweep.json says why).
 EXIT_INCOMPLETE = 4
 
@@ -471,12 +477,38 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
             log(f"femphase sweep: using the Dask cluster at {scheduler}")
             yield connected
         return
+    import dask
+
     n = workers or os.cpu_count() or 1
-    # dashboard on a free port: a fixed one clashes with other sweeps on the machine
-    with LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
-                      env=WORKER_ENV) as cluster, Client(cluster) as local:
-        log(f"femphase sweep: a local Dask cluster of {n} worker processes")
-        yield local
+    # workers inherit this process's environment, where an earlier Dask cluster may have
+    # left SLOW_MALLOC (its nannies set their pre-spawn environment here, for good)
+    inherited = os.environ.pop(SLOW_MALLOC, None)
+    try:
+        # dashboard on a free port: a fixed one clashes with other sweeps on the machine
+        with dask.config.set({f"distributed.nanny.pre-spawn-environ.{SLOW_MALLOC}": None}), \
+                LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                             env=WORKER_ENV) as cluster, Client(cluster) as local:
+            log(f"femphase sweep: a local Dask cluster of {n} worker processes")
+            yield local
+    finally:
+        if inherited is not None:
+            os.environ[SLOW_MALLOC] = inherited
+
+
+def _malloc_setting() -> str | None:
+    """Dask task: this worker's :data:`SLOW_MALLOC` setting."""
+    return os.environ.get(SLOW_MALLOC)
+
+
+def _check_workers(client, log: Callable[[str], None]) -> None:
+    """Warn when workers run with :data:`SLOW_MALLOC` set."""
+    settings = client.run(_malloc_setting)
+    slow = sorted({value for value in settings.values() if value is not None})
+    if slow:
+        log(f"femphase sweep: warning: {sum(v is not None for v in settings.values())} of {len(settings)} workers "
+            f"run with {SLOW_MALLOC}={', '.join(slow)} (Dask's default), which makes their runs 2.5-3.5x slower; "
+            f"start them with the Dask config distributed.nanny.pre-spawn-environ.{SLOW_MALLOC}: null "
+            "(docs/sweeps.md, \"Workers\")")
 
 
 def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, assignments: list[str] = (),
@@ -510,6 +542,7 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
         log(f"femphase sweep: {len(sweep.runs)} runs, {len(sweep.runs) - len(todo)} done, {len(todo)} to run")
         if todo:
             with _client(client, scheduler, workers, log) as dask:
+                _check_workers(dask, log)
                 _submit(sweep, directory, todo, statuses, dask, log)
         return _index(sweep, statuses)
 

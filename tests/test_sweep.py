@@ -226,3 +226,18 @@ def test_a_worker_killed_mid_run_is_replaced_and_its_run_resumed(tmp_path, clien
     steps = [(s["resumed"], s["step"]) for s in segments(out / "runs" / killed)]
     assert len(steps) == 3 and steps[-1] == (True, 320), steps  # relaxation, killed segment, resumed
     assert_same_outputs(out, serial)
+
+
+def test_local_cluster_workers_start_without_dasks_malloc_trim_setting(client):
+    """Dask's default MALLOC_TRIM_THRESHOLD_ made every run 2.5-3.5x slower (femphase.sweep.
+    SLOW_MALLOC); femphase's LocalCluster drops it, and workers that have it are named."""
+    from femphase.sweep import _check_workers, _client, _malloc_setting
+
+    lines = []
+    _check_workers(client, lines.append)  # this fixture's cluster is Dask's default
+    assert set(client.run(_malloc_setting).values()) != {None}
+    assert len(lines) == 1 and "2 of 2 workers" in lines[0] and "pre-spawn-environ" in lines[0]
+    with _client(None, None, 1, lines.append) as ours:
+        assert set(ours.run(_malloc_setting).values()) == {None}
+        _check_workers(ours, lines.append)
+    assert not any("warning" in line for line in lines[1:])

@@ -1,7 +1,10 @@
-"""Fig. 1a from a sweep directory: the order parameters against the shear rate.
+"""Fig. 1a from a sweep directory: the order parameters against the shear rate (or, for
+the supplement's Poiseuille figure, against the centre-line velocity: the same axis key).
 
     femphase sweep verification/sweeps/fig1a_reduced.toml -o verification/runs/fig1a_reduced
     python -m verification.fig1a_sweep verification/runs/fig1a_reduced
+    femphase sweep verification/sweeps/poiseuille_reduced.toml -o verification/runs/poiseuille_reduced
+    python -m verification.fig1a_sweep verification/runs/poiseuille_reduced
 
 Aggregates the sweep (``femphase aggregate``: Ψ6 and Ψ2^L averaged over the last fifth of
 the shear frames of every run, the paper's last 50 of 250), draws ``femphase plot``'s sweep
