@@ -114,24 +114,27 @@ class RowShift(StepAdvection):
     def _row_shift(self, time: float) -> np.ndarray:
         return np.asarray(self.flow.row_velocity(self._y, time + 0.5 * self.dt), dtype=float) * self.dt / self.domain.grid.h
 
-    def _window_shift(self, row_shift: np.ndarray, window: Window) -> tuple[int, np.ndarray]:
-        """(the whole nodes the window moves, the fractional shifts (ny,) left for its rows)."""
-        shifts = row_shift[window.iy0:window.iy0 + window.ny]
-        if window.nx == self.domain.grid.nx:
-            return 0, shifts
-        whole = np.rint(shifts.mean())
-        return int(whole), shifts - whole
+    def _window_shifts(self, row_shift: np.ndarray, windows: list[Window]) -> tuple[np.ndarray, np.ndarray]:
+        """For windows of one shape: the whole nodes each moves (k,), and the fractional
+        shifts (k, ny) left for its rows."""
+        w0 = windows[0]
+        iy0 = np.array([w.iy0 for w in windows])
+        shifts = row_shift[iy0[:, None] + np.arange(w0.ny)[None, :]]
+        if w0.nx == self.domain.grid.nx:
+            return np.zeros(len(windows), dtype=int), shifts
+        whole = np.rint(shifts.mean(axis=1))
+        return whole.astype(int), shifts - whole[:, None]
 
     def _steady_phases(self, window: Window) -> tuple[int, np.ndarray]:
-        """:meth:`_window_shift` with the fractional shifts as phase factors, kept per window
-        rows and width: in a steady flow they never change (their exp and cumulative product
-        were 6 % of the lattice's step)."""
+        """:meth:`_window_shifts` of one window with the fractional shifts as phase factors,
+        kept per window rows and width: in a steady flow they never change (their exp and
+        cumulative product were 6 % of the lattice's step)."""
         key = (window.iy0, window.ny, window.nx)
         if key not in self._phases:
             if len(self._phases) >= self.PHASE_CACHE:
                 self._phases.clear()
-            whole, shifts = self._window_shift(self._steady_shift, window)
-            self._phases[key] = (whole, row_phases(shifts, window.nx))
+            whole, shifts = self._window_shifts(self._steady_shift, [window])
+            self._phases[key] = (int(whole[0]), row_phases(shifts[0], window.nx))
         return self._phases[key]
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
@@ -144,8 +147,8 @@ class RowShift(StepAdvection):
                 wholes, phases = zip(*(self._steady_phases(windows[i]) for i in members))
                 block[...] = shift_rows(block, None, np.stack(phases))
             else:
-                wholes, shifts = zip(*(self._window_shift(row_shift, windows[i]) for i in members))
-                block[...] = shift_rows(block, np.stack(shifts))
+                wholes, shifts = self._window_shifts(row_shift, [windows[i] for i in members])
+                block[...] = shift_rows(block, shifts)
             for i, k in zip(members, wholes):
                 w = windows[i]
                 windows[i] = Window(w.iy0, w.ny, (w.ix0 + k) % grid.nx, w.nx)

@@ -178,6 +178,11 @@ class Stepper:
         return float(np.min(self.radii)) if self.radii is not None and len(self.radii) else self.params.radius
 
     @property
+    def lumped(self) -> bool:
+        """Whether the time derivative's mass is lumped (else consistent)."""
+        return self.numerics.mass != "consistent"
+
+    @property
     def pairs(self) -> bool:
         """Whether particles can overlap (more than one): the repulsion's curvature counts."""
         return self.radii is None or len(self.radii) > 1
@@ -199,7 +204,7 @@ class Stepper:
         key = (shift, stabilisation)
         if key not in self._systems:
             ops = self.domain.operators
-            consistent = self.numerics.mass == "consistent"
+            consistent = not self.lumped
             time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
             matrix = (shift * time_mass + self.mobility * stabilisation * sp.diags(ops.lumped_mass)
                       + self.mobility * self.energy.diffusivity * ops.stiffness).tocsr()
@@ -210,7 +215,7 @@ class Stepper:
               stabilisation: float) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order)."""
-        lumped = self.numerics.mass != "consistent"
+        lumped = self.lumped
         rhs = layout.mass * (nodal_rhs + shift * previous if lumped else nodal_rhs)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
@@ -229,7 +234,7 @@ class Stepper:
     def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
         cache_key = (key, shift, stabilisation)
         if cache_key not in self._solvers:
-            lumped = self.numerics.mass != "consistent"
+            lumped = self.lumped
             a = shift + self.mobility * stabilisation
             solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
                                                                      self.domain.window_dofs(window)),
