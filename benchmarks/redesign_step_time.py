@@ -21,6 +21,11 @@ protocols, one process at a time:
 
 Each step is timed as step_time.py times it (wall clock, ``perf_counter``) and also in CPU
 time of the worker process (``process_time``, read at the same two instants).
+
+``--default-scheme`` times the default scheme instead: both trees' ``step_time.per_time_unit``
+(CPU ms per simulated time unit of the lattice's shear at outer step ``FRAME``, after the
+same relaxation) in whole runs only, blocks old, new, new, old; the trees must both have
+it (session 5 on). Written to ``results/default_scheme_step_time.json``.
 """
 
 from __future__ import annotations
@@ -67,15 +72,27 @@ class _Clock:
         return getattr(time, name)
 
 
-def worker(tree: str, steps: dict, batch: dict, gated: bool) -> None:
+def _tree_step_time(tree: str):
+    """That tree's benchmarks/step_time.py module (its common pins BLAS), and its femphase path."""
     sys.path[0] = os.path.join(tree, "benchmarks")  # not this script's directory
-    import step_time  # that tree's script (imports its common: pins BLAS)
+    import step_time
 
     import femphase
 
     for module in (femphase, step_time):
         assert module.__file__.startswith(tree + os.sep), (module.__file__, tree)
-    out = {"tree": tree, "femphase": femphase.__file__}
+    return step_time, femphase.__file__
+
+
+def default_worker(tree: str, shear_time: float) -> None:
+    step_time, path = _tree_step_time(tree)
+    print(json.dumps({"tree": tree, "femphase": path,
+                      "ms_per_time_unit": step_time.per_time_unit(step_time.FRAME, shear_time)}), flush=True)
+
+
+def worker(tree: str, steps: dict, batch: dict, gated: bool) -> None:
+    step_time, path = _tree_step_time(tree)
+    out = {"tree": tree, "femphase": path}
     for mode, windows in MODES.items():
         clock = step_time.time = _Clock(batch[mode], gated)
         row = step_time.time_steps(windows, steps[mode])
@@ -98,8 +115,9 @@ def _env(tree: Path) -> dict:
 
 def _command(tree: Path, args, gated: bool) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), "--worker", str(tree), "--steps", str(args.steps),
-            "--full-steps", str(args.full_steps), "--batch", str(args.batch), "--full-batch", str(args.full_batch)] \
-        + (["--gated"] if gated else [])
+            "--full-steps", str(args.full_steps), "--batch", str(args.batch), "--full-batch", str(args.full_batch),
+            "--shear-time", str(args.shear_time)] \
+        + (["--gated"] if gated else []) + (["--default-scheme"] if args.default_scheme else [])
 
 
 def whole_run(tree: Path, args) -> dict:
@@ -166,6 +184,33 @@ def summary(values) -> dict:
             "n": int(values.size)}
 
 
+def default_scheme_runs(old: Path, new: Path, args) -> None:
+    """The ``--default-scheme`` protocol (module docstring)."""
+    runs = []
+    for block in range(args.runs):
+        for name in ("old", "new", "new", "old"):
+            row = whole_run(old if name == "old" else new, args)
+            runs.append({"which": name, **row})
+            print(f"run {name}: {row['ms_per_time_unit']:.3f} CPU ms per time unit", flush=True)
+    ms = {name: [r["ms_per_time_unit"] for r in runs if r["which"] == name] for name in ("old", "new")}
+    pairs = []
+    for b in range(0, len(runs), 4):
+        o1, n1, n2, o2 = (runs[b + i]["ms_per_time_unit"] for i in range(4))
+        pairs += [n1 / o1, n2 / o2]
+    result = {"old_tree": str(old), "new_tree": str(new), "old_version": tree_version(old),
+              "new_version": tree_version(new),
+              "scene": f"benchmarks/step_time.py per_time_unit (N = 100 lattice, h = 1, shear 0.1487, "
+                       f"{args.shear_time:g} time units, the tree's default scheme)",
+              "protocol": __doc__, "loadavg_end": Path("/proc/loadavg").read_text().split()[:3],
+              "old_ms": summary(ms["old"]), "new_ms": summary(ms["new"]), "pair_ratios": summary(pairs),
+              "runs": runs}
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "default_scheme_step_time.json").write_text(json.dumps(result, indent=1) + "\n")
+    print(f"default scheme: old {result['old_ms']['median']:.3f}, new {result['new_ms']['median']:.3f} CPU ms per "
+          f"time unit; new/old pair ratio {result['pair_ratios']['median']:.3f} "
+          f"[{result['pair_ratios']['q25']:.3f}, {result['pair_ratios']['q75']:.3f}]")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--old", type=Path, help="the other femphase tree (its benchmarks/step_time.py is run)")
@@ -175,14 +220,24 @@ def main() -> None:
     parser.add_argument("--full-steps", type=int, default=10)
     parser.add_argument("--batch", type=int, default=20)
     parser.add_argument("--full-batch", type=int, default=2)
+    parser.add_argument("--default-scheme", action="store_true",
+                        help="time the default scheme per time unit of shear instead (whole runs only)")
+    parser.add_argument("--shear-time", type=float, default=500.0,
+                        help="time units of shear per run with --default-scheme")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--gated", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
-        worker(args.worker, {"windows": args.steps, "full_mesh": args.full_steps},
-               {"windows": args.batch, "full_mesh": args.full_batch}, args.gated)
+        if args.default_scheme:
+            default_worker(args.worker, args.shear_time)
+        else:
+            worker(args.worker, {"windows": args.steps, "full_mesh": args.full_steps},
+                   {"windows": args.batch, "full_mesh": args.full_batch}, args.gated)
         return
     old, new = args.old.resolve(), NEW_TREE
+    if args.default_scheme:
+        default_scheme_runs(old, new, args)
+        return
     runs = []
     for block in range(args.runs):
         for name in ("old", "new", "new", "old"):
