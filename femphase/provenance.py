@@ -17,7 +17,7 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
-from . import __version__
+from . import IMPORT_TIME, __version__
 
 #: The distributions a run imports (pyproject.toml's dependencies that ``femphase run``
 #: loads; matplotlib only plots). tqdm is imported only when a progress bar is shown, and
@@ -66,6 +66,23 @@ def git_commit(directory: Path = PACKAGE_DIR) -> str | None:
     return commit + "-dirty" if changes else commit
 
 
+def changed_since_import(since: float = IMPORT_TIME, prefix: str = "femphase") -> list[str]:
+    """The modules named ``prefix`` or ``prefix.*`` loaded in this process whose source file
+    was modified after ``since`` (a time as from ``time.time()``): the code this process runs
+    then differs from the checkout that ``git_commit`` describes."""
+    changed = []
+    for name, module in list(sys.modules.items()):
+        path = getattr(module, "__file__", None)
+        if path is None or not (name == prefix or name.startswith(prefix + ".")):
+            continue
+        try:
+            if os.stat(path).st_mtime > since:
+                changed.append(name)
+        except OSError:
+            changed.append(name)  # deleted or moved since: also not what the checkout holds
+    return sorted(changed)
+
+
 def dependency_versions(names: tuple[str, ...] = DEPENDENCIES) -> dict[str, str | None]:
     """Distribution name → installed version (importlib.metadata), None if not installed."""
     versions: dict[str, str | None] = {}
@@ -93,11 +110,13 @@ def threads() -> dict[str, str | int | None]:
 
 def provenance() -> dict:
     """The software and machine of this process (run.json, ``segments[k].provenance``):
-    femphase version and git commit, Python, dependencies, host, platform, threads, pid and
-    working directory (the command line's relative paths are relative to it)."""
+    femphase version and git commit, the femphase modules whose source changed after this
+    process imported them, Python, dependencies, host, platform, threads, pid and working
+    directory (the command line's relative paths are relative to it)."""
     return {
         "femphase_version": __version__,
         "git_commit": git_commit(),
+        "source_changed_since_import": changed_since_import(),
         "python": platform.python_version(),
         "python_executable": sys.executable,
         "dependencies": dependency_versions(),

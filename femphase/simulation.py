@@ -262,7 +262,10 @@ class RunDirectory(Tracker):
             f"{'resumed' if self.resume_from is not None else 'started'} at t = {state.time:g} (step {state.step});"
             f" femphase {origin['femphase_version']} (git {origin['git_commit'] or 'unknown'}), Python {origin['python']},"
             f" host {origin['host']}, pid {origin['pid']}"
-            + (f"; argv: {shlex.join(self.argv)}" if self.argv is not None else "") + " ==="))
+            + (f"; argv: {shlex.join(self.argv)}" if self.argv is not None else "")
+            + (f"; WARNING: source changed since this process imported it: "
+               f"{', '.join(origin['source_changed_since_import'])} (it runs the code it imported, not git's)"
+               if origin["source_changed_since_import"] else "") + " ==="))
 
     def frame(self, frame: Frame) -> None:
         state = frame.state

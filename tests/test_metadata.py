@@ -2,6 +2,7 @@
 segment headers, status lines and errors, the console of ``femphase run``."""
 
 import datetime
+import importlib
 import json
 import logging
 import os
@@ -10,6 +11,7 @@ import re
 import socket
 import subprocess
 import sys
+import time
 import types
 from importlib import metadata
 from pathlib import Path
@@ -24,7 +26,7 @@ except ModuleNotFoundError:  # Python 3.10
 import femphase
 from femphase.cli import main
 from femphase.logs import StatusLog
-from femphase.provenance import DEPENDENCIES, PACKAGE_DIR, THREAD_VARIABLES, git_commit
+from femphase.provenance import DEPENDENCIES, PACKAGE_DIR, THREAD_VARIABLES, changed_since_import, git_commit
 from femphase.scene import load_scene
 from femphase.simulation import RunDirectory, Simulation, Tracker
 
@@ -113,6 +115,27 @@ def test_git_commit_is_the_checkouts_dirty_when_changed_and_none_elsewhere(tmp_p
     assert git_commit(package) == head + "-dirty"
     monkeypatch.setenv("PATH", str(tmp_path / "no-git-here"))
     assert git_commit(package) is None
+
+
+def test_modules_edited_after_the_import_are_recorded(tmp_path, monkeypatch):
+    """A sweep worker keeps the code it imported: run.json must say when the checkout that
+    git_commit describes is no longer that code."""
+    package = tmp_path / "editedpkg"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "solver.py").write_text("x = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    importlib.import_module("editedpkg.solver")
+    imported = time.time()
+    os.utime(package / "__init__.py", (imported - 60, imported - 60))
+    os.utime(package / "solver.py", (imported - 60, imported - 60))
+    assert changed_since_import(imported, "editedpkg") == []
+    os.utime(package / "solver.py", (imported + 60, imported + 60))  # edited after the import
+    assert changed_since_import(imported, "editedpkg") == ["editedpkg.solver"]
+    (package / "__init__.py").unlink()
+    assert changed_since_import(imported, "editedpkg") == ["editedpkg", "editedpkg.solver"]
+    sys.modules.pop("editedpkg.solver"), sys.modules.pop("editedpkg")
+    assert changed_since_import() == []  # this test process's own femphase is unchanged
 
 
 def test_every_dependency_a_run_imports_is_recorded(tmp_path):
