@@ -102,8 +102,6 @@ class StepAdvection:
 class RowShift(StepAdvection):
     """Exact advection of the structured channel's windows in a row flow (u(y, t), 0)."""
 
-    #: Windows whose phase factors a steady flow keeps (~10 kB each at 36 × 36 nodes)
-    PHASE_CACHE = 1024
     #: Groups of windows whose stacked phase factors a steady flow keeps (~1 MB each at 100
     #: windows of 36 × 36 nodes)
     STACK_CACHE = 32
@@ -112,7 +110,6 @@ class RowShift(StepAdvection):
         super().__init__(domain, flow, dt)
         _, self._y = domain.grid.coordinates()
         self._steady_shift = self._row_shift(0.0) if flow.steady else None
-        self._phases: dict[tuple[int, int, int], tuple[int, np.ndarray]] = {}
         self._stacks: dict[tuple, tuple[np.ndarray, np.ndarray]] = {}
 
     def _row_shift(self, time: float) -> np.ndarray:
@@ -129,29 +126,17 @@ class RowShift(StepAdvection):
         whole = np.rint(shifts.mean(axis=1))
         return whole.astype(int), shifts - whole[:, None]
 
-    def _steady_phases(self, window: Window) -> tuple[int, np.ndarray]:
-        """:meth:`_window_shifts` of one window with the fractional shifts as phase factors,
-        kept per window rows and width: in a steady flow they never change (their exp and
-        cumulative product were 6 % of the lattice's step)."""
-        key = (window.iy0, window.ny, window.nx)
-        if key not in self._phases:
-            if len(self._phases) >= self.PHASE_CACHE:
-                self._phases.clear()
-            whole, shifts = self._window_shifts(self._steady_shift, [window])
-            self._phases[key] = (int(whole[0]), row_phases(shifts[0], window.nx))
-        return self._phases[key]
-
     def _group_phases(self, windows: list[Window]) -> tuple[np.ndarray, np.ndarray]:
-        """The whole-node moves (k,) and stacked phase factors (k, ny, nx//2 + 1) of windows
-        of one shape in a steady flow, kept per the windows' first rows: a row flow never
-        changes them, so they change only when a refit moves a window across rows (stacking
-        them window by window was 4 % of the lattice's step)."""
+        """The whole-node moves (k,) and phase factors (k, ny, nx//2 + 1) of windows of one
+        shape in a steady flow, kept per the windows' first rows: a row flow never changes
+        them, so they change only when a refit moves a window across rows (building them
+        every substep was 6 % of the lattice's step, stacking them window by window 4 %)."""
         key = (windows[0].ny, windows[0].nx, tuple(w.iy0 for w in windows))
         if key not in self._stacks:
             if len(self._stacks) >= self.STACK_CACHE:
                 self._stacks.clear()
-            wholes, phases = zip(*(self._steady_phases(w) for w in windows))
-            self._stacks[key] = (np.array(wholes), np.stack(phases))
+            wholes, shifts = self._window_shifts(self._steady_shift, windows)
+            self._stacks[key] = (wholes, row_phases(shifts, windows[0].nx))
         return self._stacks[key]
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
