@@ -7,11 +7,27 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"
 
 import re  # noqa: E402
+import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-from femphase.scene import scene_from_dict  # noqa: E402
+from femphase.scene import load_scene, scene_from_dict  # noqa: E402
+from femphase.simulation import Simulation  # noqa: E402
 
 README = Path(__file__).parent / "README.md"
+RANDOM_SCENE = Path(__file__).parents[1] / "examples" / "random.toml"
+
+
+def relaxed_random_packing():
+    """(scene, simulation, state, CPU seconds): examples/random.toml (the paper's Fig. 1a
+    set-up, seed 1) after its relaxation phase at the default scheme."""
+    scene = load_scene(RANDOM_SCENE)
+    simulation = Simulation(scene)
+    state = scene.initial_state()
+    stepper = simulation.stepper(scene.phases[0], state.radii)
+    started = time.process_time()
+    for _ in range(scene.phases[0].n_steps):
+        stepper.step(state)
+    return scene, simulation, state, time.process_time() - started
 
 
 def lattice_scene(h: float = 1.0, windows: bool = True, rate: float = 0.1487, **numerics):

@@ -71,7 +71,7 @@ def particle() -> None:
 def packing(rate: float) -> None:
     import random_precision
 
-    scene, relaxed = random_precision.relaxed_packing()
+    scene, _, relaxed, _ = common.relaxed_random_packing()
     reference = random_precision.shear(scene, relaxed, rate, 200.0, random_precision.REFERENCE_DT, scheme="sav2")
     for scheme, tolerances in TOLERANCES.items():
         for tolerance in tolerances:

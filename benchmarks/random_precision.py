@@ -32,24 +32,12 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 
 from femphase.analysis.shape import shape_observables
-from femphase.scene import load_scene
 from femphase.simulation import Simulation
 
 RESULTS = Path(__file__).parent / "results"
-SCENE = Path(__file__).parents[1] / "examples" / "random.toml"
 FRAME = 10.0
 TOLERANCES = (3e-2, 1e-2, 3e-3, 1e-3)
 REFERENCE_DT, CHECK_DT = 0.125, 0.25
-
-
-def relaxed_packing():
-    """(scene, state): the random packing after the scene's relaxation phase (default scheme)."""
-    scene = load_scene(SCENE)
-    state = scene.initial_state()
-    stepper = Simulation(scene).stepper(scene.phases[0], state.radii)
-    for _ in range(scene.phases[0].n_steps):
-        stepper.step(state)
-    return scene, state
 
 
 def shear(scene, relaxed, rate: float, shear_time: float, dt: float, **numerics) -> dict:
@@ -108,7 +96,7 @@ def main() -> None:
         return
     from femphase.stepping import Numerics
 
-    scene, relaxed = relaxed_packing()
+    scene, _, relaxed, _ = common.relaxed_random_packing()
     result = {"relax_time": scene.phases[0].duration, "shear_time": args.shear_time, "rates": {},
               "reference_seconds": 0.0, "command": "python benchmarks/random_precision.py"}
     for rate in args.rates:

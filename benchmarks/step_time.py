@@ -95,16 +95,8 @@ def random_packing(rates: list[float], shear_time: float) -> dict:
     per time unit of shear at each rate from the relaxed state."""
     import copy
 
-    from femphase.scene import load_scene
-
-    scene = load_scene(Path(__file__).parents[1] / "examples" / "random.toml")
-    simulation = Simulation(scene)
-    relaxed = scene.initial_state()
-    relax = simulation.stepper(scene.phases[0], relaxed.radii)
-    started = time.process_time()
-    for _ in range(scene.phases[0].n_steps):
-        relax.step(relaxed)
-    out = {"relax_seconds": time.process_time() - started, "relax_time": scene.phases[0].duration, "ms_per_time_unit": {}}
+    scene, simulation, relaxed, seconds = common.relaxed_random_packing()
+    out = {"relax_seconds": seconds, "relax_time": scene.phases[0].duration, "ms_per_time_unit": {}}
     for rate in rates:
         state = copy.deepcopy(relaxed)
         phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
