@@ -184,6 +184,15 @@ def summary(values) -> dict:
             "n": int(values.size)}
 
 
+def pair_ratios(values: list[float]) -> list[float]:
+    """new/old of each new run and the old run next to it, for runs in blocks old, new, new, old."""
+    pairs = []
+    for b in range(0, len(values), 4):
+        o1, n1, n2, o2 = values[b:b + 4]
+        pairs += [n1 / o1, n2 / o2]
+    return pairs
+
+
 def default_scheme_runs(old: Path, new: Path, args) -> None:
     """The ``--default-scheme`` protocol (module docstring)."""
     runs = []
@@ -193,10 +202,7 @@ def default_scheme_runs(old: Path, new: Path, args) -> None:
             runs.append({"which": name, **row})
             print(f"run {name}: {row['ms_per_time_unit']:.3f} CPU ms per time unit", flush=True)
     ms = {name: [r["ms_per_time_unit"] for r in runs if r["which"] == name] for name in ("old", "new")}
-    pairs = []
-    for b in range(0, len(runs), 4):
-        o1, n1, n2, o2 = (runs[b + i]["ms_per_time_unit"] for i in range(4))
-        pairs += [n1 / o1, n2 / o2]
+    pairs = pair_ratios([r["ms_per_time_unit"] for r in runs])
     result = {"old_tree": str(old), "new_tree": str(new), "old_version": tree_version(old),
               "new_version": tree_version(new),
               "scene": f"benchmarks/step_time.py per_time_unit (N = 100 lattice, h = 1, shear 0.1487, "
@@ -261,10 +267,7 @@ def main() -> None:
         for clock, key in (("wall", "median_ms"), ("cpu", "cpu_median_ms")):
             old_runs = [r[mode][key] for r in runs if r["which"] == "old"]
             new_runs = [r[mode][key] for r in runs if r["which"] == "new"]
-            pairs = []
-            for b in range(0, len(runs), 4):
-                o1, n1, n2, o2 = (runs[b + i][mode][key] for i in range(4))
-                pairs += [n1 / o1, n2 / o2]
+            pairs = pair_ratios([r[mode][key] for r in runs])
             entry[f"runs_{clock}"] = {"old_ms": summary(old_runs), "new_ms": summary(new_runs),
                                      "ratio_of_medians": float(np.median(new_runs) / np.median(old_runs)),
                                      "pair_ratios": summary(pairs)}
