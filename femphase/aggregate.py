@@ -332,15 +332,20 @@ def run_data(directory: str | Path, tables: RunTables) -> RunData | None:
 
 
 # -- per-run summaries ---------------------------------------------------------------------
-def averaging_window(time: np.ndarray, phases: list[dict]) -> np.ndarray:
-    """Indices of the frames averaged: the last fifth (:data:`AVERAGED_FRACTION`, rounded up)
-    of the frames after the start of the last phase (the frame at its start ends the phase
-    before). The paper's 250 frames of shear give its last 50. Empty when no frame is in
-    the last phase."""
+def last_phase_frames(time: np.ndarray, phases: list[dict]) -> np.ndarray:
+    """Indices of the frames written during the last phase (``phases`` as in run.json's
+    settings): those after its start; the frame at its start ends the phase before."""
     from .compare import TIME_TOLERANCE
 
     start = sum(float(phase["duration"]) for phase in phases[:-1])
-    in_last = np.flatnonzero(np.asarray(time) > start + TIME_TOLERANCE)
+    return np.flatnonzero(np.asarray(time) > start + TIME_TOLERANCE)
+
+
+def averaging_window(time: np.ndarray, phases: list[dict]) -> np.ndarray:
+    """Indices of the frames averaged: the last fifth (:data:`AVERAGED_FRACTION`, rounded up)
+    of the frames of the last phase (:func:`last_phase_frames`). The paper's 250 frames of
+    shear give its last 50. Empty when no frame is in the last phase."""
+    in_last = last_phase_frames(time, phases)
     return in_last[in_last.size - math.ceil(AVERAGED_FRACTION * in_last.size):]
 
 

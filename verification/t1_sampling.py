@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from femphase.aggregate import read_run_tables, run_data
+from femphase.aggregate import last_phase_frames, read_run_tables, run_data
 from femphase.analysis.lattice import t1_event_times
 
 STRIDES = (1, 2, 5, 10)
@@ -28,8 +28,7 @@ def t1_rates(directory: Path, strides: tuple[int, ...] = STRIDES) -> list[tuple[
     last phase (from its last frame before the phase starts)."""
     run = run_data(directory, read_run_tables(directory))
     phases = json.loads((directory / "run.json").read_text())["settings"]["phases"]
-    start_time = sum(float(phase["duration"]) for phase in phases[:-1])
-    start = max(int(np.flatnonzero(run.time > start_time + 1e-9)[0]) - 1, 0)
+    start = max(int(last_phase_frames(run.time, phases)[0]) - 1, 0)
     out = []
     for stride in strides:
         frames = np.arange(start, run.time.size, stride)
