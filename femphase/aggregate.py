@@ -350,10 +350,14 @@ def averaging_window(time: np.ndarray, phases: list[dict]) -> np.ndarray:
 
 
 def t1_rate(run: RunData, window: np.ndarray) -> float:
-    """T1 events per particle per time unit over the window: the events
-    (:func:`femphase.analysis.lattice.t1_event_times`) from the frame before the window (the
-    reference topology; the window's first frame when it is the run's first) to its last
-    frame, over N times that time span. NaN for fewer than 3 particles or an empty span."""
+    """T1 events per particle per time unit over the window, from the frame before the window
+    (the window's first frame when it is the run's first) to its last frame, over N times
+    that time span. NaN for fewer than 3 particles or an empty span.
+
+    The events: the run's own running count (global.csv's ``t1_count``) when it counted
+    between frames (its scene has ``output.t1_interval``: runs written since that key exists), else those
+    found again from the frames' centroids (:func:`femphase.analysis.lattice.t1_event_times`),
+    which miss flips that come and go between frames (docs/aggregation.md)."""
     from .analysis.lattice import t1_event_times
 
     if run.n_particles < 3 or window.size == 0:
@@ -362,8 +366,13 @@ def t1_rate(run: RunData, window: np.ndarray) -> float:
     span = float(run.time[frames[-1]] - run.time[frames[0]])
     if span <= 0:
         return float("nan")
-    centroids = np.stack([run.x[frames], run.y[frames]], axis=-1)
-    return t1_event_times(list(centroids), run.time[frames], run.length).size / (run.n_particles * span)
+    count = run.globals.get("t1_count")
+    if count is not None and "t1_interval" in run.scene.get("output", {}):
+        events = float(count[frames[-1]] - count[frames[0]])
+    else:
+        centroids = np.stack([run.x[frames], run.y[frames]], axis=-1)
+        events = t1_event_times(list(centroids), run.time[frames], run.length).size
+    return events / (run.n_particles * span)
 
 
 def summarise_run(run: RunData | None) -> dict[str, float]:

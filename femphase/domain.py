@@ -174,14 +174,20 @@ class Domain(ABC):
         dx = np.mod(x - centre[0] + 0.5 * self.period, self.period) - 0.5 * self.period
         return interface_profile(radius - np.hypot(dx, y - centre[1]), width)
 
+    @cached_property
+    def _circle(self) -> np.ndarray:
+        """(3, n_dofs): cos and sin of every dof's x as an angle over the period, and its y."""
+        x, y = self.coordinates
+        angle = 2 * np.pi * (x - self.x0) / self.period
+        return np.stack([np.cos(angle), np.sin(angle), y])
+
     def centroids(self, layout: Layout, phi: np.ndarray) -> np.ndarray:
         """φ-weighted centroids (N, 2) in particle order; x a circular mean over the period,
         in [x0, x0 + period)."""
-        x, y = self.coordinates[:, layout.node_index]
+        cos, sin, y = self._circle[:, layout.node_index]
         weight = layout.mass * phi
         total = layout.reduce(np.add, weight)
-        angle = 2 * np.pi * (x - self.x0) / self.period
-        cos, sin = layout.reduce(np.add, weight * np.cos(angle)), layout.reduce(np.add, weight * np.sin(angle))
+        cos, sin = layout.reduce(np.add, weight * cos), layout.reduce(np.add, weight * sin)
         out = np.empty((len(layout.windows), 2))
         out[layout.order, 0] = self.x0 + (np.arctan2(sin, cos) % (2 * np.pi)) * self.period / (2 * np.pi)
         out[layout.order, 1] = layout.reduce(np.add, weight * y) / total

@@ -244,6 +244,7 @@ def _grid_keys() -> list[tuple[str, list]]:
         ("output.fields", _BAD_BOOL),
         ("output.per_particle_fields", _BAD_BOOL),
         ("output.checkpoint", _BAD_BOOL),
+        ("output.t1_interval", _BAD_POSITIVE),
         ("output.observables", [("a string", "order"), ("an unknown name", ["orders"]), ("a number inside", [3]),
                                 ("true inside", [True]), ("a nested list", [["order"]]), ("a table", {"order": True})]),
         ("name", [("a number", 3), ("an empty string", ""), ("true", True), ("a list", ["fuzz"])]),

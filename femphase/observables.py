@@ -105,7 +105,8 @@ class Energy(Observable):
 class Order(Observable):
     """Ψ6 (bond order) and Ψ2^L (nematic order of the elongation axes, e^{2iθ}) per particle
     (|ψ6|, |ψ2|) and per frame (|mean ψ|), the lattice angle (radians) and the running count
-    of T1 events, from periodic-Delaunay neighbours of the centroids."""
+    of T1 events, from periodic-Delaunay neighbours of the centroids. The T1 counter also
+    looks at the centroids between frames, every ``output.t1_interval`` (:meth:`look`)."""
 
     name = "order"
     particle_columns = ("psi6_abs", "psi2_abs")
@@ -116,6 +117,12 @@ class Order(Observable):
         super().__init__(simulation)
         self.period = simulation.domain.period
         self.t1: T1Counter | None = None
+        self._looked_at: float | None = None  # the time of the counter's last look
+
+    def look(self, state: "State") -> None:
+        """Update the T1 counter with the state's centroids (the shape observable's x, y)."""
+        layout, phi = state.flat()
+        self._update(state.domain.centroids(layout, phi), state.time)
 
     def snapshot(self) -> dict[str, np.ndarray]:
         return self.t1.snapshot() if self.t1 is not None else {}
@@ -128,12 +135,17 @@ class Order(Observable):
     def __call__(self, state: "State", values: dict) -> dict:
         centroids = np.stack([values["x"], values["y"]], axis=1)
         order = frame_order(centroids, values["orientation"], self.period)
-        if len(centroids) >= 3:
-            if self.t1 is None:
-                self.t1 = T1Counter(centroids, self.period)
-            else:
-                self.t1.update(centroids)
+        self._update(centroids, state.time)
         return {**order, "t1_count": self.t1.count if self.t1 is not None else 0}
+
+    def _update(self, centroids: np.ndarray, time: float) -> None:
+        if len(centroids) < 3 or time == self._looked_at:  # a frame right after a look: the same centroids
+            return
+        if self.t1 is None:
+            self.t1 = T1Counter(centroids, self.period)
+        else:
+            self.t1.update(centroids)
+        self._looked_at = time
 
 
 def resolve(names: tuple[str, ...] | list[str]) -> list[str]:

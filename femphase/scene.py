@@ -68,12 +68,17 @@ class Output:
     """What a run writes. fields: fields.xdmf every frame; per_particle_fields: one φ_i
     per particle in it too (large); observables: names in
     :data:`femphase.observables.OBSERVABLES` ("shape" and "energy" always, e.g. "order"
-    for Ψ6, Ψ2^L, lattice angle, T1 count); checkpoint: checkpoint.h5 every frame."""
+    for Ψ6, Ψ2^L, lattice angle, T1 count); checkpoint: checkpoint.h5 every frame;
+    t1_interval: time units between the looks of the "order" observable's T1 counter at
+    the centroids, between frames too (after the step that reaches each multiple of it),
+    so that the count does not depend on the frame interval. The default, 20, counts
+    within 2 % of the converged rate at γ̇ = 1 (benchmarks/t1_counting.py)."""
 
     fields: bool = True
     per_particle_fields: bool = False
     observables: tuple = ("shape", "energy")
     checkpoint: bool = True
+    t1_interval: float = 20.0
 
 
 @dataclass(frozen=True)
@@ -326,6 +331,8 @@ def _output(table: dict) -> Output:
     for key in ("fields", "per_particle_fields", "checkpoint"):
         if key in table:
             _check_bool(f"output.{key}", table[key])
+    if "t1_interval" in table:
+        _check_number("output.t1_interval", table["t1_interval"])
     if "observables" in table:
         requested = table["observables"]
         if not isinstance(requested, (list, tuple)):

@@ -123,6 +123,7 @@ class Simulation:
         :class:`~femphase.errors.Interrupted`."""
         trackers = list(trackers)
         needs = frozenset().union(*(t.needs for t in trackers)) if trackers else frozenset()
+        t1_counter = self._t1_counter(needs)
         error = None
         for tracker in trackers:
             tracker.start(self, state)
@@ -135,6 +136,8 @@ class Simulation:
                 while state.phase_step < phase.n_steps:
                     stepper.step(state)
                     state.phase_step += 1
+                    if t1_counter is not None and self._t1_look_due(state.time, phase.dt):
+                        t1_counter.look(state)
                     for tracker in trackers:
                         tracker.after_step(state)
                     finished = state.phase_step == phase.n_steps
@@ -155,6 +158,18 @@ class Simulation:
             for tracker in trackers:
                 tracker.finish(state, error)
         return state
+
+    def _t1_counter(self, needs: frozenset) -> Observable | None:
+        """The "order" observable, whose T1 counter looks between frames, if the scene and
+        a tracker want it (else None)."""
+        wanted = "order" in needs and "order" in self.scene.output.observables
+        return self.observable("order") if wanted else None
+
+    def _t1_look_due(self, time: float, dt: float) -> bool:
+        """Whether the step that ended at ``time`` reached a multiple of output.t1_interval
+        (by the clock alone, so that a resumed run looks at the same steps)."""
+        interval = self.scene.output.t1_interval
+        return np.floor(time / interval + 1e-9) > np.floor((time - dt) / interval + 1e-9)
 
     def _frame(self, state: State, phase: Phase, trackers: list[Tracker], needs: frozenset) -> None:
         frame = Frame(state, phase)
