@@ -65,10 +65,14 @@ def main() -> None:
     parser.add_argument("directory", type=Path, help="the sweep directory (femphase sweep -o DIR)")
     args = parser.parse_args()
     name = args.directory.name
+    out = RESULTS / f"{name}.json"
+    if out.is_file() and "rates" not in json.loads(out.read_text()):
+        # results/ holds other verifications' files: a sweep named like one must not replace it
+        raise SystemExit(f"{out} holds another verification's results, not a sweep's; "
+                         f"name the sweep directory differently (e.g. {name}_full)")
     figures = plot_sweep(args.directory, RESULTS / name)
     table = rate_table(read_summary(args.directory / "summary.csv"))
     sweep = json.loads((args.directory / "sweep.json").read_text())
-    out = RESULTS / f"{name}.json"
     out.write_text(json.dumps({"sweep": str(args.directory), "axes": sweep["axes"], "rates": table,
                                "figures": {k: str(v.relative_to(RESULTS.parent)) for k, v in figures.items()},
                                "command": f"python -m verification.fig1a_sweep {args.directory}"}, indent=1) + "\n")
