@@ -25,7 +25,9 @@ time of the worker process (``process_time``, read at the same two instants).
 ``--default-scheme`` times the default scheme instead: both trees' ``step_time.per_time_unit``
 (CPU ms per simulated time unit of the lattice's shear at outer step ``FRAME``, after the
 same relaxation) in whole runs only, blocks old, new, new, old; the trees must both have
-it (session 5 on). Written to ``results/default_scheme_step_time.json``.
+it (session 5 on). Written to ``results/default_scheme_step_time.json`` (``--output``).
+With ``--random-rate R``: the random packing of ``step_time.random_packing`` (the trees must
+have it: session 6 on) sheared at R instead of the lattice.
 """
 
 from __future__ import annotations
@@ -84,10 +86,13 @@ def _tree_step_time(tree: str):
     return step_time, femphase.__file__
 
 
-def default_worker(tree: str, shear_time: float) -> None:
+def default_worker(tree: str, shear_time: float, random_rate: float | None) -> None:
     step_time, path = _tree_step_time(tree)
-    print(json.dumps({"tree": tree, "femphase": path,
-                      "ms_per_time_unit": step_time.per_time_unit(step_time.FRAME, shear_time)}), flush=True)
+    if random_rate is None:
+        ms = step_time.per_time_unit(step_time.FRAME, shear_time)
+    else:
+        ms = step_time.random_packing([random_rate], shear_time)["ms_per_time_unit"][str(random_rate)]
+    print(json.dumps({"tree": tree, "femphase": path, "ms_per_time_unit": ms}), flush=True)
 
 
 def worker(tree: str, steps: dict, batch: dict, gated: bool) -> None:
@@ -117,7 +122,8 @@ def _command(tree: Path, args, gated: bool) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), "--worker", str(tree), "--steps", str(args.steps),
             "--full-steps", str(args.full_steps), "--batch", str(args.batch), "--full-batch", str(args.full_batch),
             "--shear-time", str(args.shear_time)] \
-        + (["--gated"] if gated else []) + (["--default-scheme"] if args.default_scheme else [])
+        + (["--gated"] if gated else []) + (["--default-scheme"] if args.default_scheme else []) \
+        + ([] if args.random_rate is None else ["--random-rate", str(args.random_rate)])
 
 
 def whole_run(tree: Path, args) -> dict:
@@ -205,13 +211,16 @@ def default_scheme_runs(old: Path, new: Path, args) -> None:
     pairs = pair_ratios([r["ms_per_time_unit"] for r in runs])
     result = {"old_tree": str(old), "new_tree": str(new), "old_version": tree_version(old),
               "new_version": tree_version(new),
-              "scene": f"benchmarks/step_time.py per_time_unit (N = 100 lattice, h = 1, shear 0.1487, "
-                       f"{args.shear_time:g} time units, the tree's default scheme)",
+              "scene": (f"benchmarks/step_time.py per_time_unit (N = 100 lattice, h = 1, shear 0.1487, "
+                        f"{args.shear_time:g} time units, the tree's default scheme)") if args.random_rate is None
+              else (f"benchmarks/step_time.py random_packing (examples/random.toml, seed 1, relaxed, then shear "
+                    f"{args.random_rate:g} for {args.shear_time:g} time units, the tree's default scheme)"),
+              "command": " ".join(["python", "benchmarks/redesign_step_time.py"] + sys.argv[1:]),
               "protocol": __doc__, "loadavg_end": Path("/proc/loadavg").read_text().split()[:3],
               "old_ms": summary(ms["old"]), "new_ms": summary(ms["new"]), "pair_ratios": summary(pairs),
               "runs": runs}
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "default_scheme_step_time.json").write_text(json.dumps(result, indent=1) + "\n")
+    (RESULTS / args.output).write_text(json.dumps(result, indent=1) + "\n")
     print(f"default scheme: old {result['old_ms']['median']:.3f}, new {result['new_ms']['median']:.3f} CPU ms per "
           f"time unit; new/old pair ratio {result['pair_ratios']['median']:.3f} "
           f"[{result['pair_ratios']['q25']:.3f}, {result['pair_ratios']['q75']:.3f}]")
@@ -230,12 +239,16 @@ def main() -> None:
                         help="time the default scheme per time unit of shear instead (whole runs only)")
     parser.add_argument("--shear-time", type=float, default=500.0,
                         help="time units of shear per run with --default-scheme")
+    parser.add_argument("--random-rate", type=float,
+                        help="with --default-scheme: the random packing sheared at this rate instead of the lattice")
+    parser.add_argument("--output", default="default_scheme_step_time.json",
+                        help="with --default-scheme: the file in benchmarks/results/ to write")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     parser.add_argument("--gated", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         if args.default_scheme:
-            default_worker(args.worker, args.shear_time)
+            default_worker(args.worker, args.shear_time, args.random_rate)
         else:
             worker(args.worker, {"windows": args.steps, "full_mesh": args.full_steps},
                    {"windows": args.batch, "full_mesh": args.full_batch}, args.gated)

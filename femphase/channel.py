@@ -155,14 +155,12 @@ class ChannelDomain(Domain):
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
         windows, fields = list(layout.windows), layout.scatter(phi)
-        for group, (_, members, *_) in enumerate(layout.groups):
-            block = layout.group_block(phi, group)
-            for i in members[policy.misfits(block, [windows[i] for i in members], self.lattice)]:
-                w = windows[i]
-                fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice)
-                if fitted != w:
-                    fields[i] = transfer(fields[i].reshape(w.shape), w, fitted, self.grid.nx).ravel()
-                    windows[i] = fitted
+        for i in layout.order[policy.misfits(layout, phi, self.lattice)]:
+            w = windows[i]
+            fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice)
+            if fitted != w:
+                fields[i] = transfer(fields[i].reshape(w.shape), w, fitted, self.grid.nx).ravel()
+                windows[i] = fitted
         return windows, fields
 
     def windows_to_array(self, windows: Sequence[Window]) -> np.ndarray:

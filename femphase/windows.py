@@ -122,18 +122,36 @@ class WindowPolicy:
         margins[~rows.any(axis=1)] = -1.0
         return margins
 
-    def misfits(self, block: np.ndarray, windows: Sequence[Window], lattice: tuple[int, int]) -> np.ndarray:
-        """For fields block (n, ny, nx) on windows of one shape: which need another window.
+    def misfits(self, layout: "Layout", phi: np.ndarray, lattice: tuple[int, int]) -> np.ndarray:
+        """For the fields ``phi`` (layout order) on the layout's windows: which need another
+        window (bool per window, layout order).
 
         A window fits while every margin not at a wall lies within [margin, longest_margin];
-        full-width windows are always re-examined (the particle may fit a narrower one)."""
+        full-width windows are always re-examined (the particle may fit a narrower one). The
+        margins of all windows come from one pass over the occupied positions (their first
+        and last rows, their extreme columns): no per-window or per-group work."""
+        n = len(layout.windows)
         if not self.enabled:
-            return np.zeros(len(windows), dtype=bool)
-        margins = self.margins(block, windows, lattice[0])
-        empty = margins[:, 0] < 0
-        with np.errstate(invalid="ignore"):
-            bad = ((margins < self.margin) | (margins > self.longest_margin)).any(axis=1)
-        return (bad | (block.shape[2] == lattice[1])) & ~empty
+            return np.zeros(n, dtype=bool)
+        row, column = layout.grid_positions
+        occupied = np.flatnonzero(phi > self.threshold)
+        first = np.searchsorted(occupied, layout.offsets[:-1])
+        last = np.searchsorted(occupied, layout.offsets[1:]) - 1
+        empty = last < first
+        # per window: extreme columns over its occupied positions (a sentinel ends the last
+        # window's segment; an empty window's value is the sentinel's or its neighbour's, unused)
+        ends = np.append(first, occupied.size)
+        columns = np.append(column[occupied], 0)
+        first_col = np.minimum.reduceat(columns, ends)[:-1]
+        last_col = np.maximum.reduceat(columns, ends)[:-1]
+        rows = np.append(row[occupied], 0)
+        first_row, last_row = rows[np.minimum(first, occupied.size)], rows[np.maximum(last, 0)]
+        iy0, ny, nx = np.array([(w.iy0, w.ny, w.nx) for w in (layout.windows[i] for i in layout.order)]).T
+        margins = np.stack([first_col, nx - 1 - last_col, first_row, ny - 1 - last_row], axis=1)
+        bad = (margins < self.margin) | (margins > self.longest_margin)
+        bad[iy0 == 0, 2] = False  # no margin needed at a wall
+        bad[iy0 + ny == lattice[0], 3] = False
+        return (bad.any(axis=1) | (nx == lattice[1])) & ~empty
 
     def fit(self, phi: np.ndarray, window: Window, lattice: tuple[int, int]) -> Window:
         """The window ``phi`` (ny, nx on ``window``) should live on next."""
@@ -382,6 +400,17 @@ class Layout:
                                            for _, members, *_ in self.groups]) if self.groups else self.node_index
         moved.mass = lumped_mass[moved.node_index]
         return moved
+
+    @cached_property
+    def grid_positions(self) -> tuple[np.ndarray, np.ndarray]:
+        """(row, column) of every position within its window, for windows whose fields are
+        viewed as (ny, nx) blocks (the structured channel's); kept by :meth:`moved`."""
+        rows, columns = [], []
+        for (_, members, *_), (ny, nx) in zip(self.groups, self.shapes):
+            rows.append(np.tile(np.repeat(np.arange(ny), nx), members.size))
+            columns.append(np.tile(np.arange(nx), ny * members.size))
+        empty = np.zeros(0, dtype=int)
+        return (np.concatenate(rows) if rows else empty), (np.concatenate(columns) if columns else empty)
 
     @cached_property
     def overlap_positions(self) -> np.ndarray:

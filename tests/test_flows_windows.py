@@ -97,8 +97,43 @@ def test_a_moved_layout_is_the_layout_built_from_scratch():
     assert moved is not first and moved.windows == fresh.windows
     for name in ("order", "sizes", "offsets", "owner", "node_index", "mass", "overlap_positions"):
         assert np.array_equal(getattr(moved, name), getattr(fresh, name)), name
+    assert all(np.array_equal(a, b) for a, b in zip(moved.grid_positions, fresh.grid_positions))
     assert [(k, list(m), a, b, s) for k, m, a, b, s in moved.groups] == \
         [(k, list(m), a, b, s) for k, m, a, b, s in fresh.groups]
     # a window of another shape (another key) is not a move: a new layout, built
     reshaped = domain.layout(shifted[:3] + [Window(5, 12, 0, 40)])
     assert reshaped.shapes != moved.shapes
+
+
+def test_misfits_of_a_whole_layout_follow_the_rule_window_by_window():
+    """WindowPolicy.misfits finds every window's margins from one pass over the occupied
+    positions; the rule, checked here window by window with WindowPolicy.margins: a window
+    fits while every margin not at a wall lies in [margin, longest_margin], full-width
+    windows are always re-examined, empty ones never."""
+    domain = ChannelDomain(channel_grid(40, 30, 1.0))
+    lattice = (domain.grid.ny, domain.grid.nx)
+    policy = WindowPolicy.for_spacing(1.0)
+    windows = [Window(0, 16, 35, 16), Window(8, 16, 3, 16), Window(14, 16, 20, 16), Window(5, 8, 0, 40),
+               Window(10, 16, 12, 16), Window(2, 12, 30, 12), Window(18, 12, 6, 12)]
+    rng = np.random.default_rng(3)
+    seen = set()
+    for trial in range(20):
+        layout = domain.layout(windows)
+        fields = []
+        for k, w in enumerate(windows):
+            phi = np.zeros(w.shape)
+            if (trial + k) % 5:  # every 5th field empty
+                r0, c0 = rng.integers(0, w.ny - 1), rng.integers(0, w.nx - 1)
+                phi[r0:rng.integers(r0 + 1, w.ny + 1), c0:rng.integers(c0 + 1, w.nx + 1)] = rng.uniform(0.02, 1.0)
+            fields.append(phi.ravel())
+        phi = layout.gather(fields)
+        expected = []
+        for i in layout.order:
+            w = windows[i]
+            margins = policy.margins(fields[i].reshape(w.shape)[None], [w], lattice[0])[0]
+            with np.errstate(invalid="ignore"):
+                bad = ((margins < policy.margin) | (margins > policy.longest_margin)).any()
+            expected.append(bool((bad or w.nx == lattice[1]) and margins[0] >= 0))
+        assert policy.misfits(layout, phi, lattice).tolist() == expected
+        seen.update(expected)
+    assert seen == {True, False}
