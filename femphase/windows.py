@@ -131,7 +131,7 @@ class WindowPolicy:
         margins of all windows come from one pass over the occupied positions (their first
         and last rows, their extreme columns): no per-window or per-group work."""
         n = len(layout.windows)
-        if not self.enabled:
+        if not self.enabled or n == 0:
             return np.zeros(n, dtype=bool)
         row, column = layout.grid_positions
         occupied = np.flatnonzero(phi > self.threshold)
