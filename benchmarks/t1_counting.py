@@ -44,6 +44,15 @@ def shear_scene(scene, rate: float, duration: float, dt: float, t1_interval: flo
     return replace(scene, phases=(phase,), output=replace(scene.output, t1_interval=t1_interval, fields=False))
 
 
+def fresh_copy(relaxed):
+    """The relaxed state as the start of a one-phase shear scene: time and step counts at 0,
+    no scheme memory (substep level, counts)."""
+    state = copy.deepcopy(relaxed)
+    state.time, state.step, state.phase, state.phase_step = 0.0, 0, 0, 0
+    state.memory.clear()
+    return state
+
+
 class CentroidsAfterSteps(Tracker):
     def __init__(self, skip: float) -> None:
         self.skip, self.times, self.centroids = skip, [], []
@@ -60,9 +69,7 @@ class NeedsOrder(Tracker):
 
 def convergence(scene, relaxed) -> list[dict]:
     dt = 2.5
-    state = copy.deepcopy(relaxed)
-    state.time, state.step, state.phase, state.phase_step = 0.0, 0, 0, 0
-    state.memory.clear()
+    state = fresh_copy(relaxed)
     tracker = CentroidsAfterSteps(skip=500.0)
     Simulation(shear_scene(scene, 1.0, 3000.0, dt, 1e9)).run(state, [tracker], initial_frame=False)
     times = np.array(tracker.times)
@@ -80,9 +87,7 @@ def cost(scene, relaxed, rate: float) -> dict:
     seconds = {looks: [], "frames only": []}
     for _ in range(BLOCKS):
         for label, interval in ((looks, Output().t1_interval), ("frames only", 1e9)):
-            state = copy.deepcopy(relaxed)
-            state.time, state.step, state.phase, state.phase_step = 0.0, 0, 0, 0
-            state.memory.clear()
+            state = fresh_copy(relaxed)
             simulation = Simulation(shear_scene(scene, rate, BLOCK, 10.0, interval))
             started = time.process_time()
             simulation.run(state, [NeedsOrder()], initial_frame=False)
