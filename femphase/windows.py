@@ -107,21 +107,6 @@ class WindowPolicy:
         ix0 = (cols[0] - (nx - (cols[1] - cols[0] + 1)) // 2) % lattice_nx
         return Window(int(iy0), int(ny), int(ix0), int(nx))
 
-    def margins(self, block: np.ndarray, windows: Sequence[Window], lattice_ny: int) -> np.ndarray:
-        """(n, 4) margins left, right, bottom, top (nodes) of fields block (n, ny, nx); NaN
-        at a wall (no margin needed there); a row of −1 for a field with no occupied node."""
-        occupied = block > self.threshold
-        rows, cols = occupied.any(axis=2), occupied.any(axis=1)
-        margins = np.stack([
-            np.argmax(cols, axis=1), np.argmax(cols[:, ::-1], axis=1),
-            np.argmax(rows, axis=1), np.argmax(rows[:, ::-1], axis=1),
-        ], axis=1).astype(float)
-        iy0 = np.array([w.iy0 for w in windows])
-        margins[iy0 == 0, 2] = np.nan
-        margins[iy0 + block.shape[1] == lattice_ny, 3] = np.nan
-        margins[~rows.any(axis=1)] = -1.0
-        return margins
-
     def misfits(self, layout: "Layout", phi: np.ndarray, lattice: tuple[int, int]) -> np.ndarray:
         """For the fields ``phi`` (layout order) on the layout's windows: which need another
         window (bool per window, layout order).
@@ -168,10 +153,10 @@ class WindowPolicy:
                 return self.cover(rows, (c0, c1), lattice)
             # the particle needs the whole width; its rows must still follow it (a channel
             # narrower than a window: the y-extent must not freeze)
-            margins = self.margins(phi[None], [window], lattice_ny)[0, 2:]
-            with np.errstate(invalid="ignore"):
-                if not ((margins < self.margin) | (margins > self.longest_margin)).any():
-                    return window
+            at_wall = (window.iy0 == 0, window.iy0 + window.ny == lattice_ny)  # no margin needed there
+            margins = (row_hits[0], window.ny - 1 - row_hits[-1])
+            if all(wall or self.margin <= m <= self.longest_margin for wall, m in zip(at_wall, margins)):
+                return window
             return self.cover(rows, (0, lattice_nx - 1), lattice)
         col_hits = np.flatnonzero(col_occupied)
         return self.cover(rows, (window.ix0 + col_hits[0], window.ix0 + col_hits[-1]), lattice)
