@@ -139,6 +139,8 @@ SUMMARY_COLUMNS = {
     "elongation_mean": Column("—", "elongation r of the bulk particles, averaged over them and the window"),
     "period": Column("time units", "period of the bulk-mean r(t) after shear onset; NaN if none is detectable"),
     "t1_rate": Column("1/(particle · time unit)", "T1 events per particle per time unit over the window"),
+    "cpu_time_s": Column("s", "CPU time of the run's segments (run.json; a branched run's include the shared "
+                              "relaxation's); NaN for runs written before femphase recorded it"),
 }
 #: Summary columns that count (written as integers).
 _COUNTS = ("n_frames", "n_particles", "window_frames")
@@ -385,7 +387,7 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
     onset, :meth:`femphase.plot.RunData.bulk_particles`: at a wall r is not an aspect
     ratio). Period: :func:`femphase.plot.measured_period`, the period of the bulk-mean r(t)
     after shear onset with its first quarter discarded, NaN when none is detectable.
-    T1 rate: :func:`t1_rate`."""
+    T1 rate: :func:`t1_rate`. CPU time: run.json's ``cpu_time_s``."""
     from .analysis.lattice import frame_average
     from .plot import measured_period, order_series
 
@@ -393,6 +395,7 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
     if run is None:
         return out
     out["n_frames"], out["n_particles"] = len(run.time), run.n_particles
+    out["cpu_time_s"] = float(run.info.get("cpu_time_s", float("nan")))
     period = measured_period(run)
     out["period"] = float("nan") if period is None else period
     window = averaging_window(run.time, run.scene["phases"])

@@ -311,7 +311,9 @@ class Status:
 
     ``base``: the fields of this segment's run (version, method, scene); ``previous``: the
     run.json of a resumed run, whose segments and start time are kept. Times are ISO 8601
-    with the UTC offset (:func:`femphase.provenance.now`), wall times in seconds."""
+    with the UTC offset (:func:`femphase.provenance.now`), wall and CPU times in seconds (CPU:
+    the process's, all its threads, so that a run's cost can be read off on a loaded machine
+    where wall time is not)."""
 
     def __init__(self, directory: Path, base: dict, previous: dict | None) -> None:
         self.path = Path(directory) / "run.json"
@@ -320,7 +322,7 @@ class Status:
         self.data["segments"] = list(previous.get("segments", []))
         self.data["started"] = previous.get("started") or now()
         self.data["ended"] = None
-        self.started = wallclock.perf_counter()
+        self.started, self.cpu_started = wallclock.perf_counter(), wallclock.process_time()
 
     @staticmethod
     def read(directory: Path) -> dict | None:
@@ -339,11 +341,13 @@ class Status:
         self.data.update(values)
         segment = self.data["segments"][-1]
         segment["wall_time_s"] = wallclock.perf_counter() - self.started
+        segment["cpu_time_s"] = wallclock.process_time() - self.cpu_started
         segment["time"], segment["step"] = self.data.get("time"), self.data.get("steps")
         if values.get("status", "running") != "running":
             segment["status"] = values["status"]
             segment["ended"] = self.data["ended"] = now()
-        self.data["wall_time_s"] = sum(s.get("wall_time_s", 0.0) for s in self.data["segments"])
+        for key in ("wall_time_s", "cpu_time_s"):  # runs from before CPU times were recorded lack them
+            self.data[key] = sum(s.get(key, 0.0) for s in self.data["segments"])
         atomic_write(self.path, json.dumps(self.data, indent=2, default=_jsonable) + "\n")
 
 

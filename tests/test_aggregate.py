@@ -203,6 +203,9 @@ def test_summary_is_the_average_over_the_last_fifth_of_the_frames(sweep):
         bulk = (y[onset] > 16.0) & (y[onset] < 32.0 - 16.0)
         bulk = bulk if bulk.any() else np.ones(n, bool)
         assert row["elongation_mean"] == pytest.approx(r[window][:, bulk].mean(), rel=1e-12)
+        info = json.loads((directory / "run.json").read_text())
+        cpu = sum(s["cpu_time_s"] for s in info["segments"])
+        assert cpu > 0 and row["cpu_time_s"] == pytest.approx(cpu, rel=1e-12)
         reference = np.arange(window[0] - 1, window[-1] + 1)
         events = frames["t1_count"][reference[-1]] - frames["t1_count"][reference[0]]  # the run's own count
         assert row["t1_rate"] == pytest.approx(events / (n * (t[reference[-1]] - t[reference[0]])), rel=1e-12)

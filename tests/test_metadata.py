@@ -74,6 +74,7 @@ def test_run_json_records_versions_host_threads_command_line_and_times(tmp_path)
     assert before <= started <= ended <= datetime.datetime.now().astimezone()
     assert (segment["started"], segment["ended"]) == (info["started"], info["ended"])
     assert 0 < segment["wall_time_s"] < 60 and info["wall_time_s"] == segment["wall_time_s"]
+    assert 0 < segment["cpu_time_s"] < 60 and info["cpu_time_s"] == segment["cpu_time_s"]
 
     origin = segment["provenance"]
     assert origin["femphase_version"] == femphase.__version__
@@ -183,7 +184,8 @@ def test_run_log_has_a_header_status_lines_and_the_end_of_each_segment_and_resum
     segment = info["segments"][1]
     assert segment["resumed"] and segment["from_step"] == 30 and "--resume" in segment["argv"]
     assert segment["set"][1] == "phases.1.duration=20" and segment["provenance"]["host"] == socket.gethostname()
-    assert info["wall_time_s"] == pytest.approx(sum(s["wall_time_s"] for s in info["segments"]))
+    for key in ("wall_time_s", "cpu_time_s"):
+        assert info[key] == pytest.approx(sum(s[key] for s in info["segments"]))
 
 
 @pytest.mark.parametrize("sets, code, reason", [
