@@ -9,7 +9,8 @@ sheared from that state for ``--shear-time`` time units at each rate by
 
 * the reference: sav2 at fixed dt = 0.125 (second order), checked against sav2 at dt = 0.25
   (their difference bounds the reference's own error: ~1/4 of it);
-* the adaptive scheme (outer step 10) at tolerances 3e-2, 1e-2 (the default), 3e-3, 1e-3.
+* the adaptive scheme (outer step 10) at tolerances 1e-1, 3e-2 (the default), 1e-2, 3e-3,
+  and the default before session 8 (1e-2, the repulsion not split off).
 
 Errors of the elongation r of every particle at every 10 time units, relative to the
 reference's largest r: the largest over particles and frames, and the median. Over
@@ -36,7 +37,9 @@ from femphase.simulation import Simulation
 
 RESULTS = Path(__file__).parent / "results"
 FRAME = 10.0
-TOLERANCES = (3e-2, 1e-2, 3e-3, 1e-3)
+TOLERANCES = (1e-1, 3e-2, 1e-2, 3e-3)
+#: (tolerance_t, repulsion_split) of the default before the repulsion was split off (session 8)
+FORMER_DEFAULT = (1e-2, False)
 REFERENCE_DT, CHECK_DT = 0.125, 0.25
 
 
@@ -73,7 +76,9 @@ def report(result: dict) -> str:
         rows.append([rate, f"sav2, dt = {CHECK_DT:g} (reference check)", "–", f"{check['seconds']:.1f}",
                      f"{100 * check['errors']['max']:.2g} %", f"{100 * check['errors']['median']:.2g} %"])
         for row in entry["adaptive"]:
-            name = f"adaptive, tolerance_t {row['tolerance_t']:g}" + (" **(default)**" if row["default"] else "")
+            name = (f"adaptive, tolerance_t {row['tolerance_t']:g}"
+                    + ("" if row.get("repulsion_split", False) else ", repulsion split off (the default before session 8)")
+                    + (" **(default)**" if row["default"] else ""))
             rows.append([rate, name, f"{row['substeps']} ({row['rejected']})", f"{row['seconds']:.1f}",
                          f"{100 * row['errors']['max']:.2g} %", f"{100 * row['errors']['median']:.2g} %"])
     return "\n".join([
@@ -104,9 +109,12 @@ def main() -> None:
         check = shear(scene, relaxed, rate, args.shear_time, CHECK_DT, scheme="sav2")
         result["reference_seconds"] += reference["seconds"]
         entry = {"check": {"seconds": check["seconds"], "errors": errors(check, reference)}, "adaptive": []}
-        for tolerance in TOLERANCES:
-            run = shear(scene, relaxed, rate, args.shear_time, FRAME, scheme="adaptive", tolerance_t=tolerance)
-            entry["adaptive"].append({"tolerance_t": tolerance, "default": tolerance == Numerics().tolerance_t,
+        defaults = Numerics()
+        for tolerance, split in [(t, True) for t in TOLERANCES] + [FORMER_DEFAULT]:
+            run = shear(scene, relaxed, rate, args.shear_time, FRAME, scheme="adaptive", tolerance_t=tolerance,
+                        repulsion_split=split)
+            entry["adaptive"].append({"tolerance_t": tolerance, "repulsion_split": split,
+                                      "default": (tolerance, split) == (defaults.tolerance_t, defaults.repulsion_split),
                                       "substeps": run["substeps"], "rejected": run["rejected"],
                                       "seconds": run["seconds"], "errors": errors(run, reference)})
         result["rates"][f"{rate:g}"] = entry

@@ -39,9 +39,9 @@ import numpy as np
 
 from femphase.simulation import Simulation
 from femphase.stepping import Numerics, Stepper
+from work_precision import FRAME, is_default_scheme
 
 RESULTS = Path(__file__).parent / "results"
-FRAME = 10.0
 
 
 def relaxed_lattice(windows: bool = True):
@@ -101,6 +101,7 @@ def random_packing(rates: list[float], shear_time: float) -> dict:
         state = copy.deepcopy(relaxed)
         phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
         stepper = simulation.stepper(phase, state.radii)
+        stepper.scheme.start_phase(state)  # as Simulation.run does at a phase's start
         stepper.step(state)  # set-up
         samples = step_ms(stepper, state, round(shear_time / phase.dt), time.process_time)
         out["ms_per_time_unit"][str(rate)] = float(samples.sum() / shear_time)
@@ -112,16 +113,13 @@ def period_errors() -> tuple[dict, float] | None:
     path = RESULTS / "work_precision_schemes.json"
     if not path.exists():
         return None
-    defaults = Numerics()
     euler, default = {}, None
     for row in json.loads(path.read_text())["rows"]:
         if "time_errors" not in row:
             continue
-        options = row["options"]
-        if options.get("scheme") == "euler":
+        if row["options"].get("scheme") == "euler":
             euler[row["dt"]] = row["time_errors"]["period"]
-        if (options.get("scheme") == defaults.scheme and row["dt"] == FRAME
-                and options.get("tolerance_t", defaults.tolerance_t) == defaults.tolerance_t):
+        if is_default_scheme(row):
             default = row["time_errors"]["period"]
     return (euler, default) if default is not None and 0.1 in euler else None
 

@@ -87,7 +87,8 @@ class Point:
         if self.method == "fd":
             return "FD (Heun)"
         names = {"mass": "{} mass", "diagonals": "{} diagonals", "windows": "windows {}",
-                 "solver": "{}", "tolerance": "tol {:g}", "scheme": "{}", "tolerance_t": "tolerance_t {:g}"}
+                 "solver": "{}", "tolerance": "tol {:g}", "scheme": "{}", "tolerance_t": "tolerance_t {:g}",
+                 "repulsion_split": "repulsion split {}"}
         parts = [names[k].format({True: "on", False: "off"}.get(v, v)) for k, v in sorted(self.options.items())]
         return "FEM " + (", ".join(parts) if parts else "default")
 
@@ -351,8 +352,12 @@ def report(result: dict) -> str:
 # -- the time schemes (--schemes) ---------------------------------------------------------------
 SCHEME_POINTS = ([Point("lattice", "fem", 1.0, dt, {"scheme": "euler"}) for dt in (1.0, 0.5, 0.25, 0.1)]
                  + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2"}) for dt in (5.0, 2.5, 1.0)]
+                 + [Point("lattice", "fem", 1.0, 2.5, {"scheme": "sav2", "repulsion_split": False})]
                  + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": tol})
-                    for tol in (3e-2, 1e-2, 3e-3)])
+                    for tol in (1e-1, 3e-2, 1e-2)]
+                 # the default before the repulsion was split off (session 8)
+                 + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": 1e-2,
+                                                          "repulsion_split": False})])
 SCHEMES_OUT = RESULTS / "work_precision_schemes.json"
 
 
@@ -376,6 +381,7 @@ def is_default_scheme(row: dict) -> bool:
     options = row["options"]
     return (options.get("scheme") == defaults.scheme
             and options.get("tolerance_t", defaults.tolerance_t) == defaults.tolerance_t
+            and options.get("repulsion_split", defaults.repulsion_split) == defaults.repulsion_split
             and (defaults.scheme != "adaptive" or row["dt"] == FRAME))
 
 

@@ -96,6 +96,9 @@ class EnergyTerm(ABC):
 
     name: ClassVar[str]
     diffusivity: float = 0.0
+    #: True when the term's δ/δφ_i is c φ_i with c ≥ 0 independent of φ_i (:meth:`decay_rate`):
+    #: a pointwise linear decay of each field, which a scheme may integrate in exponential form
+    decays: ClassVar[bool] = False
 
     @abstractmethod
     def energy(self, fields: WindowedFields) -> float:
@@ -114,6 +117,10 @@ class EnergyTerm(ABC):
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         """An upper bound on the Hessian of the explicit part per unit lumped mass, for fields
         in [0, 1] with areas ∫φ² ≤ AREA_RATIO_MAX πR²; ``pairs`` False: one particle."""
+
+    def decay_rate(self, fields: WindowedFields) -> np.ndarray:
+        """c ≥ 0 at every position, for a term that ``decays``."""
+        raise NotImplementedError(f"the {self.name} term is not a pointwise decay")
 
 
 @dataclass(frozen=True)
@@ -171,12 +178,17 @@ class RepulsionTerm(EnergyTerm):
     repulsion: float
     interface_width: float
     name: ClassVar[str] = "repulsion"
+    decays: ClassVar[bool] = True
 
     def energy(self, fields: WindowedFields) -> float:
         return self.repulsion / self.interface_width * fields.integral(fields.squares * fields.others_squared)
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
         return 4.0 * self.repulsion / self.interface_width * fields.phi * fields.others_squared
+
+    def decay_rate(self, fields: WindowedFields) -> np.ndarray:
+        # the derivative above is linear in φ_i: (4κ/λ) Σ_{j≠i} φ_j² times φ_i
+        return 4.0 * self.repulsion / self.interface_width * fields.others_squared
 
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         # one pair at a node: (2κ/λ)[[2φ_j², 4φ_iφ_j], [4φ_iφ_j, 2φ_i²]] ≤ 12κ/λ
@@ -241,10 +253,18 @@ class FreeEnergy:
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
         """g: the explicitly treated part of δF/δφ at every position."""
+        if not self.terms:
+            return np.zeros_like(fields.phi)
         g = self.terms[0].explicit_derivative(fields)
         for term in self.terms[1:]:
             g += term.explicit_derivative(fields)
         return g
+
+    def split_decay(self) -> tuple["FreeEnergy", tuple[EnergyTerm, ...]]:
+        """(the energy of the other terms, the terms that are pointwise linear decays
+        (:meth:`EnergyTerm.decay_rate`)): the split of sav2's flow step."""
+        decaying = tuple(t for t in self.terms if t.decays)
+        return FreeEnergy([t for t in self.terms if t not in decaying]), decaying
 
     def explicit_energy(self, fields: WindowedFields) -> float:
         """E1: the energy of the explicitly treated parts (F minus its implicit gradient part)."""

@@ -88,6 +88,10 @@ class TimeScheme(ABC):
         ``state.memory``, where a scheme keeps what it carries from step to step (saved in
         checkpoints, so that a resumed run continues bit for bit)."""
 
+    def start_phase(self, state: "State") -> None:
+        """Called before the first step of a phase (not on a resume inside one): drop from
+        ``state.memory`` what describes the dynamics of the phase before. Nothing here."""
+
 
 @SCHEMES.register("euler")
 class LinearlyImplicitEuler(TimeScheme):
@@ -135,13 +139,13 @@ class LinearlyImplicitEuler(TimeScheme):
 
 def linearly_implicit_step(stepper: "Stepper", phi: np.ndarray, layout: Layout, radii: np.ndarray, dt: float,
                            stabilisation: float, source_time: float,
-                           fields: WindowedFields | None = None) -> np.ndarray:
+                           fields: WindowedFields | None = None, energy: "FreeEnergy | None" = None) -> np.ndarray:
     """One linearly implicit Euler relaxation step of ``dt`` (module docstring), the source
     taken at ``source_time``: (G/dt + J0 S M_L + J0 D K) φ¹ = (G/dt + J0 S M_L) φ⁰ − J0 M_L g(φ⁰)
     + M_L s. ``fields``: φ⁰ as WindowedFields, if the caller has them (shares their cached
-    sums)."""
+    sums); ``energy``: whose g (the stepper's unless given; D is always the stepper's)."""
     j0 = stepper.mobility
-    nodal = stepper.energy.explicit_derivative(fields or WindowedFields(phi, layout, radii))
+    nodal = (energy or stepper.energy).explicit_derivative(fields or WindowedFields(phi, layout, radii))
     nodal *= -j0
     if stabilisation:
         nodal += (j0 * stabilisation) * phi
@@ -156,8 +160,9 @@ class RelaxedSAV2(TimeScheme):
     """Second order: Strang splitting (advection over dt/2, relaxation over dt, advection
     over dt/2) with a relaxation step that is Crank–Nicolson in the gradient term and
     explicit midpoint in the rest (from a linearly implicit Euler predictor): relaxed
-    scalar-auxiliary-variable (SAV) form without flow, plain IMEX midpoint with flow
-    (:meth:`relax`). No stabilisation to saturate. Lumped mass only.
+    scalar-auxiliary-variable (SAV) form without flow, plain IMEX midpoint with flow, the
+    repulsion then split off and integrated in exponential form (:meth:`relax`). No
+    stabilisation to saturate. Lumped mass only.
 
     Energy stability: the SAV step never increases its modified energy, but the free energy
     F itself can rise at large dt (measured: dt = 10 on two particles relaxing from R/2;
@@ -182,12 +187,33 @@ class RelaxedSAV2(TimeScheme):
                              f'"lumped" with numerics.scheme = "{self.name}" (or scheme = "euler" for the consistent mass)')
         flow, dt = stepper.flow, stepper.dt
         self.half = None if flow.is_still else stepper.domain.advection(flow, 0.5 * dt, stepper.numerics)
-        self._half_bound = 0.5 * stepper.energy.curvature_bound(stepper.smallest_radius, stepper.pairs)
+        split = stepper.numerics.repulsion_split and not flow.is_still
+        #: the terms of the IMEX step, and the decay terms split off around it (flow only)
+        self.reacting, self.decaying = stepper.energy.split_decay() if split else (stepper.energy, ())
+        self._half_bound = 0.5 * self.reacting.curvature_bound(stepper.smallest_radius, stepper.pairs)
 
     def predictor_stabilisation(self, dt: float) -> float:
         """S of the predictor, one linearly implicit Euler step of dt/2: the smallest that
-        keeps it energy-stable (module docstring)."""
+        keeps it energy-stable (module docstring) for the terms it treats explicitly."""
         return max(0.0, self._half_bound - 1.0 / (self.stepper.mobility * 0.5 * dt))
+
+    def decay(self, phi: np.ndarray, layout: Layout, radii: np.ndarray, dt: float) -> np.ndarray:
+        """φ after ``dt`` of the decay terms alone, ∂tφ_i = −J0 c(φ) φ_i with c the sum of their
+        :meth:`~femphase.energy.EnergyTerm.decay_rate`, by the exponential midpoint rule:
+        φ_i e^{−J0 c(φ̃) dt}, the midpoint φ̃ = φ/(1 + J0 c(φ) dt/2) from an implicit Euler
+        half step (first order there is enough for second order, and a second exponential
+        cost 0.9 ms per 10⁵ positions). Second order; |φ_i| never grows, whatever dt."""
+        j0 = self.stepper.mobility
+
+        def rate(values: np.ndarray) -> np.ndarray:
+            fields = WindowedFields(values, layout, radii)
+            total = self.decaying[0].decay_rate(fields)
+            for term in self.decaying[1:]:
+                total = total + term.decay_rate(fields)
+            return total
+
+        half = phi / (1.0 + (0.5 * dt * j0) * rate(phi))
+        return phi * np.exp((-dt * j0) * rate(half))
 
     def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
         dt = self.stepper.dt
@@ -277,15 +303,26 @@ class RelaxedSAV2(TimeScheme):
           solve. With flow F is not a Lyapunov function and r would restart from E1 after
           every advection, so the SAV factor r^{1/2}/V(φ̄) = 1 + O(dt) would only add error
           and cost (one solve and three energy evaluations per step, ~27 % of the step).
+          With ``numerics.repulsion_split`` (the default) the decay terms (the repulsion,
+          whose δF/δφ_i = (4κ/λ) Σ_{j≠i} φ_j² φ_i decays a field's tail inside its neighbours
+          at J0·4κ/λ·Σφ_j² ≈ 0.6 per time unit, 5× the double well's rate) are split off:
+          :meth:`decay` over dt/2, the midpoint step of the other terms over dt, :meth:`decay`
+          over dt/2 (Strang, second order). Explicit, that decay set the substep: at dt = 2.5
+          the lattice's r(t) error in time falls from 2.8 % to 0.64 % (benchmarks/README.md,
+          "Kept in session 8").
 
         The error estimate is max |φ¹ − (2φ̄ − φ⁰)|: the predictor doubled is a first-order
         step, so this is that step's local error, O(dt²), at no extra cost (an embedded pair
-        of orders 1 and 2; the second-order result is kept)."""
+        of orders 1 and 2; the second-order result is kept). With the split it is the
+        midpoint step's: the decay is integrated in exponential form, and its splitting error
+        is not estimated."""
         stepper, j0 = self.stepper, self.stepper.mobility
-        energy, mass = stepper.energy, layout.mass
+        energy, mass = self.reacting, layout.mass
+        if self.decaying:
+            phi = self.decay(phi, layout, radii, 0.5 * dt)
         fields = WindowedFields(phi, layout, radii)
         midpoint = linearly_implicit_step(stepper, phi, layout, radii, 0.5 * dt, self.predictor_stabilisation(dt),
-                                          time + 0.5 * dt, fields)
+                                          time + 0.5 * dt, fields, energy)
         middle = WindowedFields(midpoint, layout, radii)
         # (2M/dt + J0 D K) p = (2M/dt − J0 D K) φ⁰ + 2 M s (− 2 J0 M g(φ̄) for the midpoint step),
         # solved as (2M/dt + J0 D K)(p + φ⁰) = 4M/dt φ⁰ + 2 M s (…): the same p without the
@@ -311,6 +348,8 @@ class RelaxedSAV2(TimeScheme):
             r_next = relaxed(2.0 * r_half - r, self.restart(WindowedFields(new, layout, radii)),
                              self.RELAXATION * dissipation)
         estimate = float(np.max(np.abs(new - 2.0 * midpoint + phi))) if new.size else 0.0
+        if self.decaying:
+            new = self.decay(new, layout, radii, 0.5 * dt)
         return new, r_next, estimate
 
 
@@ -354,6 +393,15 @@ class AdaptiveSAV2(RelaxedSAV2):
         super().__init__(stepper)
         self.tolerance = stepper.numerics.tolerance_t
         self._advections: dict[tuple[int, ...], object] = {}
+
+    def start_phase(self, state: "State") -> None:
+        """A new phase (the flow switched on, off or changed) starts the controller afresh,
+        at the substep dt/4 and without the error history: the PI step's proportional
+        factor (previous error / tolerance)^K_P carried over from a quiet relaxation
+        (estimates ~1e-5) refined the first substeps of a shear and, with PI's sticky sizes,
+        the whole phase (the random packing at γ̇ = 1: 1.25 instead of 2.5). The counts stay."""
+        state.memory.pop("adaptive_level", None)
+        state.memory.pop("adaptive_error", None)
 
     def _advection(self, levels: tuple[int, ...]):
         """The advection over the sum of the half substeps dt/2^(k+1), k in ``levels`` (None

@@ -133,6 +133,8 @@ class Simulation:
             while state.phase < len(self.scene.phases):
                 phase = self.scene.phases[state.phase]
                 stepper = self.stepper(phase, state.radii)
+                if state.phase_step == 0:
+                    stepper.scheme.start_phase(state)
                 while state.phase_step < phase.n_steps:
                     stepper.step(state)
                     state.phase_step += 1

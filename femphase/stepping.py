@@ -59,9 +59,14 @@ class Numerics:
                     DIRECT_MAX_DOFS, else AMG
     tolerance       relative residual of the AMG-Krylov solves
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
-                    dimensionless). The default, 1e-2, keeps the lattice's period within 0.3 %
+                    dimensionless). The default, 3e-2, keeps the lattice's period within 0.3 %
                     and r(t) within 2 % of a time-converged run (benchmarks/README.md, "Time
                     schemes")
+    repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
+                    off the explicit midpoint step (Strang) and integrates it as the pointwise
+                    decay it is, in exponential form (:meth:`femphase.schemes.RelaxedSAV2.relax`);
+                    False: the explicit midpoint step of all terms (femphase before session 8,
+                    with tolerance_t 1e-2 its default then)
     windows         False: every field on the whole domain (full-mesh mode)
     threshold       φ above which a node belongs to a particle (window fitting)
     margin          lattice units kept between a particle and its window's edge
@@ -82,7 +87,8 @@ class Numerics:
     stabilisation: float | str = "auto"
     solver: str = "auto"
     tolerance: float = 1e-10
-    tolerance_t: float = 1e-2
+    tolerance_t: float = 3e-2
+    repulsion_split: bool = True
     windows: bool = True
     threshold: float = 0.01
     margin: float = 4.0
@@ -106,7 +112,7 @@ class Numerics:
             and self.stabilisation >= 0
         ):
             raise SceneError("numerics.stabilisation", self.stabilisation, '"auto" or a number ≥ 0')
-        for key in ("windows", "strict"):
+        for key in ("windows", "strict", "repulsion_split"):
             if not isinstance(getattr(self, key), bool):
                 raise SceneError(f"numerics.{key}", getattr(self, key), "true or false")
         for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),

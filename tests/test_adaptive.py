@@ -99,3 +99,23 @@ flow = { type = "shear", rate = 0.3 }
     # (no r under flow: those substeps are plain IMEX midpoint steps)
     assert straight.memory.keys() == resumed.memory.keys() == {"adaptive_counts", "adaptive_error", "adaptive_level"}
     assert all(np.array_equal(straight.memory[k], resumed.memory[k]) for k in straight.memory)
+
+
+def test_each_phase_starts_the_step_controller_afresh(monkeypatch):
+    # the error history of a quiet relaxation made the PI controller refine a shear's first
+    # substeps, and its sticky sizes then kept them small (femphase.schemes.AdaptiveSAV2.start_phase)
+    from femphase.schemes import AdaptiveSAV2
+
+    calls, original = [], AdaptiveSAV2.start_phase
+
+    def spy(self, state):
+        before = set(state.memory)
+        original(self, state)
+        calls.append((state.phase, state.phase_step, before, set(state.memory)))
+
+    monkeypatch.setattr(AdaptiveSAV2, "start_phase", spy)
+    _sheared_particle("adaptive", 10.0, 1e-2)
+    assert [(phase, step) for phase, step, *_ in calls] == [(0, 0), (1, 0)]
+    _, _, before, after = calls[1]
+    assert {"adaptive_level", "adaptive_error", "adaptive_counts"} <= before
+    assert "adaptive_counts" in after and not after & {"adaptive_level", "adaptive_error"}
