@@ -397,9 +397,10 @@ class AdaptiveSAV2(RelaxedSAV2):
     def start_phase(self, state: "State") -> None:
         """A new phase (the flow switched on, off or changed) starts the controller afresh,
         at the substep dt/4 and without the error history: the PI step's proportional
-        factor (previous error / tolerance)^K_P carried over from a quiet relaxation
-        (estimates ~1e-5) refined the first substeps of a shear and, with PI's sticky sizes,
-        the whole phase (the random packing at γ̇ = 1: 1.25 instead of 2.5). The counts stay."""
+        factor (previous error / tolerance)^K_P carried over from a quiet relaxation (the
+        random packing's last estimate: 4 % of the tolerance, a factor ≈ 0.6) refined the
+        first substeps of a shear and, with PI's sticky sizes, the whole phase (at γ̇ = 1:
+        1.25 instead of 2.5). The counts stay."""
         state.memory.pop("adaptive_level", None)
         state.memory.pop("adaptive_error", None)
 
