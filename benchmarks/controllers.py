@@ -2,6 +2,7 @@
 
     python benchmarks/controllers.py particle      # one particle from R/2, tests/test_adaptive.py's scene
     python benchmarks/controllers.py 1             # the random packing sheared at γ̇ = 1 (random_precision.py)
+    python benchmarks/controllers.py lattice       # the lattice over one period (work_precision.py --schemes)
 
 The default (``adaptive``: PI controller on the substep sizes dt/2^k) against two variants
 registered here only, as schemes of this process:
@@ -17,6 +18,12 @@ Each at several tolerances: accepted substeps and the error of r against a sav2 
 packing: dt = 0.125, over 200 time units of shear, the largest and the median). Prints one
 line per run; benchmarks/README.md ("Kept in session 6", the controller paragraphs) holds
 the numbers of session 6.
+
+``lattice`` (session 9): the default and the elementary controller at tolerances 3e-2 and
+1e-2, each with the area term's rank-one mode explicit and implicit
+(``numerics.area_implicit``), on ``work_precision.py --schemes``' lattice over one period:
+CPU seconds and the r(t) and period errors in time against sav2 at dt = 0.25 (this run),
+two processes at a time. benchmarks/README.md ("Session 9") holds the numbers.
 """
 
 from __future__ import annotations
@@ -83,12 +90,32 @@ def packing(rate: float) -> None:
                   f"median {error['median']:.2e}", flush=True)
 
 
+def lattice() -> None:
+    from concurrent.futures import ProcessPoolExecutor
+
+    import work_precision
+
+    Point = work_precision.Point
+    points = [Point("lattice", "fem", 1.0, 0.25, {"scheme": "sav2"})] + [
+        Point("lattice", "fem", 1.0, work_precision.FRAME, {"scheme": scheme, "tolerance_t": tolerance,
+                                                            "area_implicit": implicit})
+        for scheme in ("adaptive", "adaptive_i") for tolerance in (3e-2, 1e-2) for implicit in (False, True)]
+    with ProcessPoolExecutor(2) as pool:  # forked: the workers know the schemes registered here
+        reference, *runs = pool.map(work_precision.run, points)
+    for run in runs:
+        errors = work_precision.lattice_errors(run, reference.result)
+        print(f"lattice {run.label}: {run.seconds:.1f} CPU s, r(t) error {errors['elongation']:.2%}, "
+              f"period error {errors['period']:.3%}", flush=True)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("problem", help='"particle", or a shear rate for the random packing')
+    parser.add_argument("problem", help='"particle", "lattice", or a shear rate for the random packing')
     args = parser.parse_args()
     if args.problem == "particle":
         particle()
+    elif args.problem == "lattice":
+        lattice()
     else:
         packing(float(args.problem))
 

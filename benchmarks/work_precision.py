@@ -88,8 +88,10 @@ class Point:
             return "FD (Heun)"
         names = {"mass": "{} mass", "diagonals": "{} diagonals", "windows": "windows {}",
                  "solver": "{}", "tolerance": "tol {:g}", "scheme": "{}", "tolerance_t": "tolerance_t {:g}",
-                 "repulsion_split": "repulsion split {}"}
-        parts = [names[k].format({True: "on", False: "off"}.get(v, v)) for k, v in sorted(self.options.items())]
+                 "repulsion_split": "{} repulsion", "area_implicit": "{} area mode"}
+        switches = {"repulsion_split": ("split", "unsplit"), "area_implicit": ("implicit", "explicit")}
+        parts = [names[k].format(dict(zip((True, False), switches.get(k, ("on", "off")))).get(v, v))
+                 for k, v in sorted(self.options.items())]
         return "FEM " + (", ".join(parts) if parts else "default")
 
     @property
@@ -303,8 +305,16 @@ def plot(panels: list[tuple[str, list[Point], str]], path: Path) -> None:
         ax.set_ylabel(f"{key} error")
         ax.set_title(title, fontsize=9)
         ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=5.5, ncol=2)
-    fig.tight_layout()
+    # one legend below the panels: inside them it covered the points
+    entries = {}
+    for ax in np.atleast_1d(axes):
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            entries.setdefault(label, handle)
+    rows = -(-len(entries) // 3)
+    legend_height = 0.16 * rows + 0.2  # inches
+    fig.set_size_inches(5 * len(panels), 4.4 + legend_height)
+    fig.legend(list(entries.values()), list(entries), loc="lower center", ncol=3, fontsize=6.5, frameon=False)
+    fig.tight_layout(rect=(0, legend_height / (4.4 + legend_height), 1, 1))
     fig.savefig(path, dpi=130)
 
 
@@ -353,6 +363,9 @@ def report(result: dict) -> str:
 SCHEME_POINTS = ([Point("lattice", "fem", 1.0, dt, {"scheme": "euler"}) for dt in (1.0, 0.5, 0.25, 0.1)]
                  + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2"}) for dt in (5.0, 2.5, 1.0)]
                  + [Point("lattice", "fem", 1.0, 2.5, {"scheme": "sav2", "repulsion_split": False})]
+                 # the area term's rank-one mode implicit in the predictor (session 9)
+                 + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2", "area_implicit": True}) for dt in (5.0, 2.5)]
+                 + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": 3e-2, "area_implicit": True})]
                  + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": tol})
                     for tol in (1e-1, 3e-2, 1e-2)]
                  # the default before the repulsion was split off (session 8)
@@ -382,6 +395,7 @@ def is_default_scheme(row: dict) -> bool:
     return (options.get("scheme") == defaults.scheme
             and options.get("tolerance_t", defaults.tolerance_t) == defaults.tolerance_t
             and options.get("repulsion_split", defaults.repulsion_split) == defaults.repulsion_split
+            and options.get("area_implicit", defaults.area_implicit) == defaults.area_implicit
             and (defaults.scheme != "adaptive" or row["dt"] == FRAME))
 
 

@@ -99,6 +99,10 @@ class EnergyTerm(ABC):
     #: True when the term's δ/δφ_i is c φ_i with c ≥ 0 independent of φ_i (:meth:`decay_rate`):
     #: a pointwise linear decay of each field, which a scheme may integrate in exponential form
     decays: ClassVar[bool] = False
+    #: True when the Hessian of the term's explicit part (lumped metric) contains, for every
+    #: particle, a stiff rank-one part β_i φ_i (M_L φ_i)ᵀ (:meth:`rank_one_coefficient`),
+    #: which a scheme may treat linearly implicitly
+    rank_one: ClassVar[bool] = False
 
     @abstractmethod
     def energy(self, fields: WindowedFields) -> float:
@@ -121,6 +125,11 @@ class EnergyTerm(ABC):
     def decay_rate(self, fields: WindowedFields) -> np.ndarray:
         """c ≥ 0 at every position, for a term that ``decays``."""
         raise NotImplementedError(f"the {self.name} term is not a pointwise decay")
+
+    def rank_one_coefficient(self, fields: WindowedFields) -> np.ndarray:
+        """β_i ≥ 0 per window (layout order; 1/(energy·length⁴) in lattice units), for a term
+        with a ``rank_one`` part."""
+        raise NotImplementedError(f"the {self.name} term has no rank-one part")
 
 
 @dataclass(frozen=True)
@@ -157,6 +166,7 @@ class AreaTerm(EnergyTerm):
 
     area_stiffness: float
     name: ClassVar[str] = "area"
+    rank_one: ClassVar[bool] = True
 
     def energy(self, fields: WindowedFields) -> float:
         return self.area_stiffness * float(np.sum((1.0 - fields.area_ratio) ** 2))
@@ -168,6 +178,12 @@ class AreaTerm(EnergyTerm):
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         # the rank-one part 8μ a/(πR²) plus −4μ(1 − a)/(πR²), with a ≤ AREA_RATIO_MAX
         return 4.0 * self.area_stiffness / (np.pi * smallest_radius**2) * (3.0 * AREA_RATIO_MAX - 1.0)
+
+    def rank_one_coefficient(self, fields: WindowedFields) -> np.ndarray:
+        # a_i = (M_L φ_i)ᵀφ_i/(πR_i²), so ∂/∂φ of −(4μ/πR_i²)(1 − a_i) φ_i contains
+        # (8μ/(πR_i²)²) φ_i (M_L φ_i)ᵀ: the area relaxing back at J0·8μ a_i/(πR_i²) ≈ 0.4 per
+        # time unit at the paper's values, the stiffest explicit mode once the repulsion is split
+        return 8.0 * self.area_stiffness / (np.pi * fields.radius**2) ** 2
 
 
 @dataclass(frozen=True)
@@ -265,6 +281,12 @@ class FreeEnergy:
         (:meth:`EnergyTerm.decay_rate`)): the split of sav2's flow step."""
         decaying = tuple(t for t in self.terms if t.decays)
         return FreeEnergy([t for t in self.terms if t not in decaying]), decaying
+
+    def rank_one_coefficient(self, fields: WindowedFields) -> np.ndarray | None:
+        """Σ β_i of the terms with a rank-one part (:meth:`EnergyTerm.rank_one_coefficient`),
+        per window; None when no term has one."""
+        coefficients = [t.rank_one_coefficient(fields) for t in self.terms if t.rank_one]
+        return sum(coefficients[1:], coefficients[0]) if coefficients else None
 
     def explicit_energy(self, fields: WindowedFields) -> float:
         """E1: the energy of the explicitly treated parts (F minus its implicit gradient part)."""

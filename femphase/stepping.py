@@ -67,6 +67,10 @@ class Numerics:
                     decay it is, in exponential form (:meth:`femphase.schemes.RelaxedSAV2.relax`);
                     False: the explicit midpoint step of all terms (femphase before session 8,
                     with tolerance_t 1e-2 its default then)
+    area_implicit   "sav2" and "adaptive" only: True treats the area term's stiff rank-one mode
+                    (each particle's area relaxing back at J0·8μ/(πR²) ≈ 0.4 per time unit)
+                    linearly implicitly in the predictor (one more solve per substep;
+                    :meth:`femphase.schemes.RelaxedSAV2.rank_one_predictor`); False: explicit
     windows         False: every field on the whole domain (full-mesh mode)
     threshold       φ above which a node belongs to a particle (window fitting)
     margin          lattice units kept between a particle and its window's edge
@@ -89,6 +93,7 @@ class Numerics:
     tolerance: float = 1e-10
     tolerance_t: float = 3e-2
     repulsion_split: bool = True
+    area_implicit: bool = False
     windows: bool = True
     threshold: float = 0.01
     margin: float = 4.0
@@ -112,7 +117,7 @@ class Numerics:
             and self.stabilisation >= 0
         ):
             raise SceneError("numerics.stabilisation", self.stabilisation, '"auto" or a number ≥ 0')
-        for key in ("windows", "strict", "repulsion_split"):
+        for key in ("windows", "strict", "repulsion_split", "area_implicit"):
             if not isinstance(getattr(self, key), bool):
                 raise SceneError(f"numerics.{key}", getattr(self, key), "true or false")
         for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
