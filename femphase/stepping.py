@@ -13,11 +13,13 @@ One step:
 
 Every window solves the principal submatrix of the full-domain system on its dofs (see
 :mod:`femphase.windows`); solvers are built once per window key and system, and all windows
-of a key are solved in one multi-right-hand-side call.
+of a key are solved in one multi-right-hand-side call; the solvers kept are bounded in
+memory (:attr:`Stepper.SOLVER_CACHE_BYTES`, least recently used dropped first).
 """
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Callable
 
@@ -176,7 +178,8 @@ class Stepper:
         self.policy = domain.window_policy(numerics)
         self.advection = None if self.flow.is_still else domain.advection(self.flow, self.dt, numerics)
         self._systems: dict = {}
-        self._solvers: dict = {}
+        self._solvers: OrderedDict = OrderedDict()  # least recently used first
+        self._cached_bytes = 0
         _load_schemes()
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
 
@@ -239,12 +242,19 @@ class Stepper:
             out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, current)
         return out
 
-    #: Solvers kept at most (windows come and go, the adaptive scheme changes its step size)
-    SOLVER_CACHE = 4096
+    #: Bytes of solvers kept (their ``nbytes``; the least recently used are dropped first).
+    #: Windows come and go and the adaptive scheme changes its step size; on a mesh every
+    #: box is its own system, whose LU costs ~2 MB resident per ~1000 dofs: keeping 4096
+    #: solvers, as before session 9, took examples/obstacle_mesh.toml to 13 GB by step 5700.
+    #: The structured channel's tensor solvers are ~10 kB each.
+    SOLVER_CACHE_BYTES = 256 * 2**20
 
     def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
         cache_key = (key, shift, stabilisation)
-        if cache_key not in self._solvers:
+        solvers = self._solvers
+        if cache_key in solvers:
+            solvers.move_to_end(cache_key)
+        else:
             lumped = self.lumped
             a = shift + self.mobility * stabilisation
             solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
@@ -253,11 +263,12 @@ class Stepper:
                                         self.numerics.tolerance)
             mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
                                                           self.domain.window_dofs(window))
-            if len(self._solvers) >= self.SOLVER_CACHE:
-                self._solvers.clear()
-                self._systems.clear()
-            self._solvers[cache_key] = (solver, mass_block)
-        return self._solvers[cache_key]
+            solvers[cache_key] = (solver, mass_block)
+            self._cached_bytes += solver.nbytes
+            while self._cached_bytes > self.SOLVER_CACHE_BYTES and len(solvers) > 1:
+                _, (dropped, _) = solvers.popitem(last=False)
+                self._cached_bytes -= dropped.nbytes
+        return solvers[cache_key]
 
     # -- one step -------------------------------------------------------------------------
     def step(self, state: State) -> None:
