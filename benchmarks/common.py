@@ -8,6 +8,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 
 import re  # noqa: E402
 import time  # noqa: E402
+from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from femphase.scene import load_scene, scene_from_dict  # noqa: E402
@@ -17,15 +18,19 @@ README = Path(__file__).parent / "README.md"
 RANDOM_SCENE = Path(__file__).parents[1] / "examples" / "random.toml"
 
 
-def relaxed_random_packing():
+def relaxed_random_packing(dt: float | None = None, **numerics):
     """(scene, simulation, state, CPU seconds): examples/random.toml (the paper's Fig. 1a
-    set-up, seed 1) after its relaxation phase at the default scheme."""
+    set-up, seed 1) after its relaxation phase, at the default scheme and step unless
+    ``numerics`` (scene ``[numerics]`` keys) and ``dt`` say otherwise."""
     scene = load_scene(RANDOM_SCENE)
+    if numerics:
+        scene = replace(scene, numerics=replace(scene.numerics, **numerics))
+    phase = scene.phases[0] if dt is None else replace(scene.phases[0], dt=dt)
     simulation = Simulation(scene)
     state = scene.initial_state()
-    stepper = simulation.stepper(scene.phases[0], state.radii)
+    stepper = simulation.stepper(phase, state.radii)
     started = time.process_time()
-    for _ in range(scene.phases[0].n_steps):
+    for _ in range(phase.n_steps):
         stepper.step(state)
     return scene, simulation, state, time.process_time() - started
 

@@ -98,26 +98,20 @@ def report(result: dict) -> str:
                               rows)])
 
 
-def relaxed_fields(scene, dt: float, **numerics) -> tuple[np.ndarray, float]:
-    """(N, nodes) fields after the scene's relaxation phase at step ``dt``, and its CPU seconds."""
-    state, phase = scene.initial_state(), replace(scene.phases[0], dt=dt)
-    stepper = Simulation(replace(scene, numerics=replace(scene.numerics, **numerics))).stepper(phase, state.radii)
-    started = time.process_time()
-    for _ in range(phase.n_steps):
-        stepper.step(state)
-    return np.stack([state.global_field(i) for i in range(len(state.radii))]), time.process_time() - started
+def relaxed_fields(dt: float | None = None, **numerics) -> tuple:
+    """(scene, (N, nodes) fields, CPU seconds) after the random packing's relaxation phase
+    (``common.relaxed_random_packing``)."""
+    scene, _, state, seconds = common.relaxed_random_packing(dt, **numerics)
+    return scene, np.stack([state.global_field(i) for i in range(len(state.radii))]), seconds
 
 
 def relaxation() -> None:
-    from femphase.scene import load_scene
-
-    scene = load_scene(common.RANDOM_SCENE)
-    reference, seconds = relaxed_fields(scene, RELAXATION_REFERENCE_DT, scheme="sav2")
+    scene, reference, seconds = relaxed_fields(RELAXATION_REFERENCE_DT, scheme="sav2")
     print(f"relaxation of {common.RANDOM_SCENE.name}, {scene.phases[0].duration:g} time units; reference sav2 "
           f"dt = {RELAXATION_REFERENCE_DT:g} ({seconds:.0f} CPU s)", flush=True)
     area_ref = np.sum(reference**2, axis=1)
     for tolerance in RELAXATION_TOLERANCES:
-        fields, seconds = relaxed_fields(scene, scene.phases[0].dt, scheme="adaptive", tolerance_t=tolerance)
+        _, fields, seconds = relaxed_fields(scheme="adaptive", tolerance_t=tolerance)
         difference = np.abs(fields - reference)
         area = np.sum(fields**2, axis=1)
         print(f"adaptive tolerance_t {tolerance:g}: {seconds:.1f} CPU s, max |φ − φ_ref| {difference.max():.3g}, "
