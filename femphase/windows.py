@@ -113,26 +113,26 @@ class WindowPolicy:
 
         A window fits while every margin not at a wall lies within [margin, longest_margin];
         full-width windows are always re-examined (the particle may fit a narrower one). The
-        margins of all windows come from one pass over the occupied positions (their first
-        and last rows, their extreme columns): no per-window or per-group work."""
+        margins come group by group from the (k, ny, nx) block of the windows of one shape:
+        its occupied rows and columns, two reductions of one boolean pass (in the stepper
+        0.33 ms against 0.55 for gathering the occupied positions' coordinates on the N = 100
+        lattice, and the check runs after every substep)."""
         n = len(layout.windows)
         if not self.enabled or n == 0:
             return np.zeros(n, dtype=bool)
-        row, column = layout.grid_positions
-        occupied = np.flatnonzero(phi > self.threshold)
-        first = np.searchsorted(occupied, layout.offsets[:-1])
-        last = np.searchsorted(occupied, layout.offsets[1:]) - 1
-        empty = last < first
-        # per window: extreme columns over its occupied positions (a sentinel ends the last
-        # window's segment; an empty window's value is the sentinel's or its neighbour's, unused)
-        ends = np.append(first, occupied.size)
-        columns = np.append(column[occupied], 0)
-        first_col = np.minimum.reduceat(columns, ends)[:-1]
-        last_col = np.maximum.reduceat(columns, ends)[:-1]
-        rows = np.append(row[occupied], 0)
-        first_row, last_row = rows[np.minimum(first, occupied.size)], rows[np.maximum(last, 0)]
+        margins = np.empty((n, 4), dtype=int)  # left, right, bottom, top (nodes; layout order)
+        empty = np.empty(n, dtype=bool)
+        first = 0  # a group's windows are contiguous in layout order
+        for group, (_key, members, *_) in enumerate(layout.groups):
+            slots = slice(first, first + members.size)
+            first += members.size
+            occupied = layout.group_block(phi, group) > self.threshold
+            for axis, (low, high) in ((1, (0, 1)), (2, (2, 3))):
+                hits = occupied.any(axis=axis)  # (k, nx) occupied columns, then (k, ny) rows
+                margins[slots, low] = np.argmax(hits, axis=1)
+                margins[slots, high] = np.argmax(hits[:, ::-1], axis=1)
+            empty[slots] = ~hits.any(axis=1)
         iy0, ny, nx = np.array([(w.iy0, w.ny, w.nx) for w in (layout.windows[i] for i in layout.order)]).T
-        margins = np.stack([first_col, nx - 1 - last_col, first_row, ny - 1 - last_row], axis=1)
         bad = (margins < self.margin) | (margins > self.longest_margin)
         bad[iy0 == 0, 2] = False  # no margin needed at a wall
         bad[iy0 + ny == lattice[0], 3] = False
@@ -387,17 +387,6 @@ class Layout:
         return moved
 
     @cached_property
-    def grid_positions(self) -> tuple[np.ndarray, np.ndarray]:
-        """(row, column) of every position within its window, for windows whose fields are
-        viewed as (ny, nx) blocks (the structured channel's); kept by :meth:`moved`."""
-        rows, columns = [], []
-        for (_, members, *_), (ny, nx) in zip(self.groups, self.shapes):
-            rows.append(np.tile(np.repeat(np.arange(ny), nx), members.size))
-            columns.append(np.tile(np.arange(nx), ny * members.size))
-        empty = np.zeros(0, dtype=int)
-        return (np.concatenate(rows) if rows else empty), (np.concatenate(columns) if columns else empty)
-
-    @cached_property
     def overlap_positions(self) -> np.ndarray:
         """Positions whose dof lies in more than one window (computed on first use)."""
         coverage = np.bincount(self.node_index, minlength=self._n_dofs)
@@ -436,6 +425,6 @@ class Layout:
         alone; one pass less over the positions than gathering those first (in a dense
         suspension nearly every position is shared)."""
         total = np.bincount(self.node_index, weights=squares)
-        others = total[self.node_index]
+        others = np.take(total, self.node_index)  # 25 % faster than total[index] here
         others -= squares
         return others
