@@ -4,7 +4,7 @@
     python benchmarks/controllers.py 1             # the random packing sheared at γ̇ = 1 (random_precision.py)
     python benchmarks/controllers.py lattice       # the lattice over one period (work_precision.py --schemes)
 
-The default (``adaptive``: PI controller on the substep sizes dt/2^k) against two variants
+The default (``adaptive``: PI controller on the substep sizes dt/m, m = 2^k or 3·2^k) against two variants
 registered here only, as schemes of this process:
 
 * ``adaptive_i``: the elementary controller, h ← h · 0.9 (tolerance/error)^(1/2), which
@@ -57,8 +57,8 @@ class ErrorPerUnitStep(AdaptiveSAV2):
     name = "adaptive_epus"
     K_I, K_P = 1.0, 0.0  # the scaled estimate is of order 1 in h
 
-    def relax(self, phi, layout, time, radii, r, dt):
-        new, r_next, estimate = super().relax(phi, layout, time, radii, r, dt)
+    def relax(self, phi, layout, time, radii, r, dt, **decays):
+        new, r_next, estimate = super().relax(phi, layout, time, radii, r, dt, **decays)
         return new, r_next, estimate * (0.25 * self.stepper.dt) / dt
 
 

@@ -35,6 +35,7 @@ stepper (the accuracy guard, :mod:`femphase.guards`, uses them).
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections import OrderedDict
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -425,17 +426,31 @@ class AdaptiveSAV2(RelaxedSAV2):
     merge, with its arithmetic in place: 0.87× the CPU per time unit on the lattice, a
     same-run ratio, session 10).
 
+    Substep sizes: dt/m with m = 2^k or 3·2^k (10, 5, 3.33, 2.5, 1.67, 1.25, … at dt = 10),
+    each substep starting at a multiple of its own size, so that substeps tile the step
+    exactly and the finite set of sizes keeps solvers and advections reusable. The steps of
+    4/3 and 3/2 between neighbouring sizes let the controller settle where the tolerance
+    puts it instead of on a power of two below it: on the lattice at the default tolerance
+    that is 3.33 instead of 2.5 (benchmarks/README.md, "Session 10").
+
     Without flow (and source), a substep that would raise the free energy F is rejected as
-    well; at the finest size, dt/2^LEVELS, the energy-stable Euler step (:meth:`fallback`)
+    well; at the finest size, dt/(3·2^LEVELS), the energy-stable Euler step (:meth:`fallback`)
     replaces it, so F never rises, whatever dt. A substep of the finest size is otherwise
     accepted whatever its estimate (the step cannot shrink further; a smaller phase dt is
     then the remedy)."""
 
     name = "adaptive"
     order = 2
-    #: Substeps are dt/2^k, k ≤ LEVELS: a finite set of step sizes, so solvers and advections
-    #: are built once per size and reused, and substeps end exactly on the phase's steps.
+    #: Substeps are dt/m, m in DIVISIONS (2^k and 3·2^k, k ≤ LEVELS, ascending).
     LEVELS = 12
+    DIVISIONS = tuple(sorted({2**k for k in range(LEVELS + 1)} | {3 * 2**k for k in range(LEVELS + 1)}))
+    #: The step in units of the finest substep: every size is a whole number of units.
+    UNITS = DIVISIONS[-1]
+    #: m of a phase's first substep (dt/4)
+    FIRST = 4
+    #: Advections kept (least recently used dropped first): one per pair of neighbouring
+    #: sizes in use; on a mesh each holds a complex LU (tens of MB on the obstacle example)
+    ADVECTIONS_KEPT = 8
     #: The PI controller (Gustafsson; the defaults of SUNDIALS ARKODE's PI): exponents of
     #: the error ratios for an estimate of local order 2, a safety factor, growth bounds.
     K_I, K_P, SAFETY, GROWTH, SHRINK = 0.8 / 2, 0.31 / 2, 0.9, 4.0, 0.2
@@ -443,7 +458,7 @@ class AdaptiveSAV2(RelaxedSAV2):
     def __init__(self, stepper: "Stepper") -> None:
         super().__init__(stepper)
         self.tolerance = stepper.numerics.tolerance_t
-        self._advections: dict[tuple[int, ...], object] = {}
+        self._advections: OrderedDict[tuple[int, ...], object] = OrderedDict()
 
     def start_phase(self, state: "State") -> None:
         """A new phase (the flow switched on, off or changed) starts the controller afresh,
@@ -452,39 +467,55 @@ class AdaptiveSAV2(RelaxedSAV2):
         random packing's last estimate: 4 % of the tolerance, a factor ≈ 0.6) refined the
         first substeps of a shear and, with PI's sticky sizes, the whole phase (at γ̇ = 1:
         1.25 instead of 2.5). The counts stay."""
-        state.memory.pop("adaptive_level", None)
+        state.memory.pop("adaptive_divisions", None)
         state.memory.pop("adaptive_error", None)
 
-    def _advection(self, levels: tuple[int, ...]):
-        """The advection over the sum of the half substeps dt/2^(k+1), k in ``levels`` (None
-        without flow): the second half of one substep and the first half of the next are one
-        advection (exact for steady row flows; midpoint-rule time for unsteady ones, still
-        second order), which halves the advection work."""
+    def _advection(self, divisions: tuple[int, ...]):
+        """The advection over the sum of the half substeps dt/(2m), m in ``divisions`` (None
+        without flow): the second half of one substep and the first half of the next are
+        one advection (exact for steady row flows; midpoint-rule time for unsteady ones,
+        still second order), which halves the advection work."""
         if self.stepper.flow.is_still:
             return None
-        if levels not in self._advections:
+        advections = self._advections
+        if divisions in advections:
+            advections.move_to_end(divisions)
+        else:
             stepper = self.stepper
-            duration = sum(0.5 * stepper.dt / 2**k for k in levels)
-            self._advections[levels] = stepper.domain.advection(stepper.flow, duration, stepper.numerics)
-        return self._advections[levels]
+            duration = sum(0.5 * stepper.dt / m for m in divisions)
+            advections[divisions] = stepper.domain.advection(stepper.flow, duration, stepper.numerics)
+            if len(advections) > self.ADVECTIONS_KEPT:
+                advections.popitem(last=False)
+        return advections[divisions]
+
+    @classmethod
+    def divisions_for(cls, size: float, done: int) -> int:
+        """m of the largest substep dt/m no larger than ``size`` (in units of dt) that can
+        start after ``done`` units (it starts at a multiple of its own length)."""
+        for m in cls.DIVISIONS:
+            if 1.0 / m <= size * (1.0 + 1e-12) and done % (cls.UNITS // m) == 0:
+                return m
+        return cls.UNITS
 
     def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
         stepper, dt = self.stepper, self.stepper.dt
         memory = state.memory
-        level = int(memory.get("adaptive_level", np.array([2]))[0])
+        if "adaptive_level" in memory:  # a checkpoint from before session 10: substep dt/2^level
+            memory["adaptive_divisions"] = 2 ** memory.pop("adaptive_level")
+        m = int(memory.get("adaptive_divisions", np.array([self.FIRST]))[0])
         previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
         r = self.auxiliary(phi, layout, state)
-        done = 0  # substeps of the finest size dt/2^LEVELS done in this step
-        total = 2**self.LEVELS
+        done = 0  # units (dt/UNITS) done in this step
         accepted = rejected = 0
         before = self.free_energy(phi, layout, state.radii) if self.checks_energy else None
-        owed: tuple[int, ...] = ()  # the level of the accepted substep whose second half-advection is still due
-        while done < total:
-            h = dt / 2**level
-            time = state.time + dt * done / total
-            advection = self._advection(owed + (level,))
+        owed: tuple[int, ...] = ()  # m of the accepted substep whose second half-advection is still due
+        finest = self.UNITS
+        while done < self.UNITS:
+            h = dt / m
+            time = state.time + dt * done / self.UNITS
+            advection = self._advection(owed + (m,))
             trial, trial_layout = phi.copy(), layout
-            lag = 0.5 * dt / 2**owed[0] if owed else 0.0
+            lag = 0.5 * dt / owed[0] if owed else 0.0
             if advection is not None:
                 trial, trial_layout = advection.advect(trial, trial_layout, time - lag)
             # the previous substep's second half-decay and this one's first are one decay, after
@@ -492,16 +523,16 @@ class AdaptiveSAV2(RelaxedSAV2):
             new, new_r, error = self.relax(trial, trial_layout, time, state.radii, r, h,
                                            decay_before=lag + 0.5 * h, decay_after=0.0)
             error = max(error, 1e-14)
-            if error > self.tolerance and level < self.LEVELS:
+            if error > self.tolerance and m < finest:
                 rejected += 1
                 factor = max(self.SHRINK, self.SAFETY * (self.tolerance / error) ** 0.5)
-                level = min(self.LEVELS, level + max(1, int(np.ceil(-np.log2(factor)))))
+                m = self.divisions_for(min(factor, 0.75) / m, done)
                 continue
             if before is not None:
                 after = self.free_energy(new, layout, state.radii)
-                if self.rises(before, after) and level < self.LEVELS:  # F must not rise: a smaller substep
+                if self.rises(before, after) and m < finest:  # F must not rise: a smaller substep
                     rejected += 1
-                    level += 1
+                    m = self.divisions_for(0.75 / m, done)
                     continue
                 if self.rises(before, after):
                     new = self.fallback(phi, layout, time, state.radii, h)
@@ -509,26 +540,21 @@ class AdaptiveSAV2(RelaxedSAV2):
                     after = self.free_energy(new, layout, state.radii)
                 before = after
             phi, layout, r = new, trial_layout, new_r
-            owed = (level,)
-            done += 2 ** (self.LEVELS - level)
+            owed = (m,)
+            done += self.UNITS // m
             accepted += 1
             factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous_error / self.tolerance) ** self.K_P
             factor = min(self.GROWTH, max(self.SHRINK, factor))
             previous_error = error
-            proposal = min(self.LEVELS, max(0, level - int(np.floor(np.log2(factor)))))
-            if proposal > level:
-                level = proposal
-            # coarser only as far as the next substep starts on the coarser grid
-            while proposal < level and done % 2 ** (self.LEVELS - level + 1) == 0:
-                level -= 1
+            m = self.divisions_for(factor / m, done)
             layout, phi = stepper.refit(layout, phi)
-        lag = 0.5 * dt / 2**owed[0]
+        lag = 0.5 * dt / owed[0]
         if self.decaying:
             phi = self.decay(phi, layout, state.radii, lag)
         advection = self._advection(owed)
         if advection is not None:
             phi, layout = advection.advect(phi, layout, state.time + dt - lag)
-        memory["adaptive_level"] = np.array([level])
+        memory["adaptive_divisions"] = np.array([m])
         memory["adaptive_error"] = np.array([previous_error])
         memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]
         self.keep(state, r)

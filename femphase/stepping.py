@@ -61,9 +61,10 @@ class Numerics:
                     DIRECT_MAX_DOFS, else AMG
     tolerance       relative residual of the AMG-Krylov solves
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
-                    dimensionless). The default, 3e-2, keeps the lattice's period within 0.3 %
-                    and r(t) within 2 % of a time-converged run (benchmarks/README.md, "Time
-                    schemes")
+                    dimensionless). The default, 0.1, keeps the lattice's period within 0.3 %
+                    and r(t) within 2 % of a time-converged run (0.15 % and 1.1 %;
+                    benchmarks/README.md, "Time schemes"); 3e-2 until session 10, whose
+                    substep sizes between the powers of two let 0.1 take larger substeps
     repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
                     off the explicit midpoint step (Strang) and integrates it as the pointwise
                     decay it is, in exponential form (:meth:`femphase.schemes.RelaxedSAV2.relax`);
@@ -93,7 +94,7 @@ class Numerics:
     stabilisation: float | str = "auto"
     solver: str = "auto"
     tolerance: float = 1e-10
-    tolerance_t: float = 3e-2
+    tolerance_t: float = 0.1
     repulsion_split: bool = True
     area_implicit: bool = False
     windows: bool = True

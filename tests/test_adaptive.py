@@ -97,7 +97,7 @@ flow = { type = "shear", rate = 0.3 }
     straight, _ = load_checkpoint(tmp_path / "straight" / "checkpoint.h5", domain)
     resumed, _ = load_checkpoint(tmp_path / "cut" / "checkpoint.h5", domain)
     # (no r under flow: those substeps are plain IMEX midpoint steps)
-    assert straight.memory.keys() == resumed.memory.keys() == {"adaptive_counts", "adaptive_error", "adaptive_level"}
+    assert straight.memory.keys() == resumed.memory.keys() == {"adaptive_counts", "adaptive_divisions", "adaptive_error"}
     assert all(np.array_equal(straight.memory[k], resumed.memory[k]) for k in straight.memory)
 
 
@@ -117,5 +117,25 @@ def test_each_phase_starts_the_step_controller_afresh(monkeypatch):
     _sheared_particle("adaptive", 10.0, 1e-2)
     assert [(phase, step) for phase, step, *_ in calls] == [(0, 0), (1, 0)]
     _, _, before, after = calls[1]
-    assert {"adaptive_level", "adaptive_error", "adaptive_counts"} <= before
-    assert "adaptive_counts" in after and not after & {"adaptive_level", "adaptive_error"}
+    assert {"adaptive_divisions", "adaptive_error", "adaptive_counts"} <= before
+    assert "adaptive_counts" in after and not after & {"adaptive_divisions", "adaptive_error"}
+
+
+def test_substep_sizes_tile_the_step_and_include_thirds():
+    # sizes dt/m, m = 2^k or 3·2^k, each starting at a multiple of its own length: whatever
+    # sizes the controller asks for, the substeps end exactly on the step
+    from femphase.schemes import AdaptiveSAV2 as Adaptive
+
+    assert Adaptive.divisions_for(0.4, 0) == 3  # 1/3 of the step: the largest size ≤ 0.4
+    assert Adaptive.divisions_for(1.0, 0) == 1
+    assert Adaptive.divisions_for(0.3, Adaptive.UNITS // 3) == 6  # a quarter may not start at 1/3
+    rng = np.random.default_rng(1)
+    for _ in range(200):
+        done, sizes = 0, []
+        while done < Adaptive.UNITS:
+            m = Adaptive.divisions_for(float(rng.uniform(1e-4, 1.2)), done)
+            length = Adaptive.UNITS // m
+            assert Adaptive.UNITS % m == 0 and done % length == 0
+            done += length
+            sizes.append(m)
+        assert done == Adaptive.UNITS
