@@ -139,3 +139,35 @@ def test_substep_sizes_tile_the_step_and_include_thirds():
             done += length
             sizes.append(m)
         assert done == Adaptive.UNITS
+
+
+def test_substeps_stay_where_the_explicit_area_mode_is_damped(monkeypatch):
+    # each particle's area relaxes back at c = J0·8μ a/(πR²); the explicit midpoint step
+    # damps that mode only for c·h < 2, and the estimate, small with the mode's amplitude,
+    # does not stop larger substeps (μ × 10 at tolerance 0.1 drifted 3.9 % in area), so
+    # substeps stay below RANK_ONE_STEP / c
+    from dataclasses import replace
+
+    from femphase.flows import linear_shear
+    from femphase.model import ModelParameters
+    from femphase.schemes import AdaptiveSAV2, RelaxedSAV2
+    from femphase.stepping import Numerics, Stepper
+    from helpers import small_system
+
+    sizes, relax = [], RelaxedSAV2.relax
+
+    def recording(self, phi, layout, time, radii, r, dt, **decays):
+        sizes.append(dt)
+        return relax(self, phi, layout, time, radii, r, dt, **decays)
+
+    monkeypatch.setattr(RelaxedSAV2, "relax", recording)
+    params = replace(ModelParameters(), area_stiffness=200.0)
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
+    stepper = Stepper(domain, params, Numerics(tolerance_t=0.1), 10.0, linear_shear(2.0, 40.0), state.radii)
+    for _ in range(3):
+        area = float(np.sum(domain.operators.lumped_mass * state.global_field(0) ** 2))  # ∫φ², nodal
+        bound = AdaptiveSAV2.RANK_ONE_STEP / (params.mobility * 8.0 * params.area_stiffness * area
+                                              / (np.pi * 8.0**2) ** 2)
+        sizes.clear()
+        stepper.step(state)
+        assert 0.5 * bound < max(sizes) <= bound  # up to the bound, not beyond
