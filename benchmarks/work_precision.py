@@ -365,7 +365,7 @@ SCHEME_POINTS = ([Point("lattice", "fem", 1.0, dt, {"scheme": "euler"}) for dt i
                  + [Point("lattice", "fem", 1.0, 2.5, {"scheme": "sav2", "repulsion_split": False})]
                  # the area term's rank-one mode implicit in the predictor (session 9)
                  + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2", "area_implicit": True}) for dt in (5.0, 2.5)]
-                 + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": 3e-2, "area_implicit": True})]
+                 + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": 1e-1, "area_implicit": True})]
                  + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": tol})
                     for tol in (1e-1, 3e-2, 1e-2)]
                  # the default before the repulsion was split off (session 8)
