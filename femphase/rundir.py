@@ -320,7 +320,10 @@ class Status:
         previous = previous or {}
         self.data = dict(base)
         self.data["segments"] = list(previous.get("segments", []))
-        self.data["started"] = previous.get("started") or now()
+        # one reading for the run's and its segment's start: two could straddle a second
+        # (a run's first segment then seemed to start after the run)
+        self.opened = now()
+        self.data["started"] = previous.get("started") or self.opened
         self.data["ended"] = None
         self.started, self.cpu_started = wallclock.perf_counter(), wallclock.process_time()
 
@@ -333,7 +336,7 @@ class Status:
             return None
 
     def begin_segment(self, segment: dict) -> None:
-        self.data["segments"].append({**segment, "started": now(), "ended": None, "status": "running"})
+        self.data["segments"].append({**segment, "started": self.opened, "ended": None, "status": "running"})
 
     def update(self, **values) -> None:
         """Set top-level fields (``status`` among them: a status other than "running" ends
