@@ -171,3 +171,26 @@ def test_substeps_stay_where_the_explicit_area_mode_is_damped(monkeypatch):
         sizes.clear()
         stepper.step(state)
         assert 0.5 * bound < max(sizes) <= bound  # up to the bound, not beyond
+
+
+def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(monkeypatch):
+    # checkpoints written before session 10 hold the substep as "adaptive_level" k (dt/2^k)
+    from femphase.flows import linear_shear
+    from femphase.model import ModelParameters
+    from femphase.schemes import RelaxedSAV2
+    from femphase.stepping import Numerics, Stepper
+    from helpers import small_system
+
+    sizes, relax = [], RelaxedSAV2.relax
+
+    def recording(self, phi, layout, time, radii, r, dt, **decays):
+        sizes.append(dt)
+        return relax(self, phi, layout, time, radii, r, dt, **decays)
+
+    monkeypatch.setattr(RelaxedSAV2, "relax", recording)
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
+    stepper = Stepper(domain, ModelParameters(), Numerics(), 2.0, linear_shear(0.5, 40.0), state.radii)
+    state.memory["adaptive_level"] = np.array([3])
+    stepper.step(state)
+    assert sizes[0] == 2.0 / 8
+    assert "adaptive_level" not in state.memory and "adaptive_divisions" in state.memory
