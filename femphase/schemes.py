@@ -524,7 +524,8 @@ class AdaptiveSAV2(RelaxedSAV2):
             memory["adaptive_divisions"] = 2 ** memory.pop("adaptive_level")
         # the rank-one modes' bound, once per step (the areas change slowly), in units of dt
         largest = self.largest_substep(phi, layout, state.radii) / dt
-        m = self.divisions_for(min(1.0 / int(memory.get("adaptive_divisions", np.array([self.FIRST]))[0]), largest), 0)
+        carried = int(memory.get("adaptive_divisions", np.array([self.FIRST]))[0])
+        m = self.divisions_for(min(1.0 / carried, largest), 0)
         previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
         r = self.auxiliary(phi, layout, state)
         done = 0  # units (dt/UNITS) done in this step
