@@ -131,17 +131,31 @@ def test_substep_sizes_tile_the_step_and_include_thirds():
     assert Adaptive.divisions_for(0.3, Adaptive.UNITS // 3) == 6  # a quarter may not start at 1/3
     rng = np.random.default_rng(1)
     for _ in range(200):
-        done, sizes = 0, []
+        done = 0
         while done < Adaptive.UNITS:
             m = Adaptive.divisions_for(float(rng.uniform(1e-4, 1.2)), done)
             length = Adaptive.UNITS // m
             assert Adaptive.UNITS % m == 0 and done % length == 0
             done += length
-            sizes.append(m)
         assert done == Adaptive.UNITS
 
 
-def test_substeps_stay_where_the_explicit_area_mode_is_damped(monkeypatch):
+@pytest.fixture
+def substep_sizes(monkeypatch) -> list[float]:
+    """The size of every relaxation substep taken while the test runs, in order."""
+    from femphase.schemes import RelaxedSAV2
+
+    sizes, relax = [], RelaxedSAV2.relax
+
+    def recording(self, phi, layout, time, radii, r, dt, **decays):
+        sizes.append(dt)
+        return relax(self, phi, layout, time, radii, r, dt, **decays)
+
+    monkeypatch.setattr(RelaxedSAV2, "relax", recording)
+    return sizes
+
+
+def test_substeps_stay_where_the_explicit_area_mode_is_damped(substep_sizes):
     # each particle's area relaxes back at c = J0·8μ a/(πR²); the explicit midpoint step
     # damps that mode only for c·h < 2, and the estimate, small with the mode's amplitude,
     # does not stop larger substeps (μ × 10 at tolerance 0.1 drifted 3.9 % in area), so
@@ -150,17 +164,10 @@ def test_substeps_stay_where_the_explicit_area_mode_is_damped(monkeypatch):
 
     from femphase.flows import linear_shear
     from femphase.model import ModelParameters
-    from femphase.schemes import AdaptiveSAV2, RelaxedSAV2
+    from femphase.schemes import AdaptiveSAV2
     from femphase.stepping import Numerics, Stepper
     from helpers import small_system
 
-    sizes, relax = [], RelaxedSAV2.relax
-
-    def recording(self, phi, layout, time, radii, r, dt, **decays):
-        sizes.append(dt)
-        return relax(self, phi, layout, time, radii, r, dt, **decays)
-
-    monkeypatch.setattr(RelaxedSAV2, "relax", recording)
     params = replace(ModelParameters(), area_stiffness=200.0)
     domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
     stepper = Stepper(domain, params, Numerics(tolerance_t=0.1), 10.0, linear_shear(2.0, 40.0), state.radii)
@@ -168,29 +175,21 @@ def test_substeps_stay_where_the_explicit_area_mode_is_damped(monkeypatch):
         area = float(np.sum(domain.operators.lumped_mass * state.global_field(0) ** 2))  # ∫φ², nodal
         bound = AdaptiveSAV2.RANK_ONE_STEP / (params.mobility * 8.0 * params.area_stiffness * area
                                               / (np.pi * 8.0**2) ** 2)
-        sizes.clear()
+        substep_sizes.clear()
         stepper.step(state)
-        assert 0.5 * bound < max(sizes) <= bound  # up to the bound, not beyond
+        assert 0.5 * bound < max(substep_sizes) <= bound  # up to the bound, not beyond
 
 
-def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(monkeypatch):
+def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(substep_sizes):
     # checkpoints written before session 10 hold the substep as "adaptive_level" k (dt/2^k)
     from femphase.flows import linear_shear
     from femphase.model import ModelParameters
-    from femphase.schemes import RelaxedSAV2
     from femphase.stepping import Numerics, Stepper
     from helpers import small_system
 
-    sizes, relax = [], RelaxedSAV2.relax
-
-    def recording(self, phi, layout, time, radii, r, dt, **decays):
-        sizes.append(dt)
-        return relax(self, phi, layout, time, radii, r, dt, **decays)
-
-    monkeypatch.setattr(RelaxedSAV2, "relax", recording)
     domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
     stepper = Stepper(domain, ModelParameters(), Numerics(), 2.0, linear_shear(0.5, 40.0), state.radii)
     state.memory["adaptive_level"] = np.array([3])
     stepper.step(state)
-    assert sizes[0] == 2.0 / 8
+    assert substep_sizes[0] == 2.0 / 8
     assert "adaptive_level" not in state.memory and "adaptive_divisions" in state.memory
