@@ -532,7 +532,6 @@ class AdaptiveSAV2(RelaxedSAV2):
         accepted = rejected = 0
         before = self.free_energy(phi, layout, state.radii) if self.checks_energy else None
         owed: tuple[int, ...] = ()  # m of the accepted substep whose second half-advection is still due
-        finest = self.UNITS
         while done < self.UNITS:
             h = dt / m
             time = state.time + dt * done / self.UNITS
@@ -546,14 +545,14 @@ class AdaptiveSAV2(RelaxedSAV2):
             new, new_r, error = self.relax(trial, trial_layout, time, state.radii, r, h,
                                            decay_before=lag + 0.5 * h, decay_after=0.0)
             error = max(error, 1e-14)
-            if error > self.tolerance and m < finest:
+            if error > self.tolerance and m < self.UNITS:
                 rejected += 1
                 factor = max(self.SHRINK, self.SAFETY * (self.tolerance / error) ** 0.5)
                 m = self.divisions_for(min(min(factor, 0.75) / m, largest), done)
                 continue
             if before is not None:
                 after = self.free_energy(new, layout, state.radii)
-                if self.rises(before, after) and m < finest:  # F must not rise: a smaller substep
+                if self.rises(before, after) and m < self.UNITS:  # F must not rise: a smaller substep
                     rejected += 1
                     m = self.divisions_for(min(0.75 / m, largest), done)
                     continue
