@@ -1,6 +1,6 @@
 """Where the default step's time goes: wall time of its parts, on the lattice under shear.
 
-    python benchmarks/step_parts.py [--steps 100]
+    python benchmarks/step_parts.py [--steps 100] [--random-rate R]
 
 ``step_time.py``'s set-up (the N = 100 lattice at h = 1, relaxed 100 time units by the
 first-order scheme, then sheared at γ̇ = 0.1487 with the default scheme, outer step 10)
@@ -12,6 +12,11 @@ includes the parts it calls: a refit includes its misfit checks and layout moves
 ``RelaxedSAV2.decay`` (the repulsion's decay). Prints each part's share of the run, its
 ms per call and its calls. Less overhead than a sampling profiler on calls this short, and
 the same numbers from run to run within the machine's noise.
+
+``--random-rate R``: the random packing instead (``examples/random.toml``, seed 1, relaxed
+by the default scheme as in ``step_time.py --random-rates``), sheared at γ̇ = R with its
+scene's outer step. Its windows come in more shapes than the lattice's, and every part
+above loops over the shapes (groups): the mean number of groups is printed too.
 """
 
 from __future__ import annotations
@@ -19,8 +24,10 @@ from __future__ import annotations
 import argparse
 import time
 from collections import defaultdict
+from dataclasses import replace
 
-import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import common  # pins BLAS threads before numpy loads
+import numpy as np
 
 from femphase.advection import RowShift
 from femphase.channel import ChannelDomain
@@ -45,23 +52,41 @@ def timed(seconds: dict, calls: dict, name: str, method):
     return wrapper
 
 
+def random_stepper(rate: float):
+    """(stepper, state, outer step) of the relaxed random packing sheared at ``rate``, after
+    one set-up step."""
+    scene, simulation, state, _ = common.relaxed_random_packing()
+    phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
+    stepper = simulation.stepper(phase, state.radii)
+    stepper.scheme.start_phase(state)  # as Simulation.run does at a phase's start
+    stepper.step(state)
+    return stepper, state, phase.dt
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=100)
+    parser.add_argument("--random-rate", type=float, default=None,
+                        help="shear the relaxed random packing at this rate instead of the lattice")
     args = parser.parse_args()
-    simulation, scene, state = relaxed_lattice()
-    stepper = shear_stepper(simulation, scene, state, FRAME)
+    if args.random_rate is None:
+        simulation, scene, state = relaxed_lattice()
+        stepper, outer = shear_stepper(simulation, scene, state, FRAME), FRAME
+    else:
+        stepper, state, outer = random_stepper(args.random_rate)
     seconds, calls = defaultdict(float), defaultdict(int)
     for name, (owner, method) in PARTS.items():
         setattr(owner, method, timed(seconds, calls, name, getattr(owner, method)))
+    groups, counted = [], state.memory["adaptive_counts"].copy()
     started = time.perf_counter()
     for _ in range(args.steps):
         stepper.step(state)
+        groups.append(len(state.flat()[0].groups))
     total = time.perf_counter() - started
-    counts = state.memory["adaptive_counts"]
-    print(f"{args.steps} outer steps of {FRAME:g}: {1e3 * total / (args.steps * FRAME):.2f} ms per time unit, "
+    counts = state.memory["adaptive_counts"] - counted
+    print(f"{args.steps} outer steps of {outer:g}: {1e3 * total / (args.steps * outer):.2f} ms per time unit, "
           f"{1e3 * total / max(int(counts[0]), 1):.2f} ms per accepted substep ({int(counts[0])} accepted, "
-          f"{int(counts[1])} rejected, set-up step included)")
+          f"{int(counts[1])} rejected), {np.mean(groups):.1f} window shapes (groups)")
     print("| part | share | ms per call | calls |\n|---|---|---|---|")
     for name in PARTS:
         print(f"| {name} | {100 * seconds[name] / total:.0f} % | {1e3 * seconds[name] / max(calls[name], 1):.3f} | "
