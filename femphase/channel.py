@@ -154,8 +154,12 @@ class ChannelDomain(Domain):
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
-        windows, fields = list(layout.windows), layout.scatter(phi)
-        for i in layout.order[policy.misfits(layout, phi, self.lattice)]:
+        misfits = layout.order[policy.misfits(layout, phi, self.lattice)]
+        windows = list(layout.windows)
+        if misfits.size == 0:  # most substeps: no views of the fields to make
+            return windows, None
+        fields = layout.scatter(phi)
+        for i in misfits:
             w = windows[i]
             fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice)
             if fitted != w:

@@ -130,10 +130,10 @@ class Domain(ABC):
 
     @abstractmethod
     def refit(self, layout: Layout, phi: np.ndarray, policy, motion: Callable[[], np.ndarray] | None
-              ) -> tuple[list, list[np.ndarray]]:
+              ) -> tuple[list, list[np.ndarray] | None]:
         """Windows and fields (particle order) after refitting every window that no longer
-        fits its field; ``motion()`` gives every particle's displacement (N, 2) over the coming
-        step, for domains that leave room for it."""
+        fits its field (fields None: no window changed); ``motion()`` gives every particle's
+        displacement (N, 2) over the coming step, for domains that leave room for it."""
 
     @abstractmethod
     def windows_to_array(self, windows: Sequence[Hashable]) -> np.ndarray:

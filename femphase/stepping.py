@@ -287,7 +287,7 @@ class Stepper:
         ``time``, windows leave room for the motion of a step from then (meshes)."""
         motion = None if time is None else (lambda: self._motion(layout, phi, time))
         windows, fields = self.domain.refit(layout, phi, self.policy, motion)
-        if tuple(windows) != layout.windows:
+        if fields is not None and tuple(windows) != layout.windows:
             layout = self.domain.layout(windows)
             phi = layout.gather(fields)
         return layout, phi

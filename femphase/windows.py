@@ -122,6 +122,8 @@ class WindowPolicy:
             return np.zeros(n, dtype=bool)
         margins = np.empty((n, 4), dtype=int)  # left, right, bottom, top (nodes; layout order)
         empty = np.empty(n, dtype=bool)
+        unchecked = np.zeros((n, 4), dtype=bool)  # sides at a wall
+        full_width = np.zeros(n, dtype=bool)
         first = 0  # a group's windows are contiguous in layout order
         for group, (_key, members, *_) in enumerate(layout.groups):
             slots = slice(first, first + members.size)
@@ -132,11 +134,12 @@ class WindowPolicy:
                 margins[slots, low] = np.argmax(hits, axis=1)
                 margins[slots, high] = np.argmax(hits[:, ::-1], axis=1)
             empty[slots] = ~hits.any(axis=1)
-        iy0, ny, nx = np.array([(w.iy0, w.ny, w.nx) for w in (layout.windows[i] for i in layout.order)]).T
-        bad = (margins < self.margin) | (margins > self.longest_margin)
-        bad[iy0 == 0, 2] = False  # no margin needed at a wall
-        bad[iy0 + ny == lattice[0], 3] = False
-        return (bad.any(axis=1) | (nx == lattice[1])) & ~empty
+            # the windows of a group share their walls and width (Window.key): one looks for all
+            w = layout.representative(group)
+            unchecked[slots, 2], unchecked[slots, 3] = w.iy0 == 0, w.iy0 + w.ny == lattice[0]
+            full_width[slots] = w.nx == lattice[1]
+        bad = ((margins < self.margin) | (margins > self.longest_margin)) & ~unchecked
+        return (bad.any(axis=1) | full_width) & ~empty
 
     def fit(self, phi: np.ndarray, window: Window, lattice: tuple[int, int]) -> Window:
         """The window ``phi`` (ny, nx on ``window``) should live on next."""
@@ -153,13 +156,49 @@ class WindowPolicy:
                 return self.cover(rows, (c0, c1), lattice)
             # the particle needs the whole width; its rows must still follow it (a channel
             # narrower than a window: the y-extent must not freeze)
-            at_wall = (window.iy0 == 0, window.iy0 + window.ny == lattice_ny)  # no margin needed there
-            margins = (row_hits[0], window.ny - 1 - row_hits[-1])
-            if all(wall or self.margin <= m <= self.longest_margin for wall, m in zip(at_wall, margins)):
+            if self._rows_fit(window, row_hits, lattice_ny):
                 return window
             return self.cover(rows, (0, lattice_nx - 1), lattice)
         col_hits = np.flatnonzero(col_occupied)
-        return self.cover(rows, (window.ix0 + col_hits[0], window.ix0 + col_hits[-1]), lattice)
+        cols = (window.ix0 + col_hits[0], window.ix0 + col_hits[-1])
+        return self._recentred(window, row_hits, cols, lattice) or self.cover(rows, cols, lattice)
+
+    def _recentred(self, window: Window, row_hits: np.ndarray, cols: tuple[int, int],
+                   lattice: tuple[int, int]) -> Window | None:
+        """``window`` moved to centre its particle (occupied rows ``row_hits``, local; occupied
+        columns ``cols``, lattice), its shape kept, if the centred margins lie in [margin,
+        longest_margin] and it touches the same walls; else None. Under flow a particle
+        drifts out of its window sideways (the advection moves windows by whole nodes and
+        leaves the rest of each row's shift to the field): on the random packing at γ̇ = 1,
+        90 % of misfits. A fresh cover rounds the particle's size to another shape as often
+        as not, and a new shape costs a new layout (groups rebuilt), where a window of the
+        same shape only moves the layout (:meth:`Layout.moved`)."""
+        lattice_ny, lattice_nx = lattice
+        rows = (window.iy0 + row_hits[0], window.iy0 + row_hits[-1])
+        if window.iy0 == 0 or window.iy0 + window.ny == lattice_ny:  # at a wall: those rows stay
+            if not self._rows_fit(window, row_hits, lattice_ny):
+                return None
+            iy0 = window.iy0
+        else:
+            iy0 = self._centred_start(rows, window.ny)
+            if iy0 is None or iy0 <= 0 or iy0 + window.ny >= lattice_ny:
+                return None
+        ix0 = self._centred_start(cols, window.nx)
+        return None if ix0 is None else Window(int(iy0), window.ny, int(ix0 % lattice_nx), window.nx)
+
+    def _rows_fit(self, window: Window, row_hits: np.ndarray, lattice_ny: int) -> bool:
+        """Whether the margins of the occupied rows ``row_hits`` (local) lie in [margin,
+        longest_margin] on every side of ``window`` not at a wall (none is needed there)."""
+        at_wall = (window.iy0 == 0, window.iy0 + window.ny == lattice_ny)
+        margins = (row_hits[0], window.ny - 1 - row_hits[-1])
+        return all(wall or self.margin <= m <= self.longest_margin for wall, m in zip(at_wall, margins))
+
+    def _centred_start(self, occupied: tuple[int, int], length: int) -> int | None:
+        """The first node of ``length`` nodes centred on the occupied span, if both margins
+        then lie in [margin, longest_margin]."""
+        spare = length - (occupied[1] - occupied[0] + 1)
+        low = spare // 2
+        return occupied[0] - low if self.margin <= low and spare - low <= self.longest_margin else None
 
 
 def _round_up(n: int, quantum: int) -> int:
