@@ -101,6 +101,8 @@ class TensorBasis:
         (mass_y, stiffness_y), (mass_x, stiffness_x) = y, x
         self.lam_y, self.vy = scipy.linalg.eigh(stiffness_y, mass_y)
         self.lam_x, self.vx = scipy.linalg.eigh(stiffness_x, mass_x)
+        # contiguous transposes: a transposed view as a product's operand costs ~50 % more
+        self.vy_t, self.vx_t = np.ascontiguousarray(self.vy.T), np.ascontiguousarray(self.vx.T)
 
     def solver(self, a: float, b: float) -> "TensorSolver":
         return TensorSolver(a, b, self)
@@ -116,11 +118,17 @@ class TensorSolver:
 
     name = "tensor"
 
+    #: Bytes of right-hand sides transformed at once: the four products and their
+    #: temporaries then stay in the core's L2 cache (1 MiB here). Measured on this machine,
+    #: 36 × 36 windows: 9.5 µs a window in chunks, 18–20 µs in one stack of 100 windows.
+    CHUNK_BYTES = 2**18
+
     def __init__(self, a: float, b: float, basis: TensorBasis) -> None:
-        self._vy, self._vx = basis.vy, basis.vx
+        self._bases = (basis.vy, basis.vx, basis.vy_t, basis.vx_t)
         self.shape = (basis.lam_y.size, basis.lam_x.size)
         self.n = self.shape[0] * self.shape[1]
         self._inverse = 1.0 / (a + b * (basis.lam_y[:, None] + basis.lam_x[None, :]))
+        self._chunk = max(1, self.CHUNK_BYTES // (8 * self.n))
 
     @property
     def nbytes(self) -> int:
@@ -132,9 +140,13 @@ class TensorSolver:
         ny, nx = self.shape
         # (k, ny, nx) with x fastest: a free view of the stepper's Fortran-ordered (n, k)
         block = rhs.T.reshape(-1, ny, nx)
-        spectral = np.matmul(self._vy.T, block @ self._vx)
-        spectral *= self._inverse
-        out = np.matmul(self._vy, spectral) @ self._vx.T
+        out = np.empty_like(block)
+        vy, vx, vy_t, vx_t = self._bases
+        for start in range(0, block.shape[0], self._chunk):
+            chunk = slice(start, start + self._chunk)
+            spectral = np.matmul(vy_t, block[chunk] @ vx)
+            spectral *= self._inverse
+            np.matmul(np.matmul(vy, spectral), vx_t, out=out[chunk])
         return out.reshape(-1, self.n).T.reshape(rhs.shape)
 
 
