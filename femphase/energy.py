@@ -150,7 +150,7 @@ class InterfaceTerm(EnergyTerm):
                                      + lam**2 * float(fields.phi @ fields.stiffness_product))
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
-        return self.tension / self.interface_width * double_well_derivative(fields.phi)
+        return double_well_derivative(fields.phi, self.tension / self.interface_width)
 
     def explicit_energy(self, fields: WindowedFields) -> float:
         return self.tension / self.interface_width * fields.integral(double_well(fields.phi))
@@ -172,8 +172,10 @@ class AreaTerm(EnergyTerm):
         return self.area_stiffness * float(np.sum((1.0 - fields.area_ratio) ** 2))
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
-        force = 4.0 * self.area_stiffness / (np.pi * fields.radius**2) * (1.0 - fields.area_ratio)
-        return -fields.on_positions(force) * fields.phi
+        force = 4.0 * self.area_stiffness / (np.pi * fields.radius**2) * (fields.area_ratio - 1.0)
+        out = fields.on_positions(force)
+        out *= fields.phi
+        return out
 
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         # the rank-one part 8μ a/(πR²) plus −4μ(1 − a)/(πR²), with a ≤ AREA_RATIO_MAX

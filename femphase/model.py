@@ -79,9 +79,16 @@ def double_well(phi: np.ndarray) -> np.ndarray:
     return 4.0 * phi**2 * (1.0 - phi) ** 2
 
 
-def double_well_derivative(phi: np.ndarray) -> np.ndarray:
-    """d/dφ of :func:`double_well`: 8 φ (1 − φ)(1 − 2φ)."""
-    return 8.0 * phi * (1.0 - phi) * (1.0 - 2.0 * phi)
+def double_well_derivative(phi: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """``scale`` times d/dφ of :func:`double_well`: 8 φ (1 − φ)(1 − 2φ) = φ (8 − 24 φ + 16 φ²)."""
+    # Horner's rule in place: five passes over φ instead of eight, the scale folded into the
+    # coefficients (the adaptive scheme evaluates this force twice per substep)
+    out = phi * (16.0 * scale)
+    out -= 24.0 * scale
+    out *= phi
+    out += 8.0 * scale
+    out *= phi
+    return out
 
 
 def interface_profile(signed_distance: np.ndarray, interface_width: float) -> np.ndarray:

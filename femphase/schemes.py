@@ -372,15 +372,18 @@ class RelaxedSAV2(TimeScheme):
         # solved as (2M/dt + J0 D K)(p + φ⁰) = 4M/dt φ⁰ + 2 M s (…): the same p without the
         # product K φ⁰ (7 % of the substep), rounding aside
         source = stepper.source_term(layout, time + 0.5 * dt)
-        nodal = np.zeros_like(phi) if source is None else 2.0 * source
         g = energy.explicit_derivative(middle)
         if r is None:
-            nodal -= 2.0 * j0 * g
+            nodal = g  # this call's own array: scaled in place
+            nodal *= -2.0 * j0
+            if source is not None:
+                nodal += 2.0 * source
             new = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
             new -= phi
             r_next = None
         else:
             b = g / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
+            nodal = np.zeros_like(phi) if source is None else 2.0 * source
             p = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
             p -= phi
             q = stepper.solve(2.0 * j0 * b, np.zeros_like(phi), layout, 2.0 / dt, 0.0)
@@ -391,7 +394,10 @@ class RelaxedSAV2(TimeScheme):
             dissipation = float(mass @ (change * change)) / (j0 * dt)
             r_next = relaxed(2.0 * r_half - r, self.restart(WindowedFields(new, layout, radii)),
                              self.RELAXATION * dissipation)
-        estimate = float(np.max(np.abs(new - 2.0 * midpoint + phi))) if new.size else 0.0
+        deviation = midpoint * -2.0  # new − 2 φ̄ + φ⁰, in place
+        deviation += new
+        deviation += phi
+        estimate = float(np.abs(deviation, out=deviation).max()) if new.size else 0.0
         if self.decaying:
             new = self.decay(new, layout, radii, 0.5 * dt if decay_after is None else decay_after)
         return new, r_next, estimate

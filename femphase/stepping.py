@@ -231,7 +231,12 @@ class Stepper:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order)."""
         lumped = self.lumped
-        rhs = layout.mass * (nodal_rhs + shift * previous if lumped else nodal_rhs)
+        if lumped:  # M_L (nodal_rhs + shift·previous), in place
+            rhs = previous * shift
+            rhs += nodal_rhs
+            rhs *= layout.mass
+        else:
+            rhs = layout.mass * nodal_rhs
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
