@@ -103,6 +103,10 @@ class EnergyTerm(ABC):
     #: particle, a stiff rank-one part β_i φ_i (M_L φ_i)ᵀ (:meth:`rank_one_coefficient`),
     #: which a scheme may treat linearly implicitly
     rank_one: ClassVar[bool] = False
+    #: True when the term's explicit derivative at a window's positions depends on that
+    #: window's field alone (no sums over other windows): a scheme may then evaluate it on
+    #: a few windows at a time (:meth:`femphase.windows.Layout.parts`)
+    window_local: ClassVar[bool] = False
 
     @abstractmethod
     def energy(self, fields: WindowedFields) -> float:
@@ -139,6 +143,7 @@ class InterfaceTerm(EnergyTerm):
     tension: float
     interface_width: float
     name: ClassVar[str] = "interface"
+    window_local: ClassVar[bool] = True
 
     @property
     def diffusivity(self) -> float:  # type: ignore[override]
@@ -167,6 +172,7 @@ class AreaTerm(EnergyTerm):
     area_stiffness: float
     name: ClassVar[str] = "area"
     rank_one: ClassVar[bool] = True
+    window_local: ClassVar[bool] = True
 
     def energy(self, fields: WindowedFields) -> float:
         return self.area_stiffness * float(np.sum((1.0 - fields.area_ratio) ** 2))

@@ -357,50 +357,92 @@ class RelaxedSAV2(TimeScheme):
         of orders 1 and 2; the second-order result is kept). With the split it is the
         midpoint step's: the decay is integrated in exponential form, and its splitting error
         is not estimated."""
-        stepper, j0 = self.stepper, self.stepper.mobility
-        energy, mass = self.reacting, layout.mass
         if self.decaying:
             phi = self.decay(phi, layout, radii, 0.5 * dt if decay_before is None else decay_before)
-        fields = WindowedFields(phi, layout, radii)
-        stabilisation = self.predictor_stabilisation(dt)
-        midpoint = linearly_implicit_step(stepper, phi, layout, radii, 0.5 * dt, stabilisation, time + 0.5 * dt,
-                                          fields, energy)
-        if self.implicit_rank_one:
-            midpoint = self.rank_one_predictor(midpoint, fields, 0.5 * dt, stabilisation)
-        middle = WindowedFields(midpoint, layout, radii)
-        # (2M/dt + J0 D K) p = (2M/dt − J0 D K) φ⁰ + 2 M s (− 2 J0 M g(φ̄) for the midpoint step),
-        # solved as (2M/dt + J0 D K)(p + φ⁰) = 4M/dt φ⁰ + 2 M s (…): the same p without the
-        # product K φ⁰ (7 % of the substep), rounding aside
-        source = stepper.source_term(layout, time + 0.5 * dt)
-        g = energy.explicit_derivative(middle)
-        if r is None:
-            nodal = g  # this call's own array: scaled in place
-            nodal *= -2.0 * j0
-            if source is not None:
-                nodal += 2.0 * source
-            new = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
-            new -= phi
+        if r is not None:
+            new, r_next, estimate = self._sav_step(phi, layout, time, radii, r, dt)
+        elif self.window_local:  # part by part: each part's arrays stay in cache
+            new, estimate = np.empty_like(phi), 0.0
+            for begin, end, part in layout.parts(self.PART_POSITIONS):
+                new[begin:end], part_estimate = self._midpoint_step(phi[begin:end], part, time, radii, dt)
+                estimate = max(estimate, part_estimate)
             r_next = None
         else:
-            b = g / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
-            nodal = np.zeros_like(phi) if source is None else 2.0 * source
-            p = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
-            p -= phi
-            q = stepper.solve(2.0 * j0 * b, np.zeros_like(phi), layout, 2.0 / dt, 0.0)
-            weighted_b = mass * b
-            r_half = (r + 0.25 * float(weighted_b @ (p - phi))) / (1.0 + 0.25 * float(weighted_b @ q))
-            new = p - r_half * q
-            change = new - phi
-            dissipation = float(mass @ (change * change)) / (j0 * dt)
-            r_next = relaxed(2.0 * r_half - r, self.restart(WindowedFields(new, layout, radii)),
-                             self.RELAXATION * dissipation)
-        deviation = midpoint * -2.0  # new − 2 φ̄ + φ⁰, in place
-        deviation += new
-        deviation += phi
-        estimate = float(np.abs(deviation, out=deviation).max()) if new.size else 0.0
+            (new, estimate), r_next = self._midpoint_step(phi, layout, time, radii, dt), None
         if self.decaying:
             new = self.decay(new, layout, radii, 0.5 * dt if decay_after is None else decay_after)
         return new, r_next, estimate
+
+    #: Positions of the parts the midpoint step works on at a time when its terms are window-
+    #: local (:attr:`window_local`): 2¹⁵ positions, 256 kB per array, so that the step's dozen
+    #: arrays stay in the core's 1 MiB L2 cache. Measured on this machine (session 11): a
+    #: chain of pointwise operations costs 3.1 ns a position on arrays of 10⁵ positions (the
+    #: N = 100 lattice), 7.0 on 1.6·10⁶ (N = 1600), 3.8 in parts of 16k.
+    PART_POSITIONS = 2**15
+
+    @property
+    def window_local(self) -> bool:
+        """Whether every term of the midpoint step is window-local (with the repulsion split
+        off, the paper's are), so that the step may run part by part."""
+        return all(term.window_local for term in self.reacting.terms)
+
+    def _predictor(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray,
+                   dt: float) -> tuple[np.ndarray, WindowedFields]:
+        """φ̄, the predicted midpoint (one linearly implicit Euler step of dt/2, :meth:`relax`),
+        and φ̄ as WindowedFields."""
+        fields = WindowedFields(phi, layout, radii)
+        stabilisation = self.predictor_stabilisation(dt)
+        midpoint = linearly_implicit_step(self.stepper, phi, layout, radii, 0.5 * dt, stabilisation,
+                                          time + 0.5 * dt, fields, self.reacting)
+        if self.implicit_rank_one:
+            midpoint = self.rank_one_predictor(midpoint, fields, 0.5 * dt, stabilisation)
+        return midpoint, WindowedFields(midpoint, layout, radii)
+
+    # (2M/dt + J0 D K) p = (2M/dt − J0 D K) φ⁰ + 2 M s (− 2 J0 M g(φ̄) for the midpoint step) is
+    # solved below as (2M/dt + J0 D K)(p + φ⁰) = 4M/dt φ⁰ + 2 M s (…): the same p without the
+    # product K φ⁰ (7 % of the substep), rounding aside
+
+    def _midpoint_step(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray,
+                       dt: float) -> tuple[np.ndarray, float]:
+        """The plain IMEX midpoint step of :meth:`relax` (with flow): (φ¹, its estimate)."""
+        stepper = self.stepper
+        midpoint, middle = self._predictor(phi, layout, time, radii, dt)
+        nodal = self.reacting.explicit_derivative(middle)  # this call's own array: scaled in place
+        nodal *= -2.0 * stepper.mobility
+        source = stepper.source_term(layout, time + 0.5 * dt)
+        if source is not None:
+            nodal += 2.0 * source
+        new = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
+        new -= phi
+        return new, self._estimate(new, midpoint, phi)
+
+    def _sav_step(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray, r: float,
+                  dt: float) -> tuple[np.ndarray, float, float]:
+        """The RSAV-CN step of :meth:`relax` (without flow): (φ¹, r¹, its estimate)."""
+        stepper, j0, energy, mass = self.stepper, self.stepper.mobility, self.reacting, layout.mass
+        midpoint, middle = self._predictor(phi, layout, time, radii, dt)
+        source = stepper.source_term(layout, time + 0.5 * dt)
+        b = energy.explicit_derivative(middle) / np.sqrt(energy.explicit_energy(middle) + self.OFFSET)
+        nodal = np.zeros_like(phi) if source is None else 2.0 * source
+        p = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
+        p -= phi
+        q = stepper.solve(2.0 * j0 * b, np.zeros_like(phi), layout, 2.0 / dt, 0.0)
+        weighted_b = mass * b
+        r_half = (r + 0.25 * float(weighted_b @ (p - phi))) / (1.0 + 0.25 * float(weighted_b @ q))
+        new = p - r_half * q
+        change = new - phi
+        dissipation = float(mass @ (change * change)) / (j0 * dt)
+        r_next = relaxed(2.0 * r_half - r, self.restart(WindowedFields(new, layout, radii)),
+                         self.RELAXATION * dissipation)
+        return new, r_next, self._estimate(new, midpoint, phi)
+
+    @staticmethod
+    def _estimate(new: np.ndarray, midpoint: np.ndarray, phi: np.ndarray) -> float:
+        """max |φ¹ − (2φ̄ − φ⁰)|: the embedded first-order step's difference (:meth:`relax`)."""
+        deviation = midpoint * -2.0  # in place
+        deviation += new
+        deviation += phi
+        return float(np.abs(deviation, out=deviation).max()) if new.size else 0.0
 
 
 def relaxed(r: float, target: float, allowance: float) -> float:

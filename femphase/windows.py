@@ -418,12 +418,41 @@ class Layout:
         advection): the same groups, order and slices, only the dofs are new. Several times
         cheaper than building a layout, and the advection moves windows every substep."""
         moved = object.__new__(Layout)
-        moved.__dict__.update({k: v for k, v in self.__dict__.items() if k != "overlap_positions"})
+        moved.__dict__.update({k: v for k, v in self.__dict__.items() if k not in ("overlap_positions", "_parts")})
         moved.windows = tuple(windows)
         moved.node_index = np.concatenate([group_dofs([moved.windows[i] for i in members]).ravel()
                                            for _, members, *_ in self.groups]) if self.groups else self.node_index
         moved.mass = lumped_mass[moved.node_index]
         return moved
+
+    def parts(self, positions: int) -> list[tuple[int, int, "Layout"]]:
+        """The layout cut into parts of whole windows of one group, at most ``positions``
+        positions each (or one window, if larger): (first position, end position, the part as
+        a layout of its own windows). Kept for the layout's lifetime. A part knows nothing of
+        the windows outside it: only window-local work (no overlaps) may use it."""
+        cache = self.__dict__.setdefault("_parts", {})
+        if positions not in cache:
+            cache[positions] = [part for group in range(len(self.groups)) for part in self._group_parts(group, positions)]
+        return cache[positions]
+
+    def _group_parts(self, group: int, positions: int) -> list[tuple[int, int, "Layout"]]:
+        key, members, start, _, size = self.groups[group]
+        first_slot = int(np.searchsorted(self.offsets, start))
+        per_part = max(1, positions // size)
+        parts = []
+        for first in range(0, members.size, per_part):
+            chosen = members[first:first + per_part]
+            slots = slice(first_slot + first, first_slot + first + chosen.size)
+            begin, end = start + first * size, start + (first + chosen.size) * size
+            part = object.__new__(Layout)
+            part.windows, part._n_dofs = self.windows, self._n_dofs
+            part.order, part.sizes = self.order[slots], self.sizes[slots]
+            part.offsets = self.offsets[slots.start:slots.stop + 1] - begin
+            part.groups, part.shapes = [(key, chosen, 0, end - begin, size)], [self.shapes[group]]
+            for name in ("node_index", "owner", "mass"):
+                setattr(part, name, getattr(self, name)[begin:end])
+            parts.append((begin, end, part))
+        return parts
 
     @cached_property
     def overlap_positions(self) -> np.ndarray:
