@@ -426,33 +426,52 @@ class Layout:
         return moved
 
     def parts(self, positions: int) -> list[tuple[int, int, "Layout"]]:
-        """The layout cut into parts of whole windows of one group, at most ``positions``
+        """The layout cut into parts of consecutive whole windows, at most ``positions``
         positions each (or one window, if larger): (first position, end position, the part as
-        a layout of its own windows). Kept for the layout's lifetime. A part knows nothing of
-        the windows outside it: only window-local work (no overlaps) may use it."""
+        a layout of its own windows and groups). Small groups share a part, large ones are
+        cut, so the parts are few and of about equal size. Kept for the layout's lifetime.
+        A part knows nothing of the windows outside it: only window-local work (no overlaps)
+        may use it."""
         cache = self.__dict__.setdefault("_parts", {})
         if positions not in cache:
-            cache[positions] = [part for group in range(len(self.groups)) for part in self._group_parts(group, positions)]
+            parts, pieces, filled = [], [], 0  # pieces: (group, first member, members) of the open part
+            for group, (_, members, _, _, size) in enumerate(self.groups):
+                first = 0
+                while first < members.size:
+                    room = (positions - filled) // size
+                    if room <= 0 and pieces:
+                        parts.append(self._part(pieces))
+                        pieces, filled = [], 0
+                        continue
+                    taken = min(max(room, 1), members.size - first)
+                    pieces.append((group, first, taken))
+                    filled += taken * size
+                    first += taken
+            if pieces:
+                parts.append(self._part(pieces))
+            cache[positions] = parts
         return cache[positions]
 
-    def _group_parts(self, group: int, positions: int) -> list[tuple[int, int, "Layout"]]:
-        key, members, start, _, size = self.groups[group]
-        first_slot = int(np.searchsorted(self.offsets, start))
-        per_part = max(1, positions // size)
-        parts = []
-        for first in range(0, members.size, per_part):
-            chosen = members[first:first + per_part]
-            slots = slice(first_slot + first, first_slot + first + chosen.size)
-            begin, end = start + first * size, start + (first + chosen.size) * size
-            part = object.__new__(Layout)
-            part.windows, part._n_dofs = self.windows, self._n_dofs
-            part.order, part.sizes = self.order[slots], self.sizes[slots]
-            part.offsets = self.offsets[slots.start:slots.stop + 1] - begin
-            part.groups, part.shapes = [(key, chosen, 0, end - begin, size)], [self.shapes[group]]
-            for name in ("node_index", "owner", "mass"):
-                setattr(part, name, getattr(self, name)[begin:end])
-            parts.append((begin, end, part))
-        return parts
+    def _part(self, pieces: list[tuple[int, int, int]]) -> tuple[int, int, "Layout"]:
+        """(first position, end position, the layout of the windows in ``pieces``: (group,
+        first member, members), consecutive in layout order)."""
+        part = object.__new__(Layout)
+        part.windows, part._n_dofs = self.windows, self._n_dofs
+        part.groups, part.shapes = [], []
+        begin = end = None
+        for group, first, taken in pieces:
+            key, members, start, _, size = self.groups[group]
+            low, high = start + first * size, start + (first + taken) * size
+            begin = low if begin is None else begin
+            part.groups.append((key, members[first:first + taken], low - begin, high - begin, size))
+            part.shapes.append(self.shapes[group])
+            end = high
+        slots = slice(int(np.searchsorted(self.offsets, begin)), int(np.searchsorted(self.offsets, end)))
+        part.order, part.sizes = self.order[slots], self.sizes[slots]
+        part.offsets = self.offsets[slots.start:slots.stop + 1] - begin
+        for name in ("node_index", "owner", "mass"):
+            setattr(part, name, getattr(self, name)[begin:end])
+        return begin, end, part
 
     @cached_property
     def overlap_positions(self) -> np.ndarray:

@@ -194,8 +194,8 @@ def test_the_decay_of_the_split_is_exact_where_no_other_field_reaches_and_never_
 def test_the_midpoint_step_part_by_part_is_the_step_on_the_whole_layout():
     """With flow and window-local terms (the repulsion split off), sav2's midpoint step runs
     on parts of a few windows at a time (Layout.parts) so that its arrays stay in cache. The
-    parts must tile the layout and give the whole layout's step: the windows of one shape
-    here fall into parts of 1, 2 and 3 windows, and the two results agree to rounding."""
+    parts must tile the layout and give the whole layout's step: parts of one window, of
+    windows of one shape, of several shapes, of everything; the results agree to rounding."""
     centres = [[10.0, 10.0], [30.0, 10.0], [50.0, 12.0], [70.0, 10.0], [20.0, 30.0], [45.0, 30.0], [66.0, 31.0]]
     domain, state = small_system(centres, length=80.0, width=40.0, initial_radius=6.0)
     flow = linear_shear(0.5, 40.0)
@@ -206,13 +206,18 @@ def test_the_midpoint_step_part_by_part_is_the_step_on_the_whole_layout():
     scheme = stepper.scheme
     assert scheme.window_local and len(layout.groups) < len(centres)  # some windows share a shape
     whole, whole_estimate = scheme._midpoint_step(phi, layout, state.time, state.radii, 2.0)
-    for windows_per_part in (1, 2, 3):
-        parts = layout.parts(windows_per_part * max(size for *_, size in layout.groups))
+    largest = max(size for *_, size in layout.groups)
+    for seed, positions in enumerate((1, 2 * largest, int(2.5 * largest), 4 * largest, phi.size)):
+        parts = layout.parts(positions)
+        if positions == phi.size:
+            assert len(parts) == 1 and len(parts[0][2].groups) == len(layout.groups)
+        if positions >= 4 * largest:  # small groups share a part
+            assert max(len(part.groups) for *_, part in parts) > 1
         assert [begin for begin, _, _ in parts] == sorted(begin for begin, _, _ in parts)
         assert parts[0][0] == 0 and parts[-1][1] == phi.size
         assert all(a[1] == b[0] for a, b in zip(parts, parts[1:]))  # contiguous, no gaps
         pieces, estimate = np.empty_like(phi), 0.0
-        values = np.random.default_rng(windows_per_part).uniform(size=phi.size)
+        values = np.random.default_rng(seed).uniform(size=phi.size)
         sums, slot = layout.reduce(np.add, values), 0
         for begin, end, part in parts:
             assert np.array_equal(part.node_index, layout.node_index[begin:end])
