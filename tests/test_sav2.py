@@ -232,6 +232,12 @@ def test_the_midpoint_step_part_by_part_is_the_step_on_the_whole_layout():
             estimate = max(estimate, part_estimate)
         np.testing.assert_allclose(pieces, whole, rtol=0, atol=1e-13)
         assert estimate == pytest.approx(whole_estimate, rel=1e-12)
+    # relax() takes the parts above WHOLE_POSITIONS (10⁵ positions here would be far too many)
+    whole_relax = scheme.relax(phi, layout, state.time, state.radii, None, 2.0)
+    scheme.WHOLE_POSITIONS, scheme.PART_POSITIONS = 0, largest
+    parts_relax = scheme.relax(phi, layout, state.time, state.radii, None, 2.0)
+    np.testing.assert_allclose(parts_relax[0], whole_relax[0], rtol=0, atol=1e-13)
+    assert parts_relax[2] == pytest.approx(whole_relax[2], rel=1e-12)
     # the repulsion in the midpoint step (not split) needs every window's overlaps: no parts
     unsplit = Stepper(domain, ModelParameters(), Numerics(scheme="sav2", repulsion_split=False), 2.0, flow,
                       state.radii)
