@@ -149,6 +149,14 @@ def check_fields(phi: np.ndarray, margin: float, step: int, time: float) -> None
         )
 
 
+def cached_bytes(solver, mass_block: sp.csr_matrix | None) -> int:
+    """Bytes a solver cache entry holds: the solver's ``nbytes`` and, with the consistent
+    mass, the window's mass block (its three CSR arrays)."""
+    if mass_block is None:
+        return int(solver.nbytes)
+    return int(solver.nbytes + mass_block.data.nbytes + mass_block.indices.nbytes + mass_block.indptr.nbytes)
+
+
 class Stepper:
     """Advances a :class:`State` on ``domain`` by steps of fixed dt under one flow.
 
@@ -248,7 +256,8 @@ class Stepper:
             out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, current)
         return out
 
-    #: Bytes of solvers kept (their ``nbytes``; the least recently used are dropped first).
+    #: Bytes of solvers kept (their ``nbytes`` and their consistent mass blocks',
+    #: :func:`cached_bytes`; the least recently used are dropped first).
     #: Windows come and go and the adaptive scheme changes its step size; on a mesh every
     #: box is its own system, whose LU costs ~2 MB resident per ~1000 dofs: keeping 4096
     #: solvers, as before session 9, took examples/obstacle_mesh.toml to 13 GB by step 5700.
@@ -270,10 +279,10 @@ class Stepper:
             mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
                                                           self.domain.window_dofs(window))
             solvers[cache_key] = (solver, mass_block)
-            self._cached_bytes += solver.nbytes
+            self._cached_bytes += cached_bytes(solver, mass_block)
             while self._cached_bytes > self.SOLVER_CACHE_BYTES and len(solvers) > 1:
-                _, (dropped, _) = solvers.popitem(last=False)
-                self._cached_bytes -= dropped.nbytes
+                _, dropped = solvers.popitem(last=False)
+                self._cached_bytes -= cached_bytes(*dropped)
         return solvers[cache_key]
 
     # -- one step -------------------------------------------------------------------------

@@ -15,7 +15,7 @@ from femphase.meshing import delaunay_channel, edge_for_spacing, structured_chan
 from femphase.model import ModelParameters
 from femphase.scene import scene_from_dict
 from femphase.state import discs_state
-from femphase.stepping import Numerics, Stepper
+from femphase.stepping import Numerics, Stepper, cached_bytes
 
 from helpers import small_system, stepper
 
@@ -287,26 +287,34 @@ def test_a_blow_up_leaves_the_state_unchanged():
     assert np.array_equal(state.global_fields(), before)
 
 
-def test_the_solvers_kept_stay_within_their_memory_budget_and_dropping_them_changes_nothing(monkeypatch):
+@pytest.mark.parametrize("numerics", [Numerics(), Numerics(scheme="euler", mass="consistent")],
+                         ids=["default", "consistent mass"])
+def test_the_solvers_kept_stay_within_their_memory_budget_and_dropping_them_changes_nothing(monkeypatch, numerics):
     # a mesh box is its own system, and the boxes follow the particles under flow: before
-    # session 9 up to 4096 LUs were kept (13 GB on examples/obstacle_mesh.toml by step 5700)
+    # session 9 up to 4096 LUs were kept (13 GB on examples/obstacle_mesh.toml by step 5700);
+    # with the consistent mass every entry also keeps its box's mass block (counted since
+    # session 11)
     domain = straight(40.0, 40.0)
 
     def sheared(budget: int):
         monkeypatch.setattr(Stepper, "SOLVER_CACHE_BYTES", budget)
         state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
-        step = Stepper(domain, PARAMS, Numerics(), 1.0, poiseuille(1.0, 40.0), state.radii)
+        step = Stepper(domain, PARAMS, numerics, 1.0, poiseuille(1.0, 40.0), state.radii)
         kept = []
         for _ in range(30):
             step.step(state)
-            kept.append((len(step._solvers), sum(s.nbytes for s, _ in step._solvers.values()), step._cached_bytes))
-        return state, kept
+            kept.append((len(step._solvers), sum(cached_bytes(*entry) for entry in step._solvers.values()),
+                         step._cached_bytes))
+        return state, kept, step
 
-    free, kept_free = sheared(2**40)
+    free, kept_free, free_step = sheared(2**40)
     one_box = max(b for _, b, _ in kept_free[:1]) // max(n for n, _, _ in kept_free[:1])
     budget = 3 * one_box
-    tight, kept_tight = sheared(budget)
+    tight, kept_tight, _ = sheared(budget)
     assert kept_free[-1][0] > 6  # the boxes moved: many systems met
     assert all(total == tracked and (total <= budget or count == 1) for count, total, tracked in kept_tight)
     assert max(count for count, _, _ in kept_tight) < kept_free[-1][0]
     np.testing.assert_array_equal(tight.flat()[1], free.flat()[1])
+    # the consistent mass's blocks are in the count: more than the solvers' own bytes
+    solvers_only = sum(solver.nbytes for solver, _ in free_step._solvers.values())
+    assert (free_step._cached_bytes > solvers_only) == (numerics.mass == "consistent")
