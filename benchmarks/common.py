@@ -35,6 +35,15 @@ def relaxed_random_packing(dt: float | None = None, **numerics):
     return scene, simulation, state, time.process_time() - started
 
 
+def random_shear_stepper(scene, simulation, state, rate: float):
+    """(stepper, phase): ``scene``'s shear phase (examples/random.toml's second) at ``rate``
+    on ``state``, its scheme started as ``Simulation.run`` starts a phase."""
+    phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
+    stepper = simulation.stepper(phase, state.radii)
+    stepper.scheme.start_phase(state)
+    return stepper, phase
+
+
 def lattice_scene(h: float = 1.0, windows: bool = True, rate: float = 0.1487, **numerics):
     """The paper's N = 100 hexagonal lattice in 70 × 240 under linear shear."""
     return scene_from_dict({

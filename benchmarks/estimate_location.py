@@ -60,8 +60,8 @@ class EstimateRecorder:
     def __enter__(self) -> "EstimateRecorder":
         recorder, relax = self, self._relax
 
-        def recording(scheme, phi, layout, time, radii, r, dt):
-            new, r_next, estimate = relax(scheme, phi, layout, time, radii, r, dt)
+        def recording(scheme, phi, layout, time, radii, r, dt, **decays):
+            new, r_next, estimate = relax(scheme, phi, layout, time, radii, r, dt, **decays)
             recorder.record(scheme, phi, layout, time, radii, dt, new, estimate)
             return new, r_next, estimate
 
@@ -138,9 +138,7 @@ def run_random(split: bool) -> dict[float, tuple[list[dict], float]]:
     out = {}
     for rate in RANDOM_RATES:
         state = copy.deepcopy(relaxed)
-        phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
-        stepper = simulation.stepper(phase, state.radii)
-        stepper.scheme.start_phase(state)  # as Simulation.run does at a phase's start
+        stepper, phase = common.random_shear_stepper(scene, simulation, state, rate)
         with EstimateRecorder(locate=not split) as recorder:
             for _ in range(round(RANDOM_SHEAR / phase.dt)):
                 stepper.step(state)

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import time
 from collections import defaultdict
-from dataclasses import replace
 
 import common  # pins BLAS threads before numpy loads
 import numpy as np
@@ -56,9 +55,7 @@ def random_stepper(rate: float):
     """(stepper, state, outer step) of the relaxed random packing sheared at ``rate``, after
     one set-up step."""
     scene, simulation, state, _ = common.relaxed_random_packing()
-    phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
-    stepper = simulation.stepper(phase, state.radii)
-    stepper.scheme.start_phase(state)  # as Simulation.run does at a phase's start
+    stepper, phase = common.random_shear_stepper(scene, simulation, state, rate)
     stepper.step(state)
     return stepper, state, phase.dt
 

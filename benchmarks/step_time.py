@@ -34,7 +34,7 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import common  # pins BLAS threads before numpy loads
 import numpy as np
 
 from femphase.simulation import Simulation
@@ -99,9 +99,7 @@ def random_packing(rates: list[float], shear_time: float) -> dict:
     out = {"relax_seconds": seconds, "relax_time": scene.phases[0].duration, "ms_per_time_unit": {}}
     for rate in rates:
         state = copy.deepcopy(relaxed)
-        phase = replace(scene.phases[1], flow={**scene.phases[1].flow, "rate": rate})
-        stepper = simulation.stepper(phase, state.radii)
-        stepper.scheme.start_phase(state)  # as Simulation.run does at a phase's start
+        stepper, phase = common.random_shear_stepper(scene, simulation, state, rate)
         stepper.step(state)  # set-up
         samples = step_ms(stepper, state, round(shear_time / phase.dt), time.process_time)
         out["ms_per_time_unit"][str(rate)] = float(samples.sum() / shear_time)
