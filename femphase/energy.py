@@ -67,9 +67,14 @@ class WindowedFields:
         return self.layout.others_squared(self.squares)
 
     @cached_property
+    def areas(self) -> np.ndarray:
+        """∫φ_i² per window (layout order; nodal quadrature)."""
+        return self.layout.reduce(np.add, self.layout.mass * self.squares)
+
+    @cached_property
     def area_ratio(self) -> np.ndarray:
         """a_i = ∫φ_i² / (πR_i²) per window (layout order)."""
-        return self.layout.reduce(np.add, self.layout.mass * self.squares) / (np.pi * self.radius**2)
+        return self.areas / (np.pi * self.radius**2)
 
     def on_positions(self, per_window: np.ndarray) -> np.ndarray:
         """Per-window values (layout order) repeated onto every position of the window."""

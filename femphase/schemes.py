@@ -193,6 +193,9 @@ class RelaxedSAV2(TimeScheme):
         self.reacting, self.decaying = stepper.energy.split_decay() if split else (stepper.energy, ())
         self._half_bound = 0.5 * self.reacting.curvature_bound(stepper.smallest_radius, stepper.pairs)
         self.implicit_rank_one = stepper.numerics.area_implicit and any(t.rank_one for t in self.reacting.terms)
+        #: whether every term of the midpoint step is window-local (with the repulsion split
+        #: off, the paper's are), so that the step may run part by part (:meth:`relax`)
+        self.window_local = all(term.window_local for term in self.reacting.terms)
 
     def predictor_stabilisation(self, dt: float) -> float:
         """S of the predictor, one linearly implicit Euler step of dt/2: the smallest that
@@ -383,12 +386,6 @@ class RelaxedSAV2(TimeScheme):
     #: cache whole and parts would only add Python calls (same-run ratios 0.99–1.05 there)
     WHOLE_POSITIONS = 2**17
 
-    @property
-    def window_local(self) -> bool:
-        """Whether every term of the midpoint step is window-local (with the repulsion split
-        off, the paper's are), so that the step may run part by part."""
-        return all(term.window_local for term in self.reacting.terms)
-
     def _predictor(self, phi: np.ndarray, layout: Layout, time: float, radii: np.ndarray,
                    dt: float) -> tuple[np.ndarray, WindowedFields]:
         """φ̄, the predicted midpoint (one linearly implicit Euler step of dt/2, :meth:`relax`),
@@ -556,7 +553,7 @@ class AdaptiveSAV2(RelaxedSAV2):
         beta = self.reacting.rank_one_coefficient(fields)
         if beta is None or beta.size == 0:
             return np.inf
-        rate = self.stepper.mobility * beta * layout.reduce(np.add, layout.mass * fields.squares)
+        rate = self.stepper.mobility * beta * fields.areas
         return self.RANK_ONE_STEP / max(float(rate.max()), 1e-300)
 
     @classmethod
