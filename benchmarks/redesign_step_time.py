@@ -25,7 +25,11 @@ time of the worker process (``process_time``, read at the same two instants).
 ``--default-scheme`` times the default scheme instead: both trees' ``step_time.per_time_unit``
 (CPU ms per simulated time unit of the lattice's shear at outer step ``FRAME``, after the
 same relaxation) in whole runs only, blocks old, new, new, old; the trees must both have
-it (session 5 on). Written to ``results/default_scheme_step_time.json`` (``--output``).
+it (session 5 on), or the old tree must predate issue 12 (489f515, the code of the day the
+issue was filed): then its default, first order at dt = 1, is timed through its ``time_steps``
+(the same relaxation, then ``--shear-time`` steps of dt = 1, each in CPU time). A tree
+with ``step_time.EXAMPLE_CALL`` (session 12 on) takes its steps in calls of that many, as
+the examples' runs do (``--steps-per-call`` another number). Written to ``results/default_scheme_step_time.json`` (``--output``).
 With ``--random-rate R``: the random packing of ``step_time.random_packing`` (the trees must
 have it: session 6 on) sheared at R instead of the lattice.
 """
@@ -86,9 +90,30 @@ def _tree_step_time(tree: str):
     return step_time, femphase.__file__
 
 
-def default_worker(tree: str, shear_time: float, random_rate: float | None) -> None:
+class _CPUClock:
+    """Stands in for the ``time`` module of a pre-issue-12 step_time.py: its ``perf_counter``
+    reads the process's CPU time."""
+
+    def perf_counter(self) -> float:
+        return time.process_time()
+
+    def __getattr__(self, name: str):
+        return getattr(time, name)
+
+
+def default_worker(tree: str, shear_time: float, random_rate: float | None, steps_per_call: int | None) -> None:
     step_time, path = _tree_step_time(tree)
-    if random_rate is None:
+    if not hasattr(step_time, "per_time_unit"):
+        # Before issue 12 the default was first order at dt = 1, and step_time.time_steps timed
+        # exactly the default's steps after the same 100-step relaxation.
+        if random_rate is not None:
+            raise SystemExit(f"{tree} predates issue 12 and has no random packing benchmark")
+        step_time.time = _CPUClock()
+        row = step_time.time_steps(True, round(shear_time))
+        ms = row["mean_ms"] * row["steps"] / shear_time
+    elif random_rate is None and hasattr(step_time, "EXAMPLE_CALL"):  # session 12 on: calls of several steps
+        ms = step_time.per_time_unit(step_time.FRAME, shear_time, steps_per_call or step_time.EXAMPLE_CALL)
+    elif random_rate is None:
         ms = step_time.per_time_unit(step_time.FRAME, shear_time)
     else:
         ms = step_time.random_packing([random_rate], shear_time)["ms_per_time_unit"][str(random_rate)]
@@ -123,7 +148,8 @@ def _command(tree: Path, args, gated: bool) -> list[str]:
             "--full-steps", str(args.full_steps), "--batch", str(args.batch), "--full-batch", str(args.full_batch),
             "--shear-time", str(args.shear_time)] \
         + (["--gated"] if gated else []) + (["--default-scheme"] if args.default_scheme else []) \
-        + ([] if args.random_rate is None else ["--random-rate", str(args.random_rate)])
+        + ([] if args.random_rate is None else ["--random-rate", str(args.random_rate)]) \
+        + ([] if args.steps_per_call is None else ["--steps-per-call", str(args.steps_per_call)])
 
 
 def whole_run(tree: Path, args) -> dict:
@@ -241,6 +267,9 @@ def main() -> None:
                         help="time units of shear per run with --default-scheme")
     parser.add_argument("--random-rate", type=float,
                         help="with --default-scheme: the random packing sheared at this rate instead of the lattice")
+    parser.add_argument("--steps-per-call", type=int,
+                        help="with --default-scheme, on the lattice: steps per stepper call in a tree that takes "
+                             "several (session 12 on; default its step_time.EXAMPLE_CALL)")
     parser.add_argument("--output", default="default_scheme_step_time.json",
                         help="with --default-scheme: the file in benchmarks/results/ to write")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -248,7 +277,7 @@ def main() -> None:
     args = parser.parse_args()
     if args.worker:
         if args.default_scheme:
-            default_worker(args.worker, args.shear_time, args.random_rate)
+            default_worker(args.worker, args.shear_time, args.random_rate, args.steps_per_call)
         else:
             worker(args.worker, {"windows": args.steps, "full_mesh": args.full_steps},
                    {"windows": args.batch, "full_mesh": args.full_batch}, args.gated)

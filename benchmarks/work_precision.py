@@ -81,6 +81,7 @@ class Point:
     result: dict = field(default_factory=dict)
     errors: dict = field(default_factory=dict)
     failure: str = ""  # the BlowUpError's message of a run that did not finish
+    frame: float = FRAME  # time units between the lattice's frames
 
     @property
     def label(self) -> str:
@@ -113,7 +114,7 @@ class Point:
             scene = "examples/single.toml"
         else:
             sets = [f"phases.{i}.{key}={value:g}" for i, duration in enumerate((RELAX, SHEAR))
-                    for key, value in (("duration", duration), ("frame_interval", FRAME), ("dt", self.dt))]
+                    for key, value in (("duration", duration), ("frame_interval", self.frame), ("dt", self.dt))]
             scene = "examples/hexagonal.toml"
         sets += [f"domain.h={self.h:g}"] + [f"numerics.{k}={json.dumps(v)}" for k, v in sorted(self.numerics.items())
                                             if self.method == "fem"]
@@ -132,8 +133,8 @@ def scene_for(point: Point):
     return scene_from_dict({
         **tables, "domain": {"Lx": 70.0, "Ly": 240.0, "h": point.h},
         "particles": {"layout": "hexagonal", "N": 100},
-        "phases": [{"name": "relax", "duration": RELAX, "dt": point.dt, "frame_interval": FRAME},
-                   {"name": "shear", "duration": SHEAR, "dt": point.dt, "frame_interval": FRAME,
+        "phases": [{"name": "relax", "duration": RELAX, "dt": point.dt, "frame_interval": point.frame},
+                   {"name": "shear", "duration": SHEAR, "dt": point.dt, "frame_interval": point.frame,
                     "flow": {"type": "shear", "rate": RATE}}],
     })
 

@@ -241,6 +241,7 @@ def _grid_keys() -> list[tuple[str, list]]:
         ("numerics.diagonals", _choice_errors(DIAGONAL_PATTERNS)),
         ("numerics.blowup_margin", _BAD_POSITIVE),
         ("numerics.fd_advection", _choice_errors(FD_ADVECTION)),
+        ("numerics.merged_steps", _BAD_INTEGER),
         ("output.fields", _BAD_BOOL),
         ("output.per_particle_fields", _BAD_BOOL),
         ("output.checkpoint", _BAD_BOOL),

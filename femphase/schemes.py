@@ -42,7 +42,7 @@ import numpy as np
 
 from .energy import WindowedFields
 from .errors import SceneError
-from .stepping import SCHEMES
+from .stepping import SCHEMES, check_fields
 from .windows import Layout
 
 if TYPE_CHECKING:
@@ -77,17 +77,20 @@ class TimeScheme(ABC):
 
     name: ClassVar[str]
     order: ClassVar[int]
+    #: Whether :meth:`advance` takes a fourth argument ``steps`` and advances by that many
+    #: steps at once, sharing work between them; else the stepper calls it step by step.
+    merges_steps: ClassVar[bool] = False
 
     def __init__(self, stepper: "Stepper") -> None:
         self.stepper = stepper
 
     @abstractmethod
     def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
-        """φ (layout order) at ``state.time`` + dt, and the layout it lives on (advection may
-        move windows). ``phi`` is the stepper's own gathered copy of ``state``'s fields: it
-        may be overwritten. ``state`` is read (time, radii) and not changed, except
-        ``state.memory``, where a scheme keeps what it carries from step to step (saved in
-        checkpoints, so that a resumed run continues bit for bit)."""
+        """φ (layout order) at ``state.time`` + dt (+ steps·dt, :attr:`merges_steps`), and the
+        layout it lives on (advection may move windows). ``phi`` is the stepper's own gathered
+        copy of ``state``'s fields: it may be overwritten. ``state`` is read (time, step,
+        radii) and not changed, except ``state.memory``, where a scheme keeps what it carries
+        from step to step (saved in checkpoints, so that a resumed run continues bit for bit)."""
 
     def start_phase(self, state: "State") -> None:
         """Called before the first step of a phase (not on a resume inside one): drop from
@@ -485,10 +488,21 @@ class AdaptiveSAV2(RelaxedSAV2):
     well; at the finest size, dt/(3·2^LEVELS), the energy-stable Euler step (:meth:`fallback`)
     replaces it, so F never rises, whatever dt. A substep of the finest size is otherwise
     accepted whatever its estimate (the step cannot shrink further; a smaller phase dt is
-    then the remedy)."""
+    then the remedy).
+
+    Several steps in one call (``steps`` > 1, :meth:`Stepper.step`) are one run of substeps:
+    the half-advection and half-decay that end one step and those that start the next are
+    merged like any two substeps', and the window refit between them is the substeps' own.
+    Only the end of the call is synchronised (φ at that time, all half-steps done); each
+    step's end inside it is checked for blow-up and renews the rank-one bound. Results then
+    depend on where the calls end at the level of the splitting error (the simulation ends
+    them at frames, T1 looks, phase ends and every ``numerics.merged_steps`` steps, all
+    fixed by the clock, so a resumed run takes the same calls); the call's
+    saving is measured in benchmarks/README.md ("Session 12")."""
 
     name = "adaptive"
     order = 2
+    merges_steps = True
     #: Substeps are dt/m, m in DIVISIONS (2^k and 3·2^k, k ≤ LEVELS, ascending).
     LEVELS = 12
     DIVISIONS = tuple(sorted({2**k for k in range(LEVELS + 1)} | {3 * 2**k for k in range(LEVELS + 1)}))
@@ -565,11 +579,12 @@ class AdaptiveSAV2(RelaxedSAV2):
                 return m
         return cls.UNITS
 
-    def advance(self, phi: np.ndarray, layout: Layout, state: "State") -> tuple[np.ndarray, Layout]:
+    def advance(self, phi: np.ndarray, layout: Layout, state: "State", steps: int = 1) -> tuple[np.ndarray, Layout]:
         stepper, dt = self.stepper, self.stepper.dt
         memory = state.memory
         if "adaptive_level" in memory:  # a checkpoint from before session 10: substep dt/2^level
             memory["adaptive_divisions"] = 2 ** memory.pop("adaptive_level")
+        total = steps * self.UNITS
         # the rank-one modes' bound, once per step (the areas change slowly), in units of dt
         largest = self.largest_substep(phi, layout, state.radii) / dt
         carried = int(memory.get("adaptive_divisions", np.array([self.FIRST]))[0])
@@ -580,7 +595,11 @@ class AdaptiveSAV2(RelaxedSAV2):
         accepted = rejected = 0
         before = self.free_energy(phi, layout, state.radii) if self.checks_energy else None
         owed: tuple[int, ...] = ()  # m of the accepted substep whose second half-advection is still due
-        while done < self.UNITS:
+        while done < total:
+            if done and done % self.UNITS == 0:  # a step boundary inside a merged call
+                check_fields(phi, stepper.numerics.blowup_margin, state.step + done // self.UNITS,
+                             state.time + dt * done / self.UNITS)
+                largest = self.largest_substep(phi, layout, state.radii) / dt
             h = dt / m
             time = state.time + dt * done / self.UNITS
             advection = self._advection(owed + (m,))
@@ -623,7 +642,7 @@ class AdaptiveSAV2(RelaxedSAV2):
             phi = self.decay(phi, layout, state.radii, lag)
         advection = self._advection(owed)
         if advection is not None:
-            phi, layout = advection.advect(phi, layout, state.time + dt - lag)
+            phi, layout = advection.advect(phi, layout, state.time + steps * dt - lag)
         memory["adaptive_divisions"] = np.array([m])
         memory["adaptive_error"] = np.array([previous_error])
         memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]

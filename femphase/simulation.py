@@ -118,9 +118,11 @@ class Simulation:
         """Step ``state`` (in place) through the remaining phases; returns it.
 
         ``initial_frame``: emit a frame of the state before the first step (default: when
-        it is at step 0; a resumed run has it already). ``stop()`` is asked after every step
-        (a consistent state); a signal number from it stops the run with
-        :class:`~femphase.errors.Interrupted`."""
+        it is at step 0; a resumed run has it already). ``stop()`` is asked after every call
+        of the stepper (a consistent state): after every step, or, for a scheme that merges
+        steps (the adaptive default), every few (:meth:`_steps_per_call`). A signal number
+        from it stops the run with :class:`~femphase.errors.Interrupted`. Trackers'
+        ``after_step`` runs after every call too."""
         trackers = list(trackers)
         needs = frozenset().union(*(t.needs for t in trackers)) if trackers else frozenset()
         t1_counter = self._t1_counter(needs)
@@ -136,8 +138,10 @@ class Simulation:
                 if state.phase_step == 0:
                     stepper.scheme.start_phase(state)
                 while state.phase_step < phase.n_steps:
-                    stepper.step(state)
-                    state.phase_step += 1
+                    steps = (self._steps_per_call(state, phase, t1_counter is not None)
+                             if stepper.scheme.merges_steps else 1)
+                    stepper.step(state, steps)
+                    state.phase_step += steps
                     if t1_counter is not None and self._t1_look_due(state.time, phase.dt):
                         t1_counter.look(state)
                     for tracker in trackers:
@@ -160,6 +164,23 @@ class Simulation:
             for tracker in trackers:
                 tracker.finish(state, error)
         return state
+
+    def _steps_per_call(self, state: State, phase: Phase, t1_looks: bool) -> int:
+        """Steps of the next stepper call: up to the next frame, T1 look (``t1_looks``) or phase
+        end, and to the next multiple of ``numerics.merged_steps`` steps of the phase,
+        whichever comes first. Each is fixed by the phase's step count or the clock, so a run resumed
+        from any call's end takes the same calls as one that was never stopped (a scheme that
+        merges steps gives results that depend on where calls end)."""
+        done = state.phase_step
+        steps = min(phase.n_steps - done, phase.steps_per_frame - done % phase.steps_per_frame,
+                    self.scene.numerics.merged_steps - done % self.scene.numerics.merged_steps)
+        if t1_looks:
+            time = state.time
+            for taken in range(1, steps):
+                time += phase.dt
+                if self._t1_look_due(time, phase.dt):
+                    return taken
+        return steps
 
     def _t1_counter(self, needs: frozenset) -> Observable | None:
         """The "order" observable, whose T1 counter looks between frames, if the scene and
@@ -201,9 +222,8 @@ class ProgressBar(Tracker):
         )
 
     def after_step(self, state: State) -> None:
-        self.bar.update(1)
-        if state.step % 200 == 0:
-            self.bar.set_postfix_str(f"t={state.time:.6g}", refresh=False)
+        self.bar.update(self.simulation.steps_done(state) - self.bar.n)
+        self.bar.set_postfix_str(f"t={state.time:.6g}", refresh=False)
 
     def finish(self, state: State, error: Exception | None) -> None:
         self.bar.set_postfix_str(f"t={state.time:.6g}", refresh=False)

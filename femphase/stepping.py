@@ -83,6 +83,14 @@ class Numerics:
     blowup_margin   a step fails when φ leaves [−blowup_margin, 1 + blowup_margin]. Discs
                     started at R/2 overshoot physically to φ ≈ 1.4 while the area constraint
                     inflates them (2.1 with μ × 10), so the default, 2, flags only runaways
+    merged_steps    most steps of the phase's dt one stepper call takes between frames, T1
+                    looks and phase ends (the default 8; 1: every step its own call). The
+                    adaptive scheme runs a call's steps as one run of substeps, synchronised
+                    at its end only (:class:`femphase.schemes.AdaptiveSAV2`): 0.9× the CPU per
+                    time unit on the lattice with calls of 2 steps, 0.85× with 8 (same run,
+                    benchmarks/README.md, "Session 12"); results then depend on where calls
+                    end, at the level of the splitting error. Other schemes step one by one;
+                    trackers' ``after_step`` runs after every call
     strict          False (default): a run that leaves the accuracy envelope measured in
                     benchmarks/stability.py warns (:class:`femphase.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
@@ -103,6 +111,7 @@ class Numerics:
     diagonals: str = "right"
     blowup_margin: float = 2.0
     fd_advection: str = "upwind3"
+    merged_steps: int = 8
     strict: bool = False
 
     def __post_init__(self) -> None:
@@ -123,6 +132,9 @@ class Numerics:
         for key in ("windows", "strict", "repulsion_split", "area_implicit"):
             if not isinstance(getattr(self, key), bool):
                 raise SceneError(f"numerics.{key}", getattr(self, key), "true or false")
+        if not (isinstance(self.merged_steps, int) and not isinstance(self.merged_steps, bool)
+                and self.merged_steps >= 1):
+            raise SceneError("numerics.merged_steps", self.merged_steps, "a whole number ≥ 1")
         for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
                                ("tolerance_t", 0.0, 1.0), ("blowup_margin", 0.0, np.inf)):
             value = getattr(self, key)
@@ -286,15 +298,30 @@ class Stepper:
         return solvers[cache_key]
 
     # -- one step -------------------------------------------------------------------------
-    def step(self, state: State) -> None:
-        """Advance ``state`` by dt in place; raises BlowUpError (state unchanged) on failure."""
-        layout, phi = state.flat()
-        layout, phi = self.refit(layout, phi, state.time)
-        phi, layout = self.scheme.advance(phi, layout, state)
-        check_fields(phi, self.numerics.blowup_margin, state.step + 1, state.time + self.dt)
-        state.windows, state.fields = list(layout.windows), layout.scatter(phi)
-        state.time += self.dt
-        state.step += 1
+    def step(self, state: State, steps: int = 1) -> None:
+        """Advance ``state`` by ``steps`` steps of dt in place; raises BlowUpError naming the
+        step that failed, with ``state`` as it was after the last step that did not (as it
+        was before the call where the scheme merges steps).
+
+        A scheme that :attr:`~femphase.schemes.TimeScheme.merges_steps` takes them as one
+        run, synchronised at the end only (the adaptive scheme's half-steps, window refits
+        and set-up shared across step boundaries): fewer calls, less work, and results that
+        depend on where calls end at the level of the splitting error. Others step one by
+        one."""
+        if not (isinstance(steps, (int, np.integer)) and steps >= 1):
+            raise ValueError(f"steps must be a whole number >= 1, not {steps!r}")
+        per_call = steps if self.scheme.merges_steps else 1
+        for _ in range(steps // per_call):
+            layout, phi = state.flat()
+            layout, phi = self.refit(layout, phi, state.time)
+            phi, layout = (self.scheme.advance(phi, layout, state, per_call) if self.scheme.merges_steps
+                           else self.scheme.advance(phi, layout, state))
+            end = state.time
+            for _ in range(per_call):  # the same clock as step by step, to the last bit
+                end += self.dt
+            check_fields(phi, self.numerics.blowup_margin, state.step + per_call, end)
+            state.windows, state.fields = list(layout.windows), layout.scatter(phi)
+            state.time, state.step = end, state.step + per_call
 
     def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None) -> tuple[Layout, np.ndarray]:
         """(layout, φ) after refitting the windows that no longer fit their fields; with

@@ -193,3 +193,59 @@ def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(substep_size
     stepper.step(state)
     assert substep_sizes[0] == 2.0 / 8
     assert "adaptive_level" not in state.memory and "adaptive_divisions" in state.memory
+
+
+def _two_sheared(merged_steps: int, frame_interval: float = 80.0):
+    """(final state, RowShift.advect calls) of two particles sheared for 16 steps of 10."""
+    from femphase.advection import RowShift
+
+    scene = scene_from_dict({
+        "domain": {"Lx": 40.0, "Ly": 40.0},
+        "particles": {"layout": "list", "centres": [[14.0, 20.0], [27.0, 20.0]]},
+        "numerics": {"merged_steps": merged_steps}, "output": {"fields": False},
+        "phases": [{"duration": 160.0, "dt": 10.0, "frame_interval": frame_interval,
+                    "flow": {"type": "shear", "rate": 0.3}}]})
+    advect, calls = RowShift.advect, []
+
+    def counted(self, *args, **kwargs):
+        calls.append(1)
+        return advect(self, *args, **kwargs)
+
+    RowShift.advect = counted
+    try:
+        state = Simulation(scene).run(scene.initial_state())
+    finally:
+        RowShift.advect = advect
+    return state, len(calls)
+
+
+def test_steps_merged_into_one_call_share_their_boundaries_and_stay_close_to_single_steps():
+    single, single_advections = _two_sheared(merged_steps=1)
+    merged, merged_advections = _two_sheared(merged_steps=8)  # 2 calls of 8 steps (frames every 80)
+    assert merged.step == single.step == 16 and merged.time == single.time == 160.0
+    # the same substeps; one advection per substep and one more per call instead of per step
+    assert np.array_equal(merged.memory["adaptive_counts"], single.memory["adaptive_counts"])
+    assert single_advections - merged_advections == 16 - 2
+    difference = np.abs(merged.global_fields() - single.global_fields()).max()
+    assert 0.0 < difference < 1e-3  # merged, yet the same solution to well within the scheme's error
+
+
+def test_calls_end_at_frames_t1_looks_phase_ends_and_every_merged_steps():
+    from types import SimpleNamespace
+
+    scene = scene_from_dict({
+        "domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"},
+        "numerics": {"merged_steps": 4}, "output": {"fields": False, "t1_interval": 30.0},
+        "phases": [{"duration": 130.0, "dt": 10.0, "frame_interval": 60.0}]})
+    simulation, phase = Simulation(scene), scene.phases[0]
+
+    def ends(t1_looks: bool) -> list[int]:
+        state, out = SimpleNamespace(phase_step=0, time=0.0), []
+        while state.phase_step < phase.n_steps:
+            state.phase_step += simulation._steps_per_call(state, phase, t1_looks)
+            state.time = 10.0 * state.phase_step
+            out.append(state.phase_step)
+        return out
+
+    assert ends(False) == [4, 6, 8, 12, 13]  # every 4 steps, the frames at 6 and 12, the end at 13
+    assert ends(True) == [3, 4, 6, 8, 9, 12, 13]  # and the T1 looks every 3 steps
