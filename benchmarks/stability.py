@@ -1,6 +1,7 @@
 """Stability matrix: scenarios × schemes, and the largest safe dt of the default scheme.
 
     python benchmarks/stability.py [--quick]     # the matrix and the accuracy sweep (~5 CPU-min)
+    python benchmarks/stability.py --merged 8 [--quick]   # the default in calls of 8 steps, against stability.json
     python benchmarks/stability.py --long        # the paper's scene over 1.02e5 time units (~20 min)
 
 Schemes: ``fem-adaptive`` (the default: error-controlled second-order substeps, dt = the
@@ -119,8 +120,9 @@ def fd_time_step(scene) -> float:
 
 
 def run_case(scenario: str, scheme: str, tables: dict, rate: float, dt: float, duration: float,
-             numerics: dict | None = None) -> dict:
-    """Run one case step by step, watching energy, bounds and finiteness."""
+             numerics: dict | None = None, steps_per_call: int = 1) -> dict:
+    """Run one case in calls of ``steps_per_call`` steps (``Stepper.step``), watching energy,
+    bounds and finiteness after each call."""
     flow = shear_flow(rate)
     method = "fd" if scheme == "fd" else "fem"
     record = {"scenario": scenario, "scheme": scheme, "gamma_dot": rate, "dt": dt, "duration": duration,
@@ -150,8 +152,10 @@ def run_case(scenario: str, scheme: str, tables: dict, rate: float, dt: float, d
     half_area = None
     started = time.process_time()
     try:
-        for n in range(phase.n_steps):
-            stepper.step(state)
+        half = phase.n_steps // 2  # calls end there too: the area drift's first sample
+        while state.step < phase.n_steps:
+            end = half if state.step < half else phase.n_steps
+            stepper.step(state, min(steps_per_call, end - state.step))
             values = np.concatenate([f.ravel() for f in state.fields])
             if not np.all(np.isfinite(values)):
                 record["silent_nan"] = True
@@ -159,7 +163,7 @@ def run_case(scenario: str, scheme: str, tables: dict, rate: float, dt: float, d
             record["max_overshoot"] = max(record["max_overshoot"], float(-values.min()), float(values.max() - 1))
             if still:
                 energies.append(free_energy())
-            if n + 1 == phase.n_steps // 2:
+            if state.step == half:
                 half_area = shape_observables(state).area
         record["stable"] = True
     except BlowUpError as exc:
@@ -180,20 +184,21 @@ def run_case(scenario: str, scheme: str, tables: dict, rate: float, dt: float, d
     return record
 
 
-def stability_matrix(quick: bool) -> list[dict]:
+def stability_matrix(quick: bool, schemes=tuple(SCHEMES), steps_per_call: int = 1) -> list[dict]:
     cases = []
     for spec in scenarios(quick):
         for rate in spec["rates"]:
-            runs = [(scheme, dt) for dt in spec["dts"] for scheme in SCHEMES]
+            runs = [(scheme, dt) for dt in spec["dts"] for scheme in schemes]
             fd_dt = fd_time_step(build_scene(spec["scene"], {}, 1.0, 1.0, shear_flow(rate)))
-            if fd_dt not in spec["dts"]:
+            if fd_dt not in spec["dts"] and "fd" in schemes:
                 runs.append(("fd", fd_dt))
             for scheme, dt in runs:
                 base = spec.get("fd_duration" if scheme == "fd" else "duration", 200.0)
                 duration = max(base, 20 * dt)
                 if scheme == "fd" and dt < 0.1:
                     duration = min(duration, 100.0)  # the FD's cost ∝ 1/dt
-                case = run_case(spec["name"], scheme, spec["scene"], rate, dt, duration, spec.get("numerics"))
+                case = run_case(spec["name"], scheme, spec["scene"], rate, dt, duration, spec.get("numerics"),
+                                steps_per_call)
                 cases.append(case)
                 print(f"{case['scenario']:<28} γ̇={rate:<5g} {scheme:<15} dt={dt:<6g} {case['outcome']:<8} "
                       f"overshoot={case['max_overshoot']:.2e} monotone={case['energy_monotone']} "
@@ -397,14 +402,43 @@ def report(cases: list[dict], safe_dt: float) -> str:
     return "\n".join(text)
 
 
+def merged_matrix(quick: bool, steps_per_call: int) -> None:
+    """The default scheme's cases of the matrix in calls of several steps, against its
+    step-by-step cases of the last full run (results/stability.json)."""
+    merged = stability_matrix(quick, ("fem-adaptive",), steps_per_call)
+    single = {(c["scenario"], c["gamma_dot"], c["dt"]): c for c in json.loads((RESULTS / "stability.json").read_text())
+              if c.get("scheme") == "fem-adaptive"}
+    rows = []
+    for case in merged:
+        before = single.get((case["scenario"], case["gamma_dot"], case["dt"]))
+        rows.append({"case": f"{case['scenario']} | γ̇ {case['gamma_dot']:g} | dt {case['dt']:g}",
+                     "outcome": [before["outcome"] if before else None, case["outcome"]],
+                     "area_drift": [before["area_drift"] if before else None, case["area_drift"]],
+                     "max_overshoot": [before["max_overshoot"] if before else None, case["max_overshoot"]],
+                     "energy_monotone": [before["energy_monotone"] if before else None, case["energy_monotone"]]})
+    same = sum(r["outcome"][0] == r["outcome"][1] for r in rows)
+    (RESULTS / "stability_merged.json").write_text(json.dumps({
+        "command": f"python benchmarks/stability.py --merged {steps_per_call}" + (" --quick" if quick else ""),
+        "steps_per_call": steps_per_call, "same_outcome": same, "cases": len(rows), "rows": rows}, indent=1) + "\n")
+    print(f"calls of {steps_per_call}: {same} of {len(rows)} cases end as step by step")
+    for r in rows:
+        print(f"{r['case']:<55} outcome {r['outcome']} area drift {r['area_drift']} monotone {r['energy_monotone']}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="the slab at γ̇ = 0, 1 and a coarse dt sweep only")
     parser.add_argument("--long", action="store_true", help="only the 1e5 time-unit run (results/stability_long.json)")
     parser.add_argument("--report", action="store_true",
                         help="no runs: merge the latest stability_long.json into stability.json, rewrite the README section")
+    parser.add_argument("--merged", type=int, metavar="K",
+                        help="only the default scheme's cases, in calls of K steps (numerics.merged_steps), "
+                             "compared with its step-by-step cases in stability.json (results/stability_merged.json)")
     args = parser.parse_args()
     RESULTS.mkdir(exist_ok=True)
+    if args.merged:
+        merged_matrix(args.quick, args.merged)
+        return
     long_path = RESULTS / "stability_long.json"
     if args.long:
         long_run(long_path)
