@@ -41,7 +41,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from .energy import WindowedFields
-from .errors import SceneError
+from .errors import BlowUpError, SceneError
 from .stepping import SCHEMES, check_fields
 from .windows import Layout
 
@@ -611,6 +611,9 @@ class AdaptiveSAV2(RelaxedSAV2):
             # the advection: pointwise decay and transport commute (both act on all fields alike)
             new, new_r, error = self.relax(trial, trial_layout, time, state.radii, r, h,
                                            decay_before=lag + 0.5 * h, decay_after=0.0)
+            if not np.isfinite(error):  # NaN > tolerance is False: it would pass as accepted
+                raise BlowUpError(state.step + done // self.UNITS + 1, time + h,
+                                  f"φ is not finite (NaN or inf) after a substep of {h:g} from t = {time:g}")
             error = max(error, 1e-14)
             if error > self.tolerance and m < self.UNITS:
                 rejected += 1

@@ -1,5 +1,7 @@
 """The adaptive scheme: error-controlled sav2 substeps inside each step of a phase."""
 
+import time
+
 import numpy as np
 import pytest
 
@@ -249,3 +251,30 @@ def test_calls_end_at_frames_t1_looks_phase_ends_and_every_merged_steps():
 
     assert ends(False) == [4, 6, 8, 12, 13]  # every 4 steps, the frames at 6 and 12, the end at 13
     assert ends(True) == [3, 4, 6, 8, 9, 12, 13]  # and the T1 looks every 3 steps
+
+
+def test_a_blow_up_inside_a_call_of_several_steps_names_its_step_and_leaves_the_state_unchanged(monkeypatch):
+    from femphase.errors import BlowUpError
+    from femphase.schemes import AdaptiveSAV2
+
+    scene = scene_from_dict({
+        "domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"}, "output": {"fields": False},
+        "phases": [{"duration": 80.0, "dt": 10.0, "frame_interval": 80.0, "flow": {"type": "shear", "rate": 0.3}}]})
+    state = scene.initial_state()
+    stepper = Simulation(scene).stepper(scene.phases[0], state.radii)
+    before = [f.copy() for f in state.fields]
+    relax = AdaptiveSAV2.relax
+
+    def poisoned(self, phi, layout, time, *args, **kwargs):
+        new, r, error = relax(self, phi, layout, time, *args, **kwargs)
+        return (new * np.nan, r, np.nan) if time >= 20.0 else (new, r, error)
+
+    monkeypatch.setattr(AdaptiveSAV2, "relax", poisoned)
+    started = time.process_time()
+    with pytest.raises(BlowUpError, match="at step 3 .*after a substep of") as failure:
+        stepper.step(state, 8)  # steps 1-8 in one call; the first substep from t >= 20 lies in step 3
+    assert time.process_time() - started < 5.0
+    # named at the substep that failed (20 → 23.3 here), not only at its step's end (t = 30)
+    assert failure.value.step == 3 and 20.0 < failure.value.time < 30.0
+    assert state.step == 0 and state.time == 0.0
+    assert all(np.array_equal(a, b) for a, b in zip(before, state.fields))
