@@ -18,6 +18,11 @@ README = Path(__file__).parent / "README.md"
 RANDOM_SCENE = Path(__file__).parents[1] / "examples" / "random.toml"
 
 
+#: Steps per stepper call in the default scheme's runs: the examples' (their "order"
+#: observable looks for T1s every 20 time units, so Simulation.run ends its calls of the
+#: adaptive scheme's steps of 10 every 2 steps; benchmarks/merged_steps.py)
+EXAMPLE_CALL = 2
+
 def relaxed_random_packing(dt: float | None = None, **numerics):
     """(scene, simulation, state, CPU seconds): examples/random.toml (the paper's Fig. 1a
     set-up, seed 1) after its relaxation phase, at the default scheme and step unless

@@ -9,7 +9,8 @@
   sheared at the paper's velocity gradient (u = 0.1487·y/240 whatever Ly):
   ``euler_ms_per_step``, the first-order scheme at dt = 1 (median over ``STEPS`` steps);
   ``default_ms_per_time_unit``, the default scheme (numerics defaults, outer step
-  ``FRAME``) over ``SHEAR_TIME`` time units; ``frame_ms``, a frame with every observable
+  ``FRAME``, in calls of ``common.EXAMPLE_CALL`` steps as the examples take them, since
+  session 12) over ``SHEAR_TIME`` time units; ``frame_ms``, a frame with every observable
   (shape, energy, order) and the field data of fields.xdmf (`femphase.io.point_data`).
   Frames compute energies and field data window by window, so they should grow linearly
   in N (before the one-core redesign they built dense N × nodes arrays: ~10 GB at N = 1600).
@@ -48,7 +49,7 @@ from femphase.scene import scene_from_dict
 from femphase.simulation import Simulation
 from femphase.stepping import Stepper
 
-from common import markdown_table, update_readme
+from common import EXAMPLE_CALL, markdown_table, update_readme
 
 RESULTS = Path(__file__).parent / "results"
 PAPER_RATE, PAPER_LY = 0.1487, 240.0
@@ -96,11 +97,12 @@ def sheared_stepper(scene, relax_steps: int = 100, **numerics):
     return state, stepper, simulation
 
 
-def timed_steps(stepper, state, steps: int) -> list[float]:
+def timed_steps(stepper, state, calls: int, steps_per_call: int = 1) -> list[float]:
+    """CPU seconds of each of ``calls`` calls ``stepper.step(state, steps_per_call)``."""
     samples = []
-    for _ in range(steps):
+    for _ in range(calls):
         started = time.process_time()
-        stepper.step(state)
+        stepper.step(state, steps_per_call)
         samples.append(time.process_time() - started)
     return samples
 
@@ -128,7 +130,7 @@ def measure_size(n: int, steps: int, shear_time: float) -> dict:
     stepper.step(state)  # set-up
     counted = state.memory["adaptive_counts"].copy()
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    shear = sum(timed_steps(stepper, state, round(shear_time / FRAME)))
+    shear = sum(timed_steps(stepper, state, round(shear_time / (FRAME * EXAMPLE_CALL)), EXAMPLE_CALL))
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
     substeps = int(state.memory["adaptive_counts"][0] - counted[0])
     frames = []
