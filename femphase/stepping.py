@@ -86,8 +86,8 @@ class Numerics:
     merged_steps    most steps of the phase's dt one stepper call takes between frames, T1
                     looks and phase ends (the default 8; 1: every step its own call). The
                     adaptive scheme runs a call's steps as one run of substeps, synchronised
-                    at its end only (:class:`femphase.schemes.AdaptiveSAV2`): 0.9× the CPU per
-                    time unit on the lattice with calls of 2 steps, 0.85× with 8 (same run,
+                    at its end only (:class:`femphase.schemes.AdaptiveSAV2`): 0.94× the CPU per
+                    time unit on the lattice with calls of 2 steps, 0.87× with 8 (same run,
                     benchmarks/README.md, "Session 12"); results then depend on where calls
                     end, at the level of the splitting error. Other schemes step one by one;
                     trackers' ``after_step`` runs after every call
