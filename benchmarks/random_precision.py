@@ -2,6 +2,7 @@
 
     python benchmarks/random_precision.py [--rates 0.1083 1] [--shear-time 200]
     python benchmarks/random_precision.py --relaxation
+    python benchmarks/random_precision.py --merged 8 [--rates …] [--shear-time 400]
 
 ``work_precision.py --schemes`` calibrates the default tolerance on the hexagonal lattice;
 this measures what it gives where the paper's order-parameter figures run:
@@ -52,20 +53,21 @@ REFERENCE_DT, CHECK_DT = 0.125, 0.25
 RELAXATION_TOLERANCES, RELAXATION_REFERENCE_DT = (1e-1, 3e-2, 1e-2, 1e-3), 0.25
 
 
-def shear(scene, relaxed, rate: float, shear_time: float, dt: float, **numerics) -> dict:
-    """r of every particle at every FRAME of shear from ``relaxed``, CPU seconds, substeps."""
+def shear(scene, relaxed, rate: float, shear_time: float, dt: float, steps_per_call: int = 1, **numerics) -> dict:
+    """r of every particle at every FRAME of shear from ``relaxed`` (with ``steps_per_call``
+    > 1: at the end of every call of that many steps), CPU seconds, substeps."""
     state = copy.deepcopy(relaxed)
     state.memory.clear()  # the relaxation's substep counts and level
     simulation = Simulation(replace(scene, numerics=replace(scene.numerics, **numerics)))
     phase = replace(scene.phases[1], dt=dt, duration=shear_time, frame_interval=FRAME,
                     flow={**scene.phases[1].flow, "rate": rate})
     stepper = simulation.stepper(phase, state.radii)
-    per_frame = round(FRAME / dt)
+    per_frame = max(round(FRAME / dt), steps_per_call)
     elongation = []
     started = time.process_time()
-    for k in range(phase.n_steps):
-        stepper.step(state)
-        if (k + 1) % per_frame == 0:
+    for done in range(steps_per_call, phase.n_steps + 1, steps_per_call):
+        stepper.step(state, steps_per_call)
+        if done % per_frame == 0:
             elongation.append(shape_observables(state).elongation)
     seconds = time.process_time() - started
     counts = state.memory.get("adaptive_counts")
@@ -119,15 +121,53 @@ def relaxation() -> None:
               f"largest area difference {np.max(np.abs(area - area_ref) / area_ref):.2g}", flush=True)
 
 
+def merged(rates: list[float], shear_time: float, steps_per_call: int) -> None:
+    """The default scheme in calls of ``steps_per_call`` steps of FRAME (as Simulation.run
+    takes them between frames) against calls of one step, both against the reference, at
+    the end of every call of the merged run."""
+    scene, _, relaxed, _ = common.relaxed_random_packing()
+    stride = steps_per_call
+    result = {"command": f"python benchmarks/random_precision.py --merged {steps_per_call} --rates "
+                         + " ".join(f"{r:g}" for r in rates) + f" --shear-time {shear_time:g}",
+              "steps_per_call": steps_per_call, "shear_time": shear_time, "rates": {}}
+    for rate in rates:
+        reference = shear(scene, relaxed, rate, shear_time, REFERENCE_DT, scheme="sav2")
+        single = shear(scene, relaxed, rate, shear_time, FRAME, scheme="adaptive")
+        calls = shear(scene, relaxed, rate, shear_time, FRAME, steps_per_call, scheme="adaptive")
+        sampled = {"elongation": reference["elongation"][stride - 1::stride]}
+        single_sampled = {"elongation": single["elongation"][stride - 1::stride]}
+        assert sampled["elongation"].shape == calls["elongation"].shape
+        result["rates"][f"{rate:g}"] = {
+            "calls of 1": {"seconds": single["seconds"], "substeps": single["substeps"],
+                           "errors": errors(single_sampled, sampled)},
+            f"calls of {steps_per_call}": {"seconds": calls["seconds"], "substeps": calls["substeps"],
+                                           "errors": errors(calls, sampled)},
+            "merged against single": errors(calls, single_sampled)}
+        entry = result["rates"][f"{rate:g}"]
+        print(f"γ̇ = {rate:g}: largest r error at the {sampled['elongation'].shape[0]} common times: calls of 1 "
+              f"{entry['calls of 1']['errors']['max']:.4f}, calls of {steps_per_call} "
+              f"{entry[f'calls of {steps_per_call}']['errors']['max']:.4f}; between them "
+              f"{entry['merged against single']['max']:.4f}; CPU s {single['seconds']:.1f} / {calls['seconds']:.1f}",
+              flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / "random_precision_merged.json").write_text(json.dumps(result, indent=1) + "\n")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rates", type=float, nargs="+", default=[0.1083, 1.0])
     parser.add_argument("--shear-time", type=float, default=200.0)
     parser.add_argument("--report", action="store_true", help="only rewrite the README section from the JSON")
     parser.add_argument("--relaxation", action="store_true", help="the relaxation's time error (module docstring)")
+    parser.add_argument("--merged", type=int, metavar="K",
+                        help="the default in calls of K steps against calls of 1, at the end of every call "
+                             "(results/random_precision_merged.json)")
     args = parser.parse_args()
     if args.relaxation:
         relaxation()
+        return
+    if args.merged:
+        merged(args.rates, args.shear_time, args.merged)
         return
     out = RESULTS / "random_precision.json"
     if args.report:
