@@ -412,18 +412,30 @@ class Layout:
         self.mass = lumped_mass[self.node_index]
         self._n_dofs = lumped_mass.size
 
-    def moved(self, windows: Sequence[Hashable], group_dofs: Callable[[list], np.ndarray],
-              lumped_mass: np.ndarray) -> "Layout":
+    def moved(self, windows: Sequence[Hashable], node_index: np.ndarray, mass: np.ndarray) -> "Layout":
         """This layout with every window replaced by one of the same key (moved, as by the
-        advection): the same groups, order and slices, only the dofs are new. Several times
-        cheaper than building a layout, and the advection moves windows every substep."""
+        advection), whose positions have the dofs ``node_index`` and lumped masses ``mass``:
+        the same groups, order and slices. Several times cheaper than building a layout, and
+        the advection moves windows every substep."""
         moved = object.__new__(Layout)
         moved.__dict__.update({k: v for k, v in self.__dict__.items() if k not in ("overlap_positions", "_parts")})
-        moved.windows = tuple(windows)
-        moved.node_index = np.concatenate([group_dofs([moved.windows[i] for i in members]).ravel()
-                                           for _, members, *_ in self.groups]) if self.groups else self.node_index
-        moved.mass = lumped_mass[moved.node_index]
+        moved.windows, moved.node_index, moved.mass = tuple(windows), node_index, mass
         return moved
+
+    @cached_property
+    def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(slot, row, column) of every position: its window's slot in layout order and its
+        row and column in the window's (ny, nx) shape (2-D shapes: the channel's windows).
+        The same for every layout :meth:`moved` from this one."""
+        slots, rows, columns = [], [], []
+        for (_, members, start, _, size), (ny, nx) in zip(self.groups, self.shapes):
+            first = int(np.searchsorted(self.offsets, start))
+            slots.append(np.repeat(np.arange(first, first + members.size), size))
+            rows.append(np.tile(np.repeat(np.arange(ny), nx), members.size))
+            columns.append(np.tile(np.arange(nx), ny * members.size))
+        if not slots:
+            return (np.zeros(0, dtype=int),) * 3
+        return np.concatenate(slots), np.concatenate(rows), np.concatenate(columns)
 
     def parts(self, positions: int) -> list[tuple[int, int, "Layout"]]:
         """The layout cut into parts of consecutive whole windows, at most ``positions``
