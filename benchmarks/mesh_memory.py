@@ -42,11 +42,9 @@ RELAX, SAMPLE = 200.0, 100.0
 def worker(stokes_time: float) -> None:
     import time
 
+    from femphase.logs import memory_mib
     from femphase.scene import load_scene
     from femphase.simulation import Simulation, Tracker
-
-    def rss_mb() -> float:
-        return int(Path("/proc/self/statm").read_text().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
     class Probe(Tracker):
         def __init__(self) -> None:
@@ -54,7 +52,7 @@ def worker(stokes_time: float) -> None:
 
         def after_step(self, state) -> None:
             if abs(state.time / SAMPLE - round(state.time / SAMPLE)) < 1e-9:
-                self.samples.append((state.time, rss_mb()))
+                self.samples.append((state.time, memory_mib()[0]))
             if abs(state.time - RELAX) < 1e-9:
                 self.started = time.process_time()
 
