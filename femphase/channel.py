@@ -66,8 +66,8 @@ class ChannelDomain(Domain):
         self.lattice = (grid.ny, grid.nx)
         self._layout: Layout | None = None
         self._tensor_bases: dict[tuple, TensorBasis | None] = {}
-        #: (the layout whose moves it serves, its windows' first rows, the dofs of those rows'
-        #: first columns, the lumped mass there): what a move that keeps the rows reuses
+        #: (the groups of the last layout moved to, its windows' first rows in layout order,
+        #: the dofs of every position's row at column 0): what a move that keeps the rows reuses
         self._rows: tuple | None = None
         lumped = self.operators.lumped_mass.reshape(grid.ny, grid.nx)
         #: whether the lumped mass depends on the row alone (then a move along x keeps it)
@@ -166,19 +166,17 @@ class ChannelDomain(Domain):
         slot, row, column = last.cells
         ordered = [windows[i] for i in last.order]
         iy0 = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
-        rows = self._rows
-        if rows is None or rows[0] is not last.groups or not np.array_equal(rows[1], iy0):
-            rows = self._rows = (last.groups, iy0, (np.take(iy0, slot) + row) * self.grid.nx, None)
         nx = self.grid.nx
+        # the cache describes ``last`` itself: it is the layout the last move made (a layout
+        # built afresh has new groups)
+        kept_rows = self._rows is not None and self._rows[0] is last.groups and np.array_equal(self._rows[1], iy0)
+        if not kept_rows:
+            self._rows = (last.groups, iy0, (np.take(iy0, slot) + row) * nx)
         dofs = np.take(np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered)), slot)
         dofs += column
         np.subtract(dofs, nx, out=dofs, where=dofs >= nx)  # 0 ≤ ix0 < nx and column < nx
-        dofs += rows[2]
-        mass = rows[3] if self._mass_by_row else None
-        if mass is None:
-            mass = self.operators.lumped_mass[dofs]
-            if self._mass_by_row:
-                self._rows = (*rows[:3], mass)
+        dofs += self._rows[2]
+        mass = last.mass if kept_rows and self._mass_by_row else self.operators.lumped_mass[dofs]
         return last.moved(windows, dofs, mass)
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
