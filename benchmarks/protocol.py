@@ -1,0 +1,90 @@
+"""The paper's whole protocol, run end to end as a user runs it: CPU minutes per run.
+
+    python benchmarks/protocol.py [--rates R ...] [--duration T] [--old TREE] [--output NAME]
+
+Each run is ``femphase run examples/random.toml`` in a child process (BLAS threads pinned):
+N = 100 discs of R/2 at random centroids (seed 1), relaxed 2000 time units without flow,
+then sheared for ``--duration`` (default the paper's 10⁵) at rate R, with the example's
+frames and checkpoints every 400 time units and T1 looks every 20. Its CPU time (user +
+system, from the child's rusage) is the measurement: relaxation, shear, frames, output and
+start-up, where ``step_time.py`` extrapolates the first 500 time units of shear (the
+windows' growth as the particles first elongate costs more there than later: at γ̇ = 1,
+120 new window layouts in the first 1000 time units, ~10 per 1000 after t = 6000).
+
+With ``--old TREE`` each rate runs on both trees at once, one process per core, so that
+both see the same machine load, and the new/old CPU ratio is reported; without it the runs
+go one at a time. Results: ``results/protocol.json`` (``--output`` renames it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import common  # pins BLAS threads for the children too (they inherit the environment)
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULTS = Path(__file__).parent / "results"
+
+
+def start(tree: Path, rate: float, duration: float, directory: Path) -> subprocess.Popen:
+    """A child running the protocol at ``rate`` with ``tree``'s femphase into ``directory``."""
+    command = [sys.executable, "-m", "femphase.cli", "run", str(ROOT / "examples" / "random.toml"),
+               "-o", str(directory), "-q", "--set", f"phases.1.flow.rate={rate}",
+               "--set", f"phases.1.duration={duration}"]
+    environment = {**os.environ, "PYTHONPATH": str(tree)}
+    return subprocess.Popen(command, env=environment, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+
+
+def finish(child: subprocess.Popen, started: float) -> dict:
+    """Wait for ``child``: its CPU seconds, wall seconds and peak resident memory (MB)."""
+    _, status, usage = os.wait4(child.pid, 0)
+    child.returncode = os.waitstatus_to_exitcode(status)
+    errors = child.stderr.read().decode()
+    if child.returncode != 0:
+        raise RuntimeError(f"protocol run failed (exit {child.returncode}): {errors}")
+    return {"cpu_s": usage.ru_utime + usage.ru_stime, "wall_s": time.perf_counter() - started,
+            "peak_mb": usage.ru_maxrss / 1024}
+
+
+def run_rate(trees: dict[str, Path], rate: float, duration: float, scratch: Path) -> dict[str, dict]:
+    """The protocol at ``rate`` on every tree at once (one child per tree)."""
+    started = time.perf_counter()
+    children = {name: start(tree, rate, duration, scratch / f"{name}-{rate}") for name, tree in trees.items()}
+    return {name: finish(child, started) for name, child in children.items()}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--rates", type=float, nargs="+", default=[0.0161, 0.1083, 1.0])
+    parser.add_argument("--duration", type=float, default=1e5, help="time units of shear (the paper: 10⁵)")
+    parser.add_argument("--old", type=Path, help="another femphase tree, run beside this one")
+    parser.add_argument("--output", default="protocol.json")
+    args = parser.parse_args()
+    trees = {"new": ROOT} if args.old is None else {"new": ROOT, "old": args.old.resolve()}
+    load = [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
+    rows = {}
+    with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
+        for rate in args.rates:
+            rows[str(rate)] = run_rate(trees, rate, args.duration, Path(scratch))
+            line = "; ".join(f"{name} {r['cpu_s'] / 60:.2f} CPU-min ({r['peak_mb']:.0f} MB)"
+                             for name, r in rows[str(rate)].items())
+            if args.old is not None:
+                line += f"; new/old {rows[str(rate)]['new']['cpu_s'] / rows[str(rate)]['old']['cpu_s']:.3f}"
+            print(f"γ̇ = {rate}, relaxation 2000 + shear {args.duration:g} time units: {line}", flush=True)
+    RESULTS.mkdir(exist_ok=True)
+    (RESULTS / args.output).write_text(json.dumps({
+        "scene": "examples/random.toml", "shear_time": args.duration, "runs": rows,
+        "trees": {name: str(tree) for name, tree in trees.items()},
+        "load_average": {"start": load, "end": [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]},
+        "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
+
+
+if __name__ == "__main__":
+    main()
