@@ -18,6 +18,7 @@ Its fast paths, all exact or checked against the general ones:
 
 from __future__ import annotations
 
+from functools import cache, cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Callable, Sequence
 
@@ -66,9 +67,8 @@ class ChannelDomain(Domain):
         self.lattice = (grid.ny, grid.nx)
         self._layout: Layout | None = None
         self._tensor_bases: dict[tuple, TensorBasis | None] = {}
-        #: (the groups of the last layout moved to, its windows' first rows in layout order,
-        #: the dofs of every position's row at column 0): what a move that keeps the rows reuses
-        self._rows: tuple | None = None
+        #: the rows of the last layout moved to: what a move that keeps them reuses
+        self._rows: RowOffsets | None = None
         lumped = self.operators.lumped_mass.reshape(grid.ny, grid.nx)
         #: whether the lumped mass depends on the row alone (then a move along x keeps it)
         self._mass_by_row = bool(np.all(lumped == lumped[:, :1]))
@@ -150,34 +150,52 @@ class ChannelDomain(Domain):
         last, windows = self._layout, tuple(windows)
         if last is not None and last.windows == windows:
             return last
-        if last is not None and len(last.windows) == len(windows) and all(
-                self.window_key(old) == self.window_key(new) for old, new in zip(last.windows, windows)):
+        if last is not None and len(last.windows) == len(windows) and self._same_keys(last.windows, windows):
             self._layout = self._moved(last, windows)
         else:
             self._layout = Layout(windows, self.window_key, self._group_dofs, lambda w: w.shape,
                                   self.operators.lumped_mass)
         return self._layout
 
+    def _same_keys(self, old: Sequence[Window], new: Sequence[Window]) -> bool:
+        """Whether every window of ``new`` has the key of its counterpart in ``old``. A window
+        moved along its rows keeps its key (bar the parity of alternating diagonals); only the
+        others need theirs built (twice as fast as building all keys: the advection moves
+        most windows every substep)."""
+        key, parity_free = self.window_key, not self.alternating
+        return all(a is b or (parity_free and a.iy0 == b.iy0 and a.ny == b.ny and a.nx == b.nx) or key(a) == key(b)
+                   for a, b in zip(old, new))
+
     def _moved(self, last: Layout, windows: tuple[Window, ...]) -> Layout:
-        """``last`` with its windows moved to ``windows`` (of the same keys): the dofs of all
-        positions at once from the windows' corners and :attr:`Layout.cells` (group by group
-        a move cost 0.44 ms on the random packing's 16 shapes; this 0.2), the rows' part and
-        the lumped mass kept while no window changes rows (the advection's moves)."""
+        """``last`` with its windows moved to ``windows`` (of the same keys). Its dofs and
+        lumped masses are computed on first use: a substep moves the layout twice (the
+        advection, then the refit's recentred windows) and uses the dofs of the first move
+        only, as the next substep's advection moves on from the second (at γ̇ = 1 on the
+        random packing, 0.5 ms a move). The dofs of all positions come at once from the
+        windows' corners and :attr:`Layout.cells`; their rows' part, and the masses where
+        they depend on the row alone, are shared by the moves that keep the rows (the
+        advection's)."""
         slot, row, column = last.cells
         ordered = [windows[i] for i in last.order]
         iy0 = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
-        nx = self.grid.nx
+        ix0 = np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered))
+        rows = self._rows
         # the cache describes ``last`` itself: it is the layout the last move made (a layout
         # built afresh has new groups)
-        kept_rows = self._rows is not None and self._rows[0] is last.groups and np.array_equal(self._rows[1], iy0)
-        if not kept_rows:
-            self._rows = (last.groups, iy0, (np.take(iy0, slot) + row) * nx)
-        dofs = np.take(np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered)), slot)
-        dofs += column
-        np.subtract(dofs, nx, out=dofs, where=dofs >= nx)  # 0 ≤ ix0 < nx and column < nx
-        dofs += self._rows[2]
-        mass = last.mass if kept_rows and self._mass_by_row else self.operators.lumped_mass[dofs]
-        return last.moved(windows, dofs, mass)
+        if rows is None or rows.groups is not last.groups or not np.array_equal(rows.iy0, iy0):
+            rows = self._rows = RowOffsets(last.groups, iy0, slot, row, self.grid.nx)
+        nx, lumped = self.grid.nx, self.operators.lumped_mass
+
+        @cache
+        def node_index() -> np.ndarray:
+            dofs = np.take(ix0, slot)
+            dofs += column
+            np.subtract(dofs, nx, out=dofs, where=dofs >= nx)  # 0 ≤ ix0 < nx and column < nx
+            dofs += rows.offsets
+            return dofs
+
+        mass = (lambda: rows.mass(lumped)) if self._mass_by_row else (lambda: lumped[node_index()])
+        return last.moved(windows, node_index, mass)
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
@@ -237,6 +255,30 @@ class ChannelDomain(Domain):
             xx, yy, xy = (-np.einsum("kij,ij,kij->k", a, mass, b) for a, b in ((dx, dx), (dy, dy), (dx, dy)))
             tensors[members] = np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2)
         return area, self.centroids(layout, phi), tensors
+
+
+class RowOffsets:
+    """The rows of a moved layout's positions (:meth:`ChannelDomain._moved`): its groups, its
+    windows' first rows in layout order, and, computed on first use, each position's row
+    times nx (its dof at column 0) and lumped mass by row."""
+
+    def __init__(self, groups: list, iy0: np.ndarray, slot: np.ndarray, row: np.ndarray, nx: int) -> None:
+        self.groups, self.iy0 = groups, iy0
+        self._slot, self._row, self._nx = slot, row, nx
+        self._mass: np.ndarray | None = None
+
+    @cached_property
+    def offsets(self) -> np.ndarray:
+        offsets = np.take(self.iy0, self._slot)
+        offsets += self._row
+        offsets *= self._nx
+        return offsets
+
+    def mass(self, lumped: np.ndarray) -> np.ndarray:
+        """Every position's lumped mass, for a mass that depends on the row alone."""
+        if self._mass is None:
+            self._mass = lumped[self.offsets]
+        return self._mass
 
 
 def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:

@@ -412,15 +412,31 @@ class Layout:
         self.mass = lumped_mass[self.node_index]
         self._n_dofs = lumped_mass.size
 
-    def moved(self, windows: Sequence[Hashable], node_index: np.ndarray, mass: np.ndarray) -> "Layout":
+    def moved(self, windows: Sequence[Hashable], node_index: Callable[[], np.ndarray],
+              mass: Callable[[], np.ndarray]) -> "Layout":
         """This layout with every window replaced by one of the same key (moved, as by the
-        advection), whose positions have the dofs ``node_index`` and lumped masses ``mass``:
-        the same groups, order and slices. Several times cheaper than building a layout, and
-        the advection moves windows every substep."""
+        advection): the same groups, order and slices. ``node_index()`` and ``mass()`` give
+        its positions' dofs and lumped masses, called on first use (a layout that is only
+        moved on needs neither). Several times cheaper than building a layout, and the
+        advection moves windows every substep."""
         moved = object.__new__(Layout)
-        moved.__dict__.update({k: v for k, v in self.__dict__.items() if k not in ("overlap_positions", "_parts")})
-        moved.windows, moved.node_index, moved.mass = tuple(windows), node_index, mass
+        moved.__dict__.update({k: v for k, v in self.__dict__.items() if k not in self._PER_POSITION})
+        moved.windows = tuple(windows)
+        moved._pending = {"node_index": node_index, "mass": mass}
         return moved
+
+    #: What a moved layout does not share with the layout it was moved from
+    _PER_POSITION = ("node_index", "mass", "overlap_positions", "_parts", "_pending")
+
+    @cached_property
+    def node_index(self) -> np.ndarray:
+        """The dof of every position (a moved layout's: computed on first use)."""
+        return self._pending.pop("node_index")()
+
+    @cached_property
+    def mass(self) -> np.ndarray:
+        """The lumped mass of every position's dof (a moved layout's: computed on first use)."""
+        return self._pending.pop("mass")()
 
     @cached_property
     def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -111,9 +111,28 @@ def test_a_moved_layout_is_the_layout_built_from_scratch():
     fresh = Layout(along, domain.window_key, domain._group_dofs, lambda w: w.shape, domain.operators.lumped_mass)
     for name in ("node_index", "mass"):
         assert np.array_equal(getattr(moved_along, name), getattr(fresh, name)), name
+    along_groups = moved_along.groups
+    # a moved layout's dofs and masses are computed on first use: moves on from layouts
+    # whose dofs nobody asked for (rows changed, then along x), each still its own
+    unread = [domain.layout([Window(w.iy0 + k, w.ny, (w.ix0 + 3) % 40, w.nx) for w, k in zip(along, (0, -1, 1, 0))])]
+    unread.append(domain.layout([Window(w.iy0, w.ny, (w.ix0 - 4) % 40, w.nx) for w in unread[0].windows]))
+    unread.append(domain.layout([Window(w.iy0 + k, w.ny, w.ix0, w.nx) for w, k in zip(unread[1].windows, (0, 1, -2, 0))]))
+    assert all(layout.groups is along_groups for layout in unread)  # all three moves
+    assert all("node_index" not in layout.__dict__ for layout in unread)  # none computed yet
+    for layout in reversed(unread):
+        fresh = Layout(layout.windows, domain.window_key, domain._group_dofs, lambda w: w.shape,
+                       domain.operators.lumped_mass)
+        for name in ("node_index", "mass", "overlap_positions"):
+            assert np.array_equal(getattr(layout, name), getattr(fresh, name)), name
     # a window of another shape (another key) is not a move: a new layout, built
     reshaped = domain.layout(shifted[:3] + [Window(5, 12, 0, 40)])
     assert reshaped.shapes != moved.shapes
+    # with alternating diagonals a move by an odd number of nodes changes the key's parity:
+    # not a move either
+    alternating = ChannelDomain(channel_grid(40, 30, 1.0), diagonals="alternating")
+    start = alternating.layout(windows)
+    odd = alternating.layout([Window(w.iy0, w.ny, (w.ix0 + 1) % 40, w.nx) for w in windows[:3]] + windows[3:])
+    assert [k for k, *_ in odd.groups] != [k for k, *_ in start.groups]
 
 
 def test_misfits_of_a_whole_layout_follow_the_rule_window_by_window():
