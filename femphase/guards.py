@@ -209,7 +209,7 @@ def advective_spread(state: "State", velocity: np.ndarray, dt: float, threshold:
     its φ²-weighted mean velocity: how far a part of the particle moves relative to its
     window in one step (lattice units). ``velocity`` is (2, n_dofs)."""
     layout, phi = state.flat()
-    v = np.asarray(velocity, dtype=float)[:, layout.node_index]
+    v = np.take(np.asarray(velocity, dtype=float), layout.node_index, axis=1)
     weight = layout.mass * phi**2
     total = np.maximum(layout.reduce(np.add, weight), 1e-300)
     deviation = np.zeros_like(phi)

@@ -290,7 +290,7 @@ class MeshDomain(Domain):
         boxes, fields = list(layout.windows), layout.scatter(phi)
         steps = np.zeros((len(boxes), 2)) if motion is None else motion()
         occupied = phi > policy.threshold
-        x, y = self.coordinates[:, layout.node_index]
+        x, y = np.take(self.coordinates, layout.node_index, axis=1)
         lx = local_x(x, np.array([b.x0 for b in boxes])[layout.owner], self.period)
         extents = np.empty((len(boxes), 4))
         extents[layout.order] = np.stack([

@@ -231,7 +231,7 @@ class Stepper:
         """s(x, y, t) at every position, or None without a source."""
         if self.source is None:
             return None
-        x, y = self.domain.coordinates[:, layout.node_index]
+        x, y = np.take(self.domain.coordinates, layout.node_index, axis=1)
         return self.source(x, y, time)
 
     def system(self, shift: float, stabilisation: float) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
@@ -341,7 +341,7 @@ class Stepper:
             return out
         weight = layout.mass * phi**2
         total = np.maximum(layout.reduce(np.add, weight), 1e-300)
-        velocity = self.advection.velocity(time)[:, layout.node_index]
+        velocity = np.take(self.advection.velocity(time), layout.node_index, axis=1)
         for axis in range(2):
             out[layout.order, axis] = self.dt * layout.reduce(np.add, weight * velocity[axis]) / total
         return out

@@ -91,7 +91,11 @@ def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray
     extent_x = np.abs(images[edges[:, 1], 0] - images[edges[:, 0], 0])
     edges = edges[(edges < n_particles).any(axis=1) & (extent_x <= period_x / 2)]
     pairs = np.sort(edges % n_particles, axis=1)
-    return np.unique(pairs[pairs[:, 0] != pairs[:, 1]], axis=0)
+    pairs = pairs[pairs[:, 0] != pairs[:, 1]]
+    # unique rows through one integer per pair, i·N + j (sorted as the rows are): np.unique
+    # with axis=0 took 6× as long, and the T1 counter triangulates every output.t1_interval
+    codes = np.unique(pairs[:, 0] * n_particles + pairs[:, 1])
+    return np.stack(np.divmod(codes, n_particles), axis=1)
 
 
 def _collinear_edges(points: np.ndarray) -> np.ndarray:
