@@ -102,11 +102,10 @@ class StepAdvection:
 class RowShift(StepAdvection):
     """Exact advection of the structured channel's windows in a row flow (u(y, t), 0)."""
 
-    #: Groups whose phase factors are kept (~1 MB each at 100 windows of 36 × 36 nodes): a
-    #: new layout regroups a few windows and leaves the other groups as they were
-    STACK_CACHE = 64
-    #: Single windows' phase factors kept (~10 kB each), from which groups' stacks are filled
-    WINDOW_CACHE = 1024
+    #: Groups whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
+    #: stepper keeps up to 8 advections): a new layout regroups a few windows and leaves the
+    #: other groups as they were
+    STACK_CACHE = 32
 
     def __init__(self, domain: "ChannelDomain", flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
@@ -115,7 +114,6 @@ class RowShift(StepAdvection):
         #: per group of windows (its shape and particles): their first rows, whole-node
         #: moves (k,) and stacked phase factors (k, ny, nx//2 + 1)
         self._stacks: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-        self._window_phases: dict[tuple[int, int, int], tuple[int, np.ndarray]] = {}
 
     def _row_shift(self, time: float) -> np.ndarray:
         return np.asarray(self.flow.row_velocity(self._y, time + 0.5 * self.dt), dtype=float) * self.dt / self.domain.grid.h
@@ -138,8 +136,7 @@ class RowShift(StepAdvection):
         window by window when a refit moves windows across rows (building them every
         substep was 6 % of the lattice's step, stacking them window by window 4 %; under
         strong shear refits move a window or two across rows every substep, and building
-        the group's factors afresh then cost 5 % of the random packing's time at γ̇ = 1).
-        A single window's factors are kept per first row."""
+        the group's factors afresh then cost 5 % of the random packing's time at γ̇ = 1)."""
         ny, nx = windows[0].ny, windows[0].nx
         rows = np.fromiter((w.iy0 for w in windows), dtype=np.int64, count=len(windows))
         key = (ny, nx, members.tobytes())
@@ -153,16 +150,9 @@ class RowShift(StepAdvection):
         else:
             changed = np.flatnonzero(kept[0] != rows)
         if changed.size:
-            if len(self._window_phases) >= self.WINDOW_CACHE:
-                self._window_phases.clear()
-            missing = [windows[i] for i in changed if (windows[i].iy0, ny, nx) not in self._window_phases]
-            if missing:
-                wholes, shifts = self._window_shifts(self._steady_shift, missing)
-                for w, whole, phases in zip(missing, wholes, row_phases(shifts, nx)):
-                    self._window_phases[(w.iy0, ny, nx)] = (int(whole), phases)
             kept_rows, kept_wholes, kept_phases = kept
-            for i in changed:
-                kept_wholes[i], kept_phases[i] = self._window_phases[(int(rows[i]), ny, nx)]
+            wholes, shifts = self._window_shifts(self._steady_shift, [windows[i] for i in changed])
+            kept_wholes[changed], kept_phases[changed] = wholes, row_phases(shifts, nx)
             kept_rows[changed] = rows[changed]
         return kept[1], kept[2]
 
