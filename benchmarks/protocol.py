@@ -60,6 +60,12 @@ def run_rate(trees: dict[str, Path], rate: float, duration: float, scratch: Path
     return {name: finish(child, started) for name, child in children.items()}
 
 
+def _commit(tree: Path) -> str | None:
+    """The git commit checked out in ``tree`` (None outside git)."""
+    found = subprocess.run(["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    return found.stdout.strip() or None if found.returncode == 0 else None
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rates", type=float, nargs="+", default=[0.0161, 0.1083, 1.0])
@@ -81,7 +87,7 @@ def main() -> None:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps({
         "scene": "examples/random.toml", "shear_time": args.duration, "runs": rows,
-        "trees": {name: str(tree) for name, tree in trees.items()},
+        "trees": {name: {"path": str(tree), "commit": _commit(tree)} for name, tree in trees.items()},
         "load_average": {"start": load, "end": [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]},
         "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
 

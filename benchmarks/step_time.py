@@ -16,7 +16,9 @@ The paper's Fig. 1a protocol starts from random initial conditions instead: with
 ``--random-rates``, ``examples/random.toml`` (seed 1) is relaxed by the default scheme for
 its 2000 time units (CPU timed), then sheared from that state at each rate for
 ``--shear-time``: CPU ms per time unit there, and the protocol's CPU minutes (relaxation +
-10⁵ time units) at each rate.
+10⁵ time units) at each rate: an extrapolation from the first ``--shear-time`` of shear,
+where the windows still grow as the particles first elongate; ``protocol.py`` runs the
+whole protocol end to end instead (frames, T1 looks and output included).
 
 Their ratio is the speed-up of the default over first order at dt = 0.1. It is "at equal
 period error" only if the default's period error is no larger: the errors come from
