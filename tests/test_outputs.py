@@ -138,3 +138,34 @@ def test_the_shape_observable_uses_the_scene_threshold(threshold):
     values = Simulation(sc).observable("shape")(sc.initial_state(), {})
     # the disc's tail reaches the wall with φ = (1 + tanh(−3/2))/2 ≈ 0.047
     assert values["wall_contact"].tolist() == [1 if threshold < 0.047 else 0]
+
+
+@pytest.mark.parametrize("mesh", [False, True])
+def test_frame_fields_hold_the_largest_field_and_its_particle_at_every_node(mesh):
+    """phi_max and label of a field frame: at every dof the largest φ of the windows covering
+    it (ties: the later window in layout order), zero where none does; the label is that
+    window's particle where phi_max > 0.5, else −1. Reference: the sort of all positions by
+    (dof, φ) the frame writer used before, on overlapping windows with negative values and
+    ties."""
+    from femphase.io import point_data
+
+    from femphase.channel import ChannelDomain
+    from femphase.mesh import channel_grid
+
+    domain = (MeshDomain.from_mesh(*delaunay_channel(40.0, edge_for_spacing(1.5), lambda x: 0 * x,
+                                                     lambda x: 0 * x + 40.0, seed=3)) if mesh
+              else ChannelDomain(channel_grid(40.0, 40.0, 1.0)))
+    centres = np.array([[10.0, 10.0], [14.0, 10.0], [12.0, 13.0], [30.0, 30.0]])
+    state = discs_state(domain, centres, np.full(4, 8.0), np.full(4, 4.0), 2.0, domain.window_policy(Numerics()))
+    rng = np.random.default_rng(3)
+    state.fields = [rng.integers(-2, 5, field.size) / 4.0 for field in state.fields]  # many ties
+    layout, phi = state.flat()
+    order = np.lexsort((phi, layout.node_index))
+    nodes = layout.node_index[order]
+    last = np.append(nodes[1:] != nodes[:-1], True)
+    top, best = np.zeros(state.domain.n_dofs), np.zeros(state.domain.n_dofs)
+    top[nodes[last]], best[nodes[last]] = phi[order][last], layout.owner[order][last]
+    data = point_data(state, per_particle=False)
+    assert np.array_equal(data["phi_max"], top[state.domain.dof_map])
+    assert np.array_equal(data["label"], np.where(top > 0.5, best, -1.0)[state.domain.dof_map])
+    assert (data["phi_max"] < 0).any() and set(np.unique(data["label"])) >= {-1.0, 0.0, 1.0, 2.0, 3.0}
