@@ -1,6 +1,6 @@
 """The paper's whole protocol, run end to end as a user runs it: CPU minutes per run.
 
-    python benchmarks/protocol.py [--rates R ...] [--duration T] [--old TREE] [--output NAME]
+    python benchmarks/protocol.py [--rates R ...] [--duration T] [--old TREE] [--scene FILE] [--output NAME]
 
 Each run is ``femphase run examples/random.toml`` in a child process (BLAS threads pinned):
 N = 100 discs of R/2 at random centroids (seed 1), relaxed 2000 time units without flow,
@@ -13,7 +13,10 @@ windows' growth as the particles first elongate costs more there than later: at 
 
 With ``--old TREE`` each rate runs on both trees at once, one process per core, so that
 both see the same machine load, and the new/old CPU ratio is reported; without it the runs
-go one at a time. Results: ``results/protocol.json`` (``--output`` renames it).
+go one at a time. Each tree runs its own copy of the scene (``--scene``, a file of its
+``examples/``, default random.toml): the run its user would make, with that tree's
+defaults (``--scene hexagonal.toml --rates 0.1487 --duration 20000`` is the lattice
+example as it stands). Results: ``results/protocol.json`` (``--output`` renames it).
 """
 
 from __future__ import annotations
@@ -33,9 +36,10 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).parent / "results"
 
 
-def start(tree: Path, rate: float, duration: float, directory: Path) -> subprocess.Popen:
-    """A child running the protocol at ``rate`` with ``tree``'s femphase into ``directory``."""
-    command = [sys.executable, "-m", "femphase.cli", "run", str(ROOT / "examples" / "random.toml"),
+def start(tree: Path, scene: str, rate: float, duration: float, directory: Path) -> subprocess.Popen:
+    """A child running ``tree``'s examples/``scene`` sheared at ``rate`` for ``duration`` with
+    ``tree``'s femphase into ``directory``."""
+    command = [sys.executable, "-m", "femphase.cli", "run", str(tree / "examples" / scene),
                "-o", str(directory), "-q", "--set", f"phases.1.flow.rate={rate}",
                "--set", f"phases.1.duration={duration}"]
     environment = {**os.environ, "PYTHONPATH": str(tree)}
@@ -53,10 +57,10 @@ def finish(child: subprocess.Popen, started: float) -> dict:
             "peak_mb": usage.ru_maxrss / 1024}
 
 
-def run_rate(trees: dict[str, Path], rate: float, duration: float, scratch: Path) -> dict[str, dict]:
+def run_rate(trees: dict[str, Path], scene: str, rate: float, duration: float, scratch: Path) -> dict[str, dict]:
     """The protocol at ``rate`` on every tree at once (one child per tree)."""
     started = time.perf_counter()
-    children = {name: start(tree, rate, duration, scratch / f"{name}-{rate}") for name, tree in trees.items()}
+    children = {name: start(tree, scene, rate, duration, scratch / f"{name}-{rate}") for name, tree in trees.items()}
     return {name: finish(child, started) for name, child in children.items()}
 
 
@@ -71,6 +75,7 @@ def main() -> None:
     parser.add_argument("--rates", type=float, nargs="+", default=[0.0161, 0.1083, 1.0])
     parser.add_argument("--duration", type=float, default=1e5, help="time units of shear (the paper: 10⁵)")
     parser.add_argument("--old", type=Path, help="another femphase tree, run beside this one")
+    parser.add_argument("--scene", default="random.toml", help="a scene file of each tree's examples/")
     parser.add_argument("--output", default="protocol.json")
     args = parser.parse_args()
     trees = {"new": ROOT} if args.old is None else {"new": ROOT, "old": args.old.resolve()}
@@ -78,15 +83,15 @@ def main() -> None:
     rows = {}
     with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
         for rate in args.rates:
-            rows[str(rate)] = run_rate(trees, rate, args.duration, Path(scratch))
+            rows[str(rate)] = run_rate(trees, args.scene, rate, args.duration, Path(scratch))
             line = "; ".join(f"{name} {r['cpu_s'] / 60:.2f} CPU-min ({r['peak_mb']:.0f} MB)"
                              for name, r in rows[str(rate)].items())
             if args.old is not None:
                 line += f"; new/old {rows[str(rate)]['new']['cpu_s'] / rows[str(rate)]['old']['cpu_s']:.3f}"
-            print(f"γ̇ = {rate}, relaxation 2000 + shear {args.duration:g} time units: {line}", flush=True)
+            print(f"{args.scene}, γ̇ = {rate}, shear {args.duration:g} time units: {line}", flush=True)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps({
-        "scene": "examples/random.toml", "shear_time": args.duration, "runs": rows,
+        "scene": f"examples/{args.scene}", "shear_time": args.duration, "runs": rows,
         "trees": {name: {"path": str(tree), "commit": _commit(tree)} for name, tree in trees.items()},
         "load_average": {"start": load, "end": [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]},
         "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
