@@ -1,6 +1,7 @@
 """The paper's whole protocol, run end to end as a user runs it: CPU minutes per run.
 
-    python benchmarks/protocol.py [--rates R ...] [--duration T] [--old TREE] [--scene FILE] [--output NAME]
+    python benchmarks/protocol.py [--rates R ...] [--duration T] [--old TREE] [--scene FILE]
+                                  [--set KEY=VALUE ...] [--output NAME]
 
 Each run is ``femphase run examples/random.toml`` in a child process (BLAS threads pinned):
 N = 100 discs of R/2 at random centroids (seed 1), relaxed 2000 time units without flow,
@@ -16,7 +17,9 @@ both see the same machine load, and the new/old CPU ratio is reported; without i
 go one at a time. Each tree runs its own copy of the scene (``--scene``, a file of its
 ``examples/``, default random.toml): the run its user would make, with that tree's
 defaults (``--scene hexagonal.toml --rates 0.1487 --duration 20000`` is the lattice
-example as it stands). Results: ``results/protocol.json`` (``--output`` renames it).
+example as it stands). ``--rates none`` keeps the scene's own flow (one run, e.g. a Stokes
+flow); ``--set`` passes scene overrides to every run (``--set phases.0.duration=100``).
+Results: ``results/protocol.json`` (``--output`` renames it).
 """
 
 from __future__ import annotations
@@ -36,12 +39,14 @@ ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).parent / "results"
 
 
-def start(tree: Path, scene: str, rate: float, duration: float, directory: Path) -> subprocess.Popen:
-    """A child running ``tree``'s examples/``scene`` sheared at ``rate`` for ``duration`` with
-    ``tree``'s femphase into ``directory``."""
+def start(tree: Path, scene: str, rate: float | None, duration: float, directory: Path,
+          sets: list[str]) -> subprocess.Popen:
+    """A child running ``tree``'s examples/``scene`` with its second phase's flow at ``rate``
+    (None: the scene's own) for ``duration``, and the overrides ``sets``, with ``tree``'s
+    femphase into ``directory``."""
+    overrides = ([] if rate is None else [f"phases.1.flow.rate={rate}"]) + [f"phases.1.duration={duration}", *sets]
     command = [sys.executable, "-m", "femphase.cli", "run", str(tree / "examples" / scene),
-               "-o", str(directory), "-q", "--set", f"phases.1.flow.rate={rate}",
-               "--set", f"phases.1.duration={duration}"]
+               "-o", str(directory), "-q"] + [item for key in overrides for item in ("--set", key)]
     environment = {**os.environ, "PYTHONPATH": str(tree)}
     return subprocess.Popen(command, env=environment, cwd=tree, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
 
@@ -57,11 +62,17 @@ def finish(child: subprocess.Popen, started: float) -> dict:
             "peak_mb": usage.ru_maxrss / 1024}
 
 
-def run_rate(trees: dict[str, Path], scene: str, rate: float, duration: float, scratch: Path) -> dict[str, dict]:
+def run_rate(trees: dict[str, Path], scene: str, rate: float | None, duration: float, scratch: Path,
+             sets: list[str]) -> dict[str, dict]:
     """The protocol at ``rate`` on every tree at once (one child per tree)."""
     started = time.perf_counter()
-    children = {name: start(tree, scene, rate, duration, scratch / f"{name}-{rate}") for name, tree in trees.items()}
+    children = {name: start(tree, scene, rate, duration, scratch / f"{name}-{rate}", sets)
+                for name, tree in trees.items()}
     return {name: finish(child, started) for name, child in children.items()}
+
+
+def _rate(text: str) -> float | None:
+    return None if text == "none" else float(text)
 
 
 def _commit(tree: Path) -> str | None:
@@ -72,10 +83,12 @@ def _commit(tree: Path) -> str | None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--rates", type=float, nargs="+", default=[0.0161, 0.1083, 1.0])
+    parser.add_argument("--rates", type=_rate, nargs="+", default=[0.0161, 0.1083, 1.0],
+                        help="shear rates of the second phase, or none: the scene's own flow")
     parser.add_argument("--duration", type=float, default=1e5, help="time units of shear (the paper: 10⁵)")
     parser.add_argument("--old", type=Path, help="another femphase tree, run beside this one")
     parser.add_argument("--scene", default="random.toml", help="a scene file of each tree's examples/")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="a scene override for every run")
     parser.add_argument("--output", default="protocol.json")
     args = parser.parse_args()
     trees = {"new": ROOT} if args.old is None else {"new": ROOT, "old": args.old.resolve()}
@@ -83,15 +96,16 @@ def main() -> None:
     rows = {}
     with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
         for rate in args.rates:
-            rows[str(rate)] = run_rate(trees, args.scene, rate, args.duration, Path(scratch))
+            rows[str(rate)] = run_rate(trees, args.scene, rate, args.duration, Path(scratch), args.set)
             line = "; ".join(f"{name} {r['cpu_s'] / 60:.2f} CPU-min ({r['peak_mb']:.0f} MB)"
                              for name, r in rows[str(rate)].items())
             if args.old is not None:
                 line += f"; new/old {rows[str(rate)]['new']['cpu_s'] / rows[str(rate)]['old']['cpu_s']:.3f}"
-            print(f"{args.scene}, γ̇ = {rate}, shear {args.duration:g} time units: {line}", flush=True)
+            flow = "its own flow" if rate is None else f"γ̇ = {rate}"
+            print(f"{args.scene}, {flow}, second phase {args.duration:g} time units: {line}", flush=True)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps({
-        "scene": f"examples/{args.scene}", "shear_time": args.duration, "runs": rows,
+        "scene": f"examples/{args.scene}", "shear_time": args.duration, "sets": args.set, "runs": rows,
         "trees": {name: {"path": str(tree), "commit": _commit(tree)} for name, tree in trees.items()},
         "load_average": {"start": load, "end": [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]},
         "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
