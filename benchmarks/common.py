@@ -62,6 +62,12 @@ def lattice_scene(h: float = 1.0, windows: bool = True, rate: float = 0.1487, **
     })
 
 
+def load_average() -> list[float]:
+    """The machine's 1, 5 and 15 minute load averages: the absolute milliseconds mean little
+    on a loaded 2-core machine, so results say how loaded it was."""
+    return [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
+
+
 def markdown_table(header: list[str], rows: list[list]) -> str:
     """A GitHub markdown table of already formatted cells."""
     lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]

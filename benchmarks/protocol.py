@@ -33,7 +33,7 @@ import tempfile
 import time
 from pathlib import Path
 
-import common  # pins BLAS threads for the children too (they inherit the environment)
+import common  # pins BLAS threads, for the children too (they inherit the environment)
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = Path(__file__).parent / "results"
@@ -92,7 +92,7 @@ def main() -> None:
     parser.add_argument("--output", default="protocol.json")
     args = parser.parse_args()
     trees = {"new": ROOT} if args.old is None else {"new": ROOT, "old": args.old.resolve()}
-    load = [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
+    load = common.load_average()
     rows = {}
     with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
         for rate in args.rates:
@@ -107,7 +107,7 @@ def main() -> None:
     (RESULTS / args.output).write_text(json.dumps({
         "scene": f"examples/{args.scene}", "shear_time": args.duration, "sets": args.set, "runs": rows,
         "trees": {name: {"path": str(tree), "commit": _commit(tree)} for name, tree in trees.items()},
-        "load_average": {"start": load, "end": [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]},
+        "load_average": {"start": load, "end": common.load_average()},
         "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
 
 

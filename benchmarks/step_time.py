@@ -157,7 +157,7 @@ def main() -> None:
     parser.add_argument("--random-rates", type=float, nargs="*", default=[0.0161, 0.1083, 1.0],
                         help="shear rates of the random-packing measurement (none: skip it)")
     args = parser.parse_args()
-    load_start = _load_average()
+    load_start = common.load_average()
     windows = time_steps(True, args.steps)
     full = time_steps(False, args.full_steps)
     speedup = full["median_ms"] / windows["median_ms"]
@@ -192,14 +192,8 @@ def main() -> None:
         "euler_dt_1_ms_per_time_unit": euler_dt1_ms, "speedup_over_euler_dt_1": euler_dt1_ms / default_ms,
         "speedup_over_euler_dt_0.1_at_equal_period_error": equal, "equal_error_basis": how,
         "protocol_minutes": protocol_minutes, "random_packing": random,
-        "load_average": {"start": load_start, "end": _load_average()},
+        "load_average": {"start": load_start, "end": common.load_average()},
         "command": "python benchmarks/step_time.py"}, indent=2) + "\n")
-
-
-def _load_average() -> list[float]:
-    """The machine's 1, 5 and 15 minute load averages: the absolute milliseconds mean little
-    on a loaded 2-core machine, so the results say how loaded it was."""
-    return [float(x) for x in Path("/proc/loadavg").read_text().split()[:3]]
 
 
 if __name__ == "__main__":
