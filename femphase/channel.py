@@ -183,7 +183,7 @@ class ChannelDomain(Domain):
         # the cache describes ``last`` itself: it is the layout the last move made (a layout
         # built afresh has new groups)
         if rows is None or rows.groups is not last.groups or not np.array_equal(rows.iy0, iy0):
-            rows = self._rows = RowOffsets(last.groups, iy0, slot, row, self.grid.nx)
+            rows = self._rows = RowOffsets(last.groups, iy0, slot, row, self.grid.nx, self.operators.lumped_mass)
         nx, lumped = self.grid.nx, self.operators.lumped_mass
 
         @cache
@@ -194,7 +194,7 @@ class ChannelDomain(Domain):
             dofs += rows.offsets
             return dofs
 
-        mass = (lambda: rows.mass(lumped)) if self._mass_by_row else (lambda: lumped[node_index()])
+        mass = (lambda: rows.mass) if self._mass_by_row else (lambda: lumped[node_index()])
         return last.moved(windows, node_index, mass)
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
@@ -260,12 +260,13 @@ class ChannelDomain(Domain):
 class RowOffsets:
     """The rows of a moved layout's positions (:meth:`ChannelDomain._moved`): its groups, its
     windows' first rows in layout order, and, computed on first use, each position's row
-    times nx (its dof at column 0) and lumped mass by row."""
+    times nx (its dof at column 0) and, for a lumped mass that depends on the row alone,
+    each position's mass."""
 
-    def __init__(self, groups: list, iy0: np.ndarray, slot: np.ndarray, row: np.ndarray, nx: int) -> None:
+    def __init__(self, groups: list, iy0: np.ndarray, slot: np.ndarray, row: np.ndarray, nx: int,
+                 lumped_mass: np.ndarray) -> None:
         self.groups, self.iy0 = groups, iy0
-        self._slot, self._row, self._nx = slot, row, nx
-        self._mass: np.ndarray | None = None
+        self._slot, self._row, self._nx, self._lumped_mass = slot, row, nx, lumped_mass
 
     @cached_property
     def offsets(self) -> np.ndarray:
@@ -274,11 +275,9 @@ class RowOffsets:
         offsets *= self._nx
         return offsets
 
-    def mass(self, lumped: np.ndarray) -> np.ndarray:
-        """Every position's lumped mass, for a mass that depends on the row alone."""
-        if self._mass is None:
-            self._mass = lumped[self.offsets]
-        return self._mass
+    @cached_property
+    def mass(self) -> np.ndarray:
+        return self._lumped_mass[self.offsets]
 
 
 def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:

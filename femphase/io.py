@@ -159,7 +159,7 @@ def point_data(state: State, per_particle: bool) -> dict[str, np.ndarray]:
         higher = values >= top[nodes]
         top[nodes[higher]] = values[higher]
         best[nodes[higher]] = particle
-    top[np.isinf(top)] = 0.0  # dofs outside every window
+    top[top == -np.inf] = 0.0  # dofs outside every window
     data = {"phi_sum": phi_sum, "phi_max": top, "label": np.where(top > 0.5, best, -1.0)}
     if per_particle:
         data.update({f"phi_{i:03d}": state.global_field(i) for i in range(state.n_particles)})
