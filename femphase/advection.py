@@ -60,24 +60,33 @@ if TYPE_CHECKING:
     from .stepping import Numerics
 
 
-def row_phases(shifts: np.ndarray, nx: int) -> np.ndarray:
+def row_phases(shifts: np.ndarray, nx: int, single: bool = False) -> np.ndarray:
     """The Fourier phase factors (..., ny, nx//2 + 1) that shift rows of nx nodes by
-    ``shifts`` (..., ny) nodes in +x (see :func:`shift_rows`)."""
+    ``shifts`` (..., ny) nodes in +x (see :func:`shift_rows`); ``single``: rounded to single
+    precision (complex64) after they are built in double."""
     # the phase factor of mode m is z**m with z = exp(−2πi s/nx): one exp per row, then
     # a cumulative product, is several times cheaper than an exp per mode
     phases = np.empty(np.shape(shifts) + (nx // 2 + 1,), dtype=complex)
     phases[..., 0] = 1.0
     phases[..., 1:] = np.exp(-2j * np.pi * np.asarray(shifts) / nx)[..., None]
     np.cumprod(phases, axis=-1, out=phases)
-    return phases
+    return phases.astype(np.complex64) if single else phases
 
 
-def shift_rows(fields: np.ndarray, shifts: np.ndarray, phases: np.ndarray | None = None) -> np.ndarray:
+def shift_rows(fields: np.ndarray, shifts: np.ndarray, phases: np.ndarray | None = None,
+               single: bool = False) -> np.ndarray:
     """Shift every row of fields (..., ny, nx) by shifts (..., ny) nodes in +x, periodically
-    (trigonometric interpolation); ``phases``: :func:`row_phases` of the shifts, if known."""
+    (trigonometric interpolation); ``phases``: :func:`row_phases` of the shifts, if known.
+    With ``single`` or single-precision ``phases`` the transforms run in single precision
+    (float32 in and out, complex64 spectra: 3× faster on the random packing's windows, a
+    relative error ~1e-7)."""
     nx = fields.shape[-1]
+    if phases is None:
+        phases = row_phases(shifts, nx, single)
+    if phases.dtype == np.complex64:
+        fields = fields.astype(np.float32)
     spectrum = fft.rfft(fields, axis=-1)
-    spectrum *= row_phases(shifts, nx) if phases is None else phases
+    spectrum *= phases
     return fft.irfft(spectrum, n=nx, axis=-1)
 
 
@@ -100,15 +109,18 @@ class StepAdvection:
 
 
 class RowShift(StepAdvection):
-    """Exact advection of the structured channel's windows in a row flow (u(y, t), 0)."""
+    """Exact advection of the structured channel's windows in a row flow (u(y, t), 0);
+    ``single``: its transforms in single precision (:func:`shift_rows`), the fields stay
+    double."""
 
     #: Groups whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
     #: stepper keeps up to 8 advections): a new layout regroups a few windows and leaves the
     #: other groups as they were
     STACK_CACHE = 32
 
-    def __init__(self, domain: "ChannelDomain", flow: Flow, dt: float) -> None:
+    def __init__(self, domain: "ChannelDomain", flow: Flow, dt: float, single: bool = False) -> None:
         super().__init__(domain, flow, dt)
+        self.single = single
         _, self._y = domain.grid.coordinates()
         self._steady_shift = self._row_shift(0.0) if flow.steady else None
         #: per group of windows (its shape and particles): their first rows, whole-node
@@ -146,13 +158,14 @@ class RowShift(StepAdvection):
                 self._stacks.clear()
             changed = np.arange(len(windows))
             kept = self._stacks[key] = (rows.copy(), np.empty(len(windows), dtype=np.int64),
-                                        np.empty((len(windows), ny, nx // 2 + 1), dtype=complex))
+                                        np.empty((len(windows), ny, nx // 2 + 1),
+                                                 dtype=np.complex64 if self.single else complex))
         else:
             changed = np.flatnonzero(kept[0] != rows)
         if changed.size:
             kept_rows, kept_wholes, kept_phases = kept
             wholes, shifts = self._window_shifts(self._steady_shift, [windows[i] for i in changed])
-            kept_wholes[changed], kept_phases[changed] = wholes, row_phases(shifts, nx)
+            kept_wholes[changed], kept_phases[changed] = wholes, row_phases(shifts, nx, self.single)
             kept_rows[changed] = rows[changed]
         return kept[1], kept[2]
 
@@ -167,7 +180,7 @@ class RowShift(StepAdvection):
                 block[...] = shift_rows(block, None, phases)
             else:
                 wholes, shifts = self._window_shifts(row_shift, [windows[i] for i in members])
-                block[...] = shift_rows(block, shifts)
+                block[...] = shift_rows(block, shifts, single=self.single)
             for i, k in zip(members[wholes != 0], wholes[wholes != 0]):
                 w = windows[i]
                 windows[i] = Window(w.iy0, w.ny, (w.ix0 + int(k)) % grid.nx, w.nx)

@@ -38,6 +38,7 @@ from .windows import Layout
 
 MASS_TYPES = ("lumped", "consistent")
 FD_ADVECTION = ("upwind3", "upwind1")
+PRECISIONS = ("mixed", "double")
 
 #: Time schemes by name (``numerics.scheme``); filled by :mod:`femphase.schemes` and :mod:`femphase.fd`.
 SCHEMES: Registry[type] = Registry("Time schemes", "numerics.scheme")
@@ -91,6 +92,15 @@ class Numerics:
                     benchmarks/README.md, "Session 12"); results then depend on where calls
                     end, at the level of the splitting error. Other schemes step one by one;
                     trackers' ``after_step`` runs after every call
+    precision       "mixed" (default): under flow, the structured channel's tensor solves and
+                    row-shift advection compute in single precision (float32; their results
+                    carry a relative rounding error of ~1e-6, against the default scheme's
+                    time error of ~1e-2), the fields, forces, error estimates and energies in
+                    double (benchmarks/README.md, "Session 14", measures the CPU saved and
+                    the errors, unchanged). Phases without flow always compute in double (their
+                    steps must not raise F, checked to 1e-12), and so do meshes' solvers and
+                    the other advections. "double": everything in double, for convergence
+                    studies whose errors reach ~1e-5 (verification/mms.py sets it)
     strict          False (default): a run that leaves the accuracy envelope measured in
                     benchmarks/stability.py warns (:class:`femphase.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
@@ -112,6 +122,7 @@ class Numerics:
     blowup_margin: float = 2.0
     fd_advection: str = "upwind3"
     merged_steps: int = 8
+    precision: str = "mixed"
     strict: bool = False
 
     def __post_init__(self) -> None:
@@ -121,7 +132,8 @@ class Numerics:
         SCHEMES.get(self.scheme)
         for key, value, valid in (("mass", self.mass, MASS_TYPES), ("solver", self.solver, SOLVER_METHODS),
                                   ("fd_advection", self.fd_advection, FD_ADVECTION),
-                                  ("diagonals", self.diagonals, DIAGONAL_PATTERNS)):
+                                  ("diagonals", self.diagonals, DIAGONAL_PATTERNS),
+                                  ("precision", self.precision, PRECISIONS)):
             if value not in valid:
                 raise SceneError(f"numerics.{key}", value, f"one of {valid}")
         if self.stabilisation != "auto" and not (
@@ -198,6 +210,8 @@ class Stepper:
         self.radii = None if radii is None else np.asarray(radii, dtype=float)
         self.policy = domain.window_policy(numerics)
         self.advection = None if self.flow.is_still else domain.advection(self.flow, self.dt, numerics)
+        #: whether solves may run in single precision (numerics.precision, under flow only)
+        self.single_precision = numerics.precision == "mixed" and not self.flow.is_still
         self._systems: dict = {}
         self._solvers: OrderedDict = OrderedDict()  # least recently used first
         self._cached_bytes = 0
@@ -287,7 +301,7 @@ class Stepper:
             solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
                                                                      self.domain.window_dofs(window)),
                                         a, self.mobility * self.energy.diffusivity, lumped, self.numerics.solver,
-                                        self.numerics.tolerance)
+                                        self.numerics.tolerance, self.single_precision)
             mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
                                                           self.domain.window_dofs(window))
             solvers[cache_key] = (solver, mass_block)

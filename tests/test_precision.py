@@ -1,0 +1,63 @@
+"""numerics.precision: the single-precision solves and row shifts of "mixed" against double."""
+
+import numpy as np
+import pytest
+
+from femphase.advection import row_phases, shift_rows
+from femphase.channel import ChannelDomain, tensor_basis
+from femphase.errors import SceneError
+from femphase.flows import linear_shear
+from femphase.mesh import channel_grid
+from femphase.model import ModelParameters
+from femphase.stepping import Numerics, Stepper
+from femphase.windows import Window
+
+from helpers import small_system
+
+
+def test_the_single_precision_tensor_solve_rounds_like_single_precision_and_returns_double():
+    grid = channel_grid(30, 19, 1.0)
+    domain, params = ChannelDomain(grid), ModelParameters()
+    window = Window(2, 12, 25, 16)  # wraps around the periodic seam
+    stepper = Stepper(domain, params, Numerics(scheme="euler"), 0.7)
+    a, b = 1 / 0.7 + params.mobility * stepper.scheme.stabilisation, params.diffusivity
+    nodes = domain.window_dofs(window)
+    block = stepper.system(1 / 0.7, stepper.scheme.stabilisation)[0][nodes][:, nodes]
+    basis = tensor_basis(block, window, grid, a, b)
+    rhs = np.asfortranarray(np.random.default_rng(3).random((nodes.size, 5)))
+    double, single = basis.solver(a, b).solve(rhs), basis.solver(a, b, single=True).solve(rhs)
+    assert single.dtype == np.float64 and single.shape == rhs.shape
+    error = np.abs(single - double).max() / np.abs(double).max()
+    assert 1e-12 < error < 1e-5  # single precision's rounding, not double's, and not worse
+
+
+def test_the_single_precision_row_shift_rounds_like_single_precision():
+    rng = np.random.default_rng(4)
+    fields, shifts = rng.random((3, 6, 24)), rng.uniform(-0.5, 0.5, (3, 6))
+    double = shift_rows(fields, shifts)
+    for single in (shift_rows(fields, shifts, single=True), shift_rows(fields, None, row_phases(shifts, 24, True))):
+        assert single.dtype == np.float32
+        assert 1e-12 < np.abs(single - double).max() < 1e-5
+
+
+def test_mixed_precision_follows_double_under_flow_and_is_off_without_flow():
+    runs = {}
+    for precision in ("mixed", "double"):
+        domain, state = small_system([[13.0, 19.0], [26.0, 22.0]])
+        stepper = Stepper(domain, ModelParameters(), Numerics(precision=precision), 2.0, linear_shear(1.0, 40.0),
+                          state.radii)
+        assert stepper.single_precision == (precision == "mixed")
+        for _ in range(10):
+            stepper.step(state)
+        runs[precision] = state.global_fields()
+    difference = np.abs(runs["mixed"] - runs["double"]).max()
+    # rounding of ~1e-7 per solve and shift, damped by the relaxation: far below the
+    # default scheme's time error (~1e-2 in φ) and not zero (the single path ran)
+    assert 1e-12 < difference < 2e-5  # 1.8e-6 when written
+    domain, state = small_system([[20.0, 20.0]])
+    assert not Stepper(domain, ModelParameters(), Numerics(), 2.0, None, state.radii).single_precision
+
+
+def test_an_unknown_precision_is_refused_by_name():
+    with pytest.raises(SceneError, match=r"numerics\.precision.*single.*mixed.*double"):
+        Numerics(precision="single")
