@@ -84,7 +84,7 @@ def shift_rows(fields: np.ndarray, shifts: np.ndarray, phases: np.ndarray | None
     if phases is None:
         phases = row_phases(shifts, nx, single)
     if phases.dtype == np.complex64:
-        fields = fields.astype(np.float32)
+        fields = fields.astype(np.float32, copy=False)
     spectrum = fft.rfft(fields, axis=-1)
     spectrum *= phases
     return fft.irfft(spectrum, n=nx, axis=-1)

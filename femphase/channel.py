@@ -54,6 +54,7 @@ class ChannelDomain(Domain):
     units; optional `mesh`, a meshio file of the same lattice's triangulation)."""
 
     kind = "grid"
+    single_precision_steps = True
 
     def __init__(self, grid: ChannelGrid, diagonals: str = "right", mesh=None) -> None:
         """``mesh``: a non-periodic MeshTri whose nodes are the grid's (e.g. read from a

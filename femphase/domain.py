@@ -52,6 +52,10 @@ class Domain(ABC):
     """A periodic channel with walls and its P1 space (see the module docstring)."""
 
     kind: ClassVar[str]
+    #: whether flow steps may compute in single precision (``numerics.precision = "mixed"``):
+    #: the structured channel's, whose tensor solves and row shifts have single-precision
+    #: paths; meshes' LU and Padé solves are double only
+    single_precision_steps: ClassVar[bool] = False
     operators: P1Operators
     mesh: object          # the non-periodic skfem.MeshTri
     dof_map: np.ndarray   # (n_mesh_nodes,) the dof of every mesh node

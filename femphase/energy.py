@@ -69,7 +69,7 @@ class WindowedFields:
     @cached_property
     def areas(self) -> np.ndarray:
         """∫φ_i² per window (layout order; nodal quadrature)."""
-        return self.layout.reduce(np.add, self.layout.mass * self.squares)
+        return self.layout.reduce(np.add, self.layout.mass_like(self.squares) * self.squares)
 
     @cached_property
     def area_ratio(self) -> np.ndarray:
@@ -184,7 +184,7 @@ class AreaTerm(EnergyTerm):
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
         force = 4.0 * self.area_stiffness / (np.pi * fields.radius**2) * (fields.area_ratio - 1.0)
-        out = fields.on_positions(force)
+        out = fields.on_positions(force.astype(fields.phi.dtype, copy=False))
         out *= fields.phi
         return out
 

@@ -169,6 +169,7 @@ class FiniteDifferenceHeun(TimeScheme):
 
     name = "fd-heun"
     order = 2
+    mixed_precision = False  # the reference computes in double whatever numerics.precision
 
     def __init__(self, stepper: "Stepper") -> None:
         super().__init__(stepper)

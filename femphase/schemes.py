@@ -80,6 +80,9 @@ class TimeScheme(ABC):
     #: Whether :meth:`advance` takes a fourth argument ``steps`` and advances by that many
     #: steps at once, sharing work between them; else the stepper calls it step by step.
     merges_steps: ClassVar[bool] = False
+    #: Whether its steps may compute in single precision under flow (``numerics.precision =
+    #: "mixed"``); the finite-difference reference's stay double
+    mixed_precision: ClassVar[bool] = True
 
     def __init__(self, stepper: "Stepper") -> None:
         self.stepper = stepper

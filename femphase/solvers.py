@@ -122,10 +122,10 @@ class TensorSolver:
     positive semi-definite 1D stiffnesses, a > 0, b ≥ 0. With the generalised eigenpairs
     of ``basis`` (:class:`TensorBasis`), A⁻¹ = (Vy⊗Vx) diag(1/(a + b(λy + λx))) (Vy⊗Vx)ᵀ.
 
-    ``single``: the four products in single precision (float32), the right-hand side and the
-    solution in double (``numerics.precision = "mixed"``): the solution's relative error is
-    then ~1e-6 instead of ~1e-15, for 2.4× faster products (benchmarks/README.md,
-    "Session 14").
+    ``single``: the four products in single precision (float32), for 2× faster products
+    (benchmarks/README.md, "Session 14"); the solution comes back in the right-hand side's
+    precision (float32 from the stepper under ``numerics.precision = "mixed"``), its relative
+    error ~1e-6 instead of ~1e-15.
     """
 
     name = "tensor"
@@ -159,7 +159,7 @@ class TensorSolver:
         vy, vx, vy_t, vx_t = self._bases
         for start in range(0, block.shape[0], self._chunk):
             chunk = slice(start, start + self._chunk)
-            part = block[chunk].astype(np.float32) if self.single else block[chunk]
+            part = block[chunk].astype(np.float32, copy=False) if self.single else block[chunk]
             spectral = np.matmul(vy_t, part @ vx)
             spectral *= self._inverse
             if self.single:  # the result cast back to double as it is stored

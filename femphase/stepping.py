@@ -92,15 +92,17 @@ class Numerics:
                     benchmarks/README.md, "Session 12"); results then depend on where calls
                     end, at the level of the splitting error. Other schemes step one by one;
                     trackers' ``after_step`` runs after every call
-    precision       "mixed" (default): under flow, the structured channel's tensor solves and
-                    row-shift advection compute in single precision (float32; their results
-                    carry a relative rounding error of ~1e-6, against the default scheme's
-                    time error of ~1e-2), the fields, forces, error estimates and energies in
-                    double (benchmarks/README.md, "Session 14", measures the CPU saved and
-                    the errors, unchanged). Phases without flow always compute in double (their
-                    steps must not raise F, checked to 1e-12), and so do meshes' solvers and
-                    the other advections. "double": everything in double, for convergence
-                    studies whose errors reach ~1e-5 (verification/mms.py sets it)
+    precision       "mixed" (default): under flow on the structured channel, each stepper
+                    call computes in single precision (float32) on a working copy of the
+                    fields: forces, tensor solves, row-shift FFTs, error estimates; the state
+                    between calls (at frames, T1 looks, every merged_steps steps), checkpoints,
+                    observables and energies are double. Rounding ~1e-6 relative, against the
+                    default scheme's time error of ~1e-2 (benchmarks/README.md, "Session 14",
+                    measures the CPU saved and the errors, unchanged). Phases without flow
+                    compute in double (their steps must not raise F, checked to 1e-12), and
+                    so do meshes and the finite-difference reference. "double": everything in
+                    double, for convergence studies whose errors reach ~1e-5
+                    (verification/mms.py sets it)
     strict          False (default): a run that leaves the accuracy envelope measured in
                     benchmarks/stability.py warns (:class:`femphase.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
@@ -210,13 +212,14 @@ class Stepper:
         self.radii = None if radii is None else np.asarray(radii, dtype=float)
         self.policy = domain.window_policy(numerics)
         self.advection = None if self.flow.is_still else domain.advection(self.flow, self.dt, numerics)
-        #: whether solves may run in single precision (numerics.precision, under flow only)
-        self.single_precision = numerics.precision == "mixed" and not self.flow.is_still
         self._systems: dict = {}
         self._solvers: OrderedDict = OrderedDict()  # least recently used first
         self._cached_bytes = 0
         _load_schemes()
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
+        #: whether steps compute in single precision (numerics.precision, under flow only)
+        self.single_precision = (numerics.precision == "mixed" and not self.flow.is_still
+                                 and domain.single_precision_steps and self.scheme.mixed_precision)
 
     @property
     def mobility(self) -> float:
@@ -268,7 +271,7 @@ class Stepper:
         if lumped:  # M_L (nodal_rhs + shift·previous), in place
             rhs = previous * shift
             rhs += nodal_rhs
-            rhs *= layout.mass
+            rhs *= layout.mass_like(rhs)
         else:
             rhs = layout.mass * nodal_rhs
         out = np.empty_like(previous)
@@ -327,6 +330,8 @@ class Stepper:
         per_call = steps if self.scheme.merges_steps else 1
         for _ in range(steps // per_call):
             layout, phi = state.flat()
+            if self.single_precision:  # the call's working copy; the state stays double
+                phi = phi.astype(np.float32)
             layout, phi = self.refit(layout, phi, state.time)
             phi, layout = (self.scheme.advance(phi, layout, state, per_call) if self.scheme.merges_steps
                            else self.scheme.advance(phi, layout, state))
@@ -334,7 +339,7 @@ class Stepper:
             for _ in range(per_call):  # the same clock as step by step, to the last bit
                 end += self.dt
             check_fields(phi, self.numerics.blowup_margin, state.step + per_call, end)
-            state.windows, state.fields = list(layout.windows), layout.scatter(phi)
+            state.windows, state.fields = list(layout.windows), layout.scatter(phi.astype(np.float64, copy=False))
             state.time, state.step = end, state.step + per_call
 
     def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None) -> tuple[Layout, np.ndarray]:

@@ -426,7 +426,7 @@ class Layout:
         return moved
 
     #: What a moved layout does not share with the layout it was moved from
-    _PER_POSITION = ("node_index", "mass", "overlap_positions", "_parts", "_pending")
+    _PER_POSITION = ("node_index", "mass", "single_mass", "overlap_positions", "_parts", "_pending")
 
     @cached_property
     def node_index(self) -> np.ndarray:
@@ -437,6 +437,16 @@ class Layout:
     def mass(self) -> np.ndarray:
         """The lumped mass of every position's dof (a moved layout's: computed on first use)."""
         return self._pending.pop("mass")()
+
+    @cached_property
+    def single_mass(self) -> np.ndarray:
+        """:attr:`mass` in single precision (computed on first use)."""
+        return self.mass.astype(np.float32)
+
+    def mass_like(self, values: np.ndarray) -> np.ndarray:
+        """:attr:`mass` in the precision of ``values`` (float32 or float64): a product of
+        mixed precisions would be computed, and returned, in double."""
+        return self.single_mass if values.dtype == np.float32 else self.mass
 
     @cached_property
     def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -539,7 +549,7 @@ class Layout:
         where windows overlap, the same sums in the same order as over the shared positions
         alone; one pass less over the positions than gathering those first (in a dense
         suspension nearly every position is shared)."""
-        total = np.bincount(self.node_index, weights=squares)
+        total = np.bincount(self.node_index, weights=squares).astype(squares.dtype, copy=False)
         others = np.take(total, self.node_index)  # 25 % faster than total[index] here
         others -= squares
         return others

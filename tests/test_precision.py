@@ -8,6 +8,8 @@ from femphase.channel import ChannelDomain, tensor_basis
 from femphase.errors import SceneError
 from femphase.flows import linear_shear
 from femphase.mesh import channel_grid
+from femphase.meshed import MeshDomain
+from femphase.meshing import structured_channel
 from femphase.model import ModelParameters
 from femphase.stepping import Numerics, Stepper
 from femphase.windows import Window
@@ -40,7 +42,7 @@ def test_the_single_precision_row_shift_rounds_like_single_precision():
         assert 1e-12 < np.abs(single - double).max() < 1e-5
 
 
-def test_mixed_precision_follows_double_under_flow_and_is_off_without_flow():
+def test_mixed_precision_follows_double_under_flow():
     runs = {}
     for precision in ("mixed", "double"):
         domain, state = small_system([[13.0, 19.0], [26.0, 22.0]])
@@ -51,11 +53,21 @@ def test_mixed_precision_follows_double_under_flow_and_is_off_without_flow():
             stepper.step(state)
         runs[precision] = state.global_fields()
     difference = np.abs(runs["mixed"] - runs["double"]).max()
-    # rounding of ~1e-7 per solve and shift, damped by the relaxation: far below the
-    # default scheme's time error (~1e-2 in φ) and not zero (the single path ran)
-    assert 1e-12 < difference < 2e-5  # 1.8e-6 when written
+    # single-precision rounding, damped by the relaxation: far below the default scheme's
+    # time error (~1e-2 in φ) and not zero (the single path ran); the state stays double
+    assert 1e-12 < difference < 2e-5  # 2.0e-6 when written
+    assert all(field.dtype == np.float64 for field in state.fields)
+
+
+def test_single_precision_only_where_it_applies():
+    shear = linear_shear(1.0, 40.0)
     domain, state = small_system([[20.0, 20.0]])
-    assert not Stepper(domain, ModelParameters(), Numerics(), 2.0, None, state.radii).single_precision
+    for scheme, flow, single in (("adaptive", shear, True), ("euler", shear, True), ("adaptive", None, False),
+                                 ("fd-heun", shear, False)):  # the FD reference stays double
+        stepper = Stepper(domain, ModelParameters(), Numerics(scheme=scheme), 0.1, flow, state.radii)
+        assert stepper.single_precision == single, scheme
+    mesh = MeshDomain.from_mesh(*structured_channel(40.0, 40.0, 1.0))  # LU and Padé solves: double
+    assert not Stepper(mesh, ModelParameters(), Numerics(), 1.0, shear, state.radii).single_precision
 
 
 def test_an_unknown_precision_is_refused_by_name():
