@@ -110,8 +110,8 @@ class StepAdvection:
 
 class RowShift(StepAdvection):
     """Exact advection of the structured channel's windows in a row flow (u(y, t), 0);
-    ``single``: its transforms in single precision (:func:`shift_rows`), the fields stay
-    double."""
+    ``single``: its transforms in single precision (:func:`shift_rows`), whatever the
+    fields' precision (numerics.precision = "mixed" passes float32 fields)."""
 
     #: Groups whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
     #: stepper keeps up to 8 advections): a new layout regroups a few windows and leaves the

@@ -162,10 +162,10 @@ class TensorSolver:
             part = block[chunk].astype(np.float32, copy=False) if self.single else block[chunk]
             spectral = np.matmul(vy_t, part @ vx)
             spectral *= self._inverse
-            if self.single:  # the result cast back to double as it is stored
-                out[chunk] = np.matmul(np.matmul(vy, spectral), vx_t)
-            else:
+            if out.dtype == spectral.dtype:
                 np.matmul(np.matmul(vy, spectral), vx_t, out=out[chunk])
+            else:  # a double right-hand side, single-precision products: cast as stored
+                out[chunk] = np.matmul(np.matmul(vy, spectral), vx_t)
         return out.reshape(-1, self.n).T.reshape(rhs.shape)
 
 
