@@ -3,6 +3,7 @@
     python benchmarks/stability.py [--quick]     # the matrix and the accuracy sweep (~5 CPU-min)
     python benchmarks/stability.py --merged 8 [--quick]   # the default in calls of 8 steps, against stability.json
     python benchmarks/stability.py --long        # the paper's scene over 1.02e5 time units (~20 min)
+    python benchmarks/stability.py --long --precision double   # the same in double (results/stability_long_double.json)
 
 Schemes: ``fem-adaptive`` (the default: error-controlled second-order substeps, dt = the
 largest), ``fem-sav2`` (second order at fixed dt), ``fem-euler`` (first order, lumped mass,
@@ -300,8 +301,8 @@ class AreaLog(Tracker):
 
     needs = frozenset({"shape"})
 
-    def __init__(self, path: Path, relax: float) -> None:
-        self.path, self.relax = path, relax
+    def __init__(self, path: Path, relax: float, scheme: str = "fem-default") -> None:
+        self.path, self.relax, self.scheme = path, relax, scheme
         self.times: list[float] = []
         self.areas: list[list[float]] = []
         self.elongation: list[float] = []
@@ -327,7 +328,7 @@ def long_run_case(log: AreaLog, status: str) -> dict:
     times, areas = np.array(log.times), np.array(log.areas)
     target = np.pi * 8.0**2
     shearing = times >= log.relax - 1e-9
-    record = {"scenario": "paper lattice N = 100, 1e5 time units of shear", "scheme": "fem-default",
+    record = {"scenario": "paper lattice N = 100, 1e5 time units of shear", "scheme": log.scheme,
               "gamma_dot": 0.1487, "dt": 1.0, "duration": float(times[-1]), "status": status,
               "stable": status == "completed", "energy_monotone": None, "silent_nan": False,
               "message": "" if status in ("completed", "running") else status,
@@ -348,15 +349,18 @@ def long_run_case(log: AreaLog, status: str) -> dict:
     return record
 
 
-def long_run(path: Path, shear: float = 1e5, relax: float = 2000.0) -> None:
+def long_run(path: Path, shear: float = 1e5, relax: float = 2000.0, precision: str | None = None) -> None:
+    """The long run at the default numerics, or with ``numerics.precision`` = ``precision``."""
     scene = scene_from_dict({
         "name": "paper lattice, long", "domain": {"Lx": 70.0, "Ly": 240.0, "h": 1.0},
         "particles": {"layout": "hexagonal", "N": 100}, "output": {"fields": False},
+        "numerics": {} if precision is None else {"precision": precision},
         "phases": [{"name": "relax", "duration": relax, "dt": 1.0, "frame_interval": 500.0},
                    {"name": "shear", "duration": shear, "dt": 1.0, "frame_interval": 500.0,
                     "flow": {"type": "shear", "rate": 0.1487}}],
     })
-    Simulation(scene).run(scene.initial_state(), [AreaLog(path, relax)])
+    scheme = "fem-default" if precision is None else f"fem-default, precision {precision}"
+    Simulation(scene).run(scene.initial_state(), [AreaLog(path, relax, scheme)])
 
 
 # -- report ------------------------------------------------------------------------------------------
@@ -429,6 +433,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="the slab at γ̇ = 0, 1 and a coarse dt sweep only")
     parser.add_argument("--long", action="store_true", help="only the 1e5 time-unit run (results/stability_long.json)")
+    parser.add_argument("--precision", choices=["mixed", "double"],
+                        help="with --long: this numerics.precision, written to results/stability_long_PRECISION.json "
+                             "(not merged into stability.json)")
     parser.add_argument("--report", action="store_true",
                         help="no runs: merge the latest stability_long.json into stability.json, rewrite the README section")
     parser.add_argument("--merged", type=int, metavar="K",
@@ -441,7 +448,10 @@ def main() -> None:
         return
     long_path = RESULTS / "stability_long.json"
     if args.long:
-        long_run(long_path)
+        if args.precision is None:
+            long_run(long_path)
+        else:
+            long_run(RESULTS / f"stability_long_{args.precision}.json", precision=args.precision)
         return
     started = time.process_time()
     if args.report:
