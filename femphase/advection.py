@@ -78,7 +78,7 @@ def shift_rows(fields: np.ndarray, shifts: np.ndarray, phases: np.ndarray | None
     """Shift every row of fields (..., ny, nx) by shifts (..., ny) nodes in +x, periodically
     (trigonometric interpolation); ``phases``: :func:`row_phases` of the shifts, if known.
     With ``single`` or single-precision ``phases`` the transforms run in single precision
-    (float32 in and out, complex64 spectra: 3× faster on the random packing's windows, a
+    (float32 in and out, complex64 spectra: 3× faster on 100 windows of 34 × 34 nodes, a
     relative error ~1e-7)."""
     nx = fields.shape[-1]
     if phases is None:

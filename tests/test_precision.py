@@ -17,7 +17,7 @@ from femphase.windows import Window
 from helpers import small_system
 
 
-def test_the_single_precision_tensor_solve_rounds_like_single_precision_and_returns_double():
+def test_the_single_precision_tensor_solve_rounds_like_single_precision_in_the_rhs_precision():
     grid = channel_grid(30, 19, 1.0)
     domain, params = ChannelDomain(grid), ModelParameters()
     window = Window(2, 12, 25, 16)  # wraps around the periodic seam
@@ -31,6 +31,8 @@ def test_the_single_precision_tensor_solve_rounds_like_single_precision_and_retu
     assert single.dtype == np.float64 and single.shape == rhs.shape
     error = np.abs(single - double).max() / np.abs(double).max()
     assert 1e-12 < error < 1e-5  # single precision's rounding, not double's, and not worse
+    working = basis.solver(a, b, single=True).solve(rhs.astype(np.float32))  # the stepper's working copy
+    assert working.dtype == np.float32 and np.abs(working - single).max() < 1e-5 * np.abs(double).max()
 
 
 def test_the_single_precision_row_shift_rounds_like_single_precision():
