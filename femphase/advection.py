@@ -73,18 +73,14 @@ def row_phases(shifts: np.ndarray, nx: int, single: bool = False) -> np.ndarray:
     return phases.astype(np.complex64) if single else phases
 
 
-def shift_rows(fields: np.ndarray, shifts: np.ndarray, phases: np.ndarray | None = None,
-               single: bool = False) -> np.ndarray:
+def shift_rows(fields: np.ndarray, shifts: np.ndarray, phases: np.ndarray | None = None) -> np.ndarray:
     """Shift every row of fields (..., ny, nx) by shifts (..., ny) nodes in +x, periodically
-    (trigonometric interpolation); ``phases``: :func:`row_phases` of the shifts, if known.
-    With ``single`` or single-precision ``phases`` the transforms run in single precision
-    (float32 in and out, complex64 spectra: 3× faster on 100 windows of 34 × 34 nodes, a
-    relative error ~1e-7)."""
+    (trigonometric interpolation); ``phases``: :func:`row_phases` of the shifts, if known, in
+    the fields' precision. Float32 fields are shifted in single precision (complex64
+    spectra: 3× faster on 100 windows of 34 × 34 nodes, a relative error ~1e-7)."""
     nx = fields.shape[-1]
     if phases is None:
-        phases = row_phases(shifts, nx, single)
-    if phases.dtype == np.complex64:
-        fields = fields.astype(np.float32, copy=False)
+        phases = row_phases(shifts, nx, fields.dtype == np.float32)
     spectrum = fft.rfft(fields, axis=-1)
     spectrum *= phases
     return fft.irfft(spectrum, n=nx, axis=-1)
@@ -109,22 +105,20 @@ class StepAdvection:
 
 
 class RowShift(StepAdvection):
-    """Exact advection of the structured channel's windows in a row flow (u(y, t), 0);
-    ``single``: its transforms in single precision (:func:`shift_rows`), whatever the
-    fields' precision (numerics.precision = "mixed" passes float32 fields)."""
+    """Exact advection of the structured channel's windows in a row flow (u(y, t), 0), in
+    the fields' precision (:func:`shift_rows`; numerics.precision = "mixed" passes float32)."""
 
     #: Groups whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
     #: stepper keeps up to 8 advections): a new layout regroups a few windows and leaves the
     #: other groups as they were
     STACK_CACHE = 32
 
-    def __init__(self, domain: "ChannelDomain", flow: Flow, dt: float, single: bool = False) -> None:
+    def __init__(self, domain: "ChannelDomain", flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
-        self.single = single
         _, self._y = domain.grid.coordinates()
         self._steady_shift = self._row_shift(0.0) if flow.steady else None
-        #: per group of windows (its shape and particles): their first rows, whole-node
-        #: moves (k,) and stacked phase factors (k, ny, nx//2 + 1)
+        #: per group of windows (its shape, particles and precision): their first rows,
+        #: whole-node moves (k,) and stacked phase factors (k, ny, nx//2 + 1)
         self._stacks: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _row_shift(self, time: float) -> np.ndarray:
@@ -141,9 +135,11 @@ class RowShift(StepAdvection):
         whole = np.rint(shifts.mean(axis=1))
         return whole.astype(int), shifts - whole[:, None]
 
-    def _group_phases(self, windows: list[Window], members: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The whole-node moves (k,) and phase factors (k, ny, nx//2 + 1) of the windows of
-        particles ``members``, all of one shape, in a steady flow. A row flow never changes
+    def _group_phases(self, windows: list[Window], members: np.ndarray,
+                      single: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The whole-node moves (k,) and phase factors (k, ny, nx//2 + 1; complex64 if
+        ``single``) of the windows of particles ``members``, all of one shape, in a steady
+        flow. A row flow never changes
         them while the windows keep their rows, so they are kept per group and renewed
         window by window when a refit moves windows across rows (building them every
         substep was 6 % of the lattice's step, stacking them window by window 4 %; under
@@ -151,7 +147,7 @@ class RowShift(StepAdvection):
         the group's factors afresh then cost 5 % of the random packing's time at γ̇ = 1)."""
         ny, nx = windows[0].ny, windows[0].nx
         rows = np.fromiter((w.iy0 for w in windows), dtype=np.int64, count=len(windows))
-        key = (ny, nx, members.tobytes())
+        key = (ny, nx, members.tobytes(), single)
         kept = self._stacks.get(key)
         if kept is None:
             if len(self._stacks) >= self.STACK_CACHE:
@@ -159,13 +155,13 @@ class RowShift(StepAdvection):
             changed = np.arange(len(windows))
             kept = self._stacks[key] = (rows.copy(), np.empty(len(windows), dtype=np.int64),
                                         np.empty((len(windows), ny, nx // 2 + 1),
-                                                 dtype=np.complex64 if self.single else complex))
+                                                 dtype=np.complex64 if single else complex))
         else:
             changed = np.flatnonzero(kept[0] != rows)
         if changed.size:
             kept_rows, kept_wholes, kept_phases = kept
             wholes, shifts = self._window_shifts(self._steady_shift, [windows[i] for i in changed])
-            kept_wholes[changed], kept_phases[changed] = wholes, row_phases(shifts, nx, self.single)
+            kept_wholes[changed], kept_phases[changed] = wholes, row_phases(shifts, nx, single)
             kept_rows[changed] = rows[changed]
         return kept[1], kept[2]
 
@@ -176,11 +172,12 @@ class RowShift(StepAdvection):
         for group, (_key, members, *_) in enumerate(layout.groups):
             block = layout.group_block(phi, group)
             if row_shift is None:
-                wholes, phases = self._group_phases([windows[i] for i in members], members)
+                wholes, phases = self._group_phases([windows[i] for i in members], members,
+                                                    block.dtype == np.float32)
                 block[...] = shift_rows(block, None, phases)
             else:
                 wholes, shifts = self._window_shifts(row_shift, [windows[i] for i in members])
-                block[...] = shift_rows(block, shifts, single=self.single)
+                block[...] = shift_rows(block, shifts)
             for i, k in zip(members[wholes != 0], wholes[wholes != 0]):
                 w = windows[i]
                 windows[i] = Window(w.iy0, w.ny, (w.ix0 + int(k)) % grid.nx, w.nx)

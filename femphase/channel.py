@@ -221,7 +221,7 @@ class ChannelDomain(Domain):
 
     # -- fast paths -----------------------------------------------------------------------
     def solver(self, window: Window, block: Callable[[], sp.csr_matrix], a: float, b: float, lumped: bool,
-               method: str, tolerance: float, single: bool = False):
+               method: str, tolerance: float):
         if lumped and (method == "tensor" or (method == "auto" and window.ny + window.nx <= TENSOR_MAX_SIDES)):
             # the eigenpairs depend on the window's shape only (its key), not on a and b: a
             # new time step size then costs one division per node, which lets the adaptive
@@ -230,12 +230,12 @@ class ChannelDomain(Domain):
             if key not in self._tensor_bases:
                 self._tensor_bases[key] = tensor_basis(block(), window, self.grid, a, b)
             if self._tensor_bases[key] is not None:
-                return self._tensor_bases[key].solver(a, b, single)
+                return self._tensor_bases[key].solver(a, b)
         return super().solver(window, block, a, b, lumped, method, tolerance)
 
     def advection(self, flow: "Flow", dt: float, numerics: "Numerics"):
         if flow.row_velocity is not None:
-            return RowShift(self, flow, dt, single=numerics.precision == "mixed")
+            return RowShift(self, flow, dt)
         return SemiLagrangian(self, flow, dt)
 
     def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -154,12 +154,11 @@ class Domain(ABC):
 
     # -- fast paths -----------------------------------------------------------------------
     def solver(self, window: Hashable, block: Callable[[], sp.csr_matrix], a: float, b: float, lumped: bool,
-               method: str, tolerance: float, single: bool = False):
+               method: str, tolerance: float):
         """A solver of the window's submatrix of a G + b K, G the time mass (lumped or not),
         which ``block()`` extracts (only when needed: the structured channel's tensor solver
         does not). The base class factorises or builds an AMG hierarchy
-        (:func:`femphase.solvers.make_solver`), in double precision whatever ``single``
-        asks: only the tensor solver has a single-precision path."""
+        (:func:`femphase.solvers.make_solver`)."""
         return make_solver(block(), method, tolerance)
 
     @abstractmethod

@@ -111,8 +111,8 @@ class TensorBasis:
         """(vy, vx, vyᵀ, vxᵀ) in single precision, made on first use."""
         return tuple(np.ascontiguousarray(v, dtype=np.float32) for v in (self.vy, self.vx, self.vy_t, self.vx_t))
 
-    def solver(self, a: float, b: float, single: bool = False) -> "TensorSolver":
-        return TensorSolver(a, b, self, single)
+    def solver(self, a: float, b: float) -> "TensorSolver":
+        return TensorSolver(a, b, self)
 
 
 class TensorSolver:
@@ -122,10 +122,10 @@ class TensorSolver:
     positive semi-definite 1D stiffnesses, a > 0, b ≥ 0. With the generalised eigenpairs
     of ``basis`` (:class:`TensorBasis`), A⁻¹ = (Vy⊗Vx) diag(1/(a + b(λy + λx))) (Vy⊗Vx)ᵀ.
 
-    ``single``: the four products in single precision (float32), for 2× faster products
-    (benchmarks/README.md, "Session 14"); the solution comes back in the right-hand side's
-    precision (float32 from the stepper under ``numerics.precision = "mixed"``), its relative
-    error ~1e-6 instead of ~1e-15.
+    It computes in the right-hand side's precision: a float32 right-hand side (the stepper's
+    working copy under ``numerics.precision = "mixed"``) gets float32 products, 2× faster
+    (benchmarks/README.md, "Session 14"), and a solution with relative error ~1e-6 instead
+    of ~1e-15.
     """
 
     name = "tensor"
@@ -135,15 +135,17 @@ class TensorSolver:
     #: 36 × 36 windows: 9.5 µs a window in chunks, 18–20 µs in one stack of 100 windows.
     CHUNK_BYTES = 2**18
 
-    def __init__(self, a: float, b: float, basis: TensorBasis, single: bool = False) -> None:
-        self.single = single
-        self._bases = basis.single if single else (basis.vy, basis.vx, basis.vy_t, basis.vx_t)
+    def __init__(self, a: float, b: float, basis: TensorBasis) -> None:
+        self._basis = basis
         self.shape = (basis.lam_y.size, basis.lam_x.size)
         self.n = self.shape[0] * self.shape[1]
-        inverse = 1.0 / (a + b * (basis.lam_y[:, None] + basis.lam_x[None, :]))
-        self._inverse = inverse.astype(np.float32) if single else inverse
+        self._inverse = 1.0 / (a + b * (basis.lam_y[:, None] + basis.lam_x[None, :]))
         # as many windows a chunk in single precision: twice as many ran 3× slower here
         self._chunk = max(1, self.CHUNK_BYTES // (8 * self.n))
+
+    @cached_property
+    def _single_inverse(self) -> np.ndarray:
+        return self._inverse.astype(np.float32)
 
     @property
     def nbytes(self) -> int:
@@ -156,16 +158,16 @@ class TensorSolver:
         # (k, ny, nx) with x fastest: a free view of the stepper's Fortran-ordered (n, k)
         block = rhs.T.reshape(-1, ny, nx)
         out = np.empty_like(block)
-        vy, vx, vy_t, vx_t = self._bases
+        basis = self._basis
+        if block.dtype == np.float32:
+            (vy, vx, vy_t, vx_t), inverse = basis.single, self._single_inverse
+        else:
+            (vy, vx, vy_t, vx_t), inverse = (basis.vy, basis.vx, basis.vy_t, basis.vx_t), self._inverse
         for start in range(0, block.shape[0], self._chunk):
             chunk = slice(start, start + self._chunk)
-            part = block[chunk].astype(np.float32, copy=False) if self.single else block[chunk]
-            spectral = np.matmul(vy_t, part @ vx)
-            spectral *= self._inverse
-            if out.dtype == spectral.dtype:
-                np.matmul(np.matmul(vy, spectral), vx_t, out=out[chunk])
-            else:  # a double right-hand side, single-precision products: cast as stored
-                out[chunk] = np.matmul(np.matmul(vy, spectral), vx_t)
+            spectral = np.matmul(vy_t, block[chunk] @ vx)
+            spectral *= inverse
+            np.matmul(np.matmul(vy, spectral), vx_t, out=out[chunk])
         return out.reshape(-1, self.n).T.reshape(rhs.shape)
 
 

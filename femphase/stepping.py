@@ -304,7 +304,7 @@ class Stepper:
             solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
                                                                      self.domain.window_dofs(window)),
                                         a, self.mobility * self.energy.diffusivity, lumped, self.numerics.solver,
-                                        self.numerics.tolerance, self.single_precision)
+                                        self.numerics.tolerance)
             mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
                                                           self.domain.window_dofs(window))
             solvers[cache_key] = (solver, mass_block)

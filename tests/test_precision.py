@@ -1,4 +1,4 @@
-"""numerics.precision: the single-precision solves and row shifts of "mixed" against double."""
+"""numerics.precision: the single-precision steps of "mixed" against double."""
 
 import numpy as np
 import pytest
@@ -17,7 +17,7 @@ from femphase.windows import Window
 from helpers import small_system
 
 
-def test_the_single_precision_tensor_solve_rounds_like_single_precision_in_the_rhs_precision():
+def test_the_tensor_solve_of_a_float32_right_hand_side_rounds_like_single_precision():
     grid = channel_grid(30, 19, 1.0)
     domain, params = ChannelDomain(grid), ModelParameters()
     window = Window(2, 12, 25, 16)  # wraps around the periodic seam
@@ -27,19 +27,18 @@ def test_the_single_precision_tensor_solve_rounds_like_single_precision_in_the_r
     block = stepper.system(1 / 0.7, stepper.scheme.stabilisation)[0][nodes][:, nodes]
     basis = tensor_basis(block, window, grid, a, b)
     rhs = np.asfortranarray(np.random.default_rng(3).random((nodes.size, 5)))
-    double, single = basis.solver(a, b).solve(rhs), basis.solver(a, b, single=True).solve(rhs)
-    assert single.dtype == np.float64 and single.shape == rhs.shape
+    solver = basis.solver(a, b)
+    double, single = solver.solve(rhs), solver.solve(rhs.astype(np.float32))  # the stepper's working copy
+    assert double.dtype == np.float64 and single.dtype == np.float32 and single.shape == rhs.shape
     error = np.abs(single - double).max() / np.abs(double).max()
     assert 1e-12 < error < 1e-5  # single precision's rounding, not double's, and not worse
-    working = basis.solver(a, b, single=True).solve(rhs.astype(np.float32))  # the stepper's working copy
-    assert working.dtype == np.float32 and np.abs(working - single).max() < 1e-5 * np.abs(double).max()
 
 
-def test_the_single_precision_row_shift_rounds_like_single_precision():
+def test_the_row_shift_of_float32_fields_rounds_like_single_precision():
     rng = np.random.default_rng(4)
     fields, shifts = rng.random((3, 6, 24)), rng.uniform(-0.5, 0.5, (3, 6))
-    double = shift_rows(fields, shifts)
-    for single in (shift_rows(fields, shifts, single=True), shift_rows(fields, None, row_phases(shifts, 24, True))):
+    double, working = shift_rows(fields, shifts), fields.astype(np.float32)
+    for single in (shift_rows(working, shifts), shift_rows(working, None, row_phases(shifts, 24, True))):
         assert single.dtype == np.float32
         assert 1e-12 < np.abs(single - double).max() < 1e-5
 
