@@ -200,14 +200,16 @@ class ChannelDomain(Domain):
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
-        misfits = layout.order[policy.misfits(layout, phi, self.lattice)]
+        boxes = policy.occupied(layout, phi) if policy.enabled else None
+        misfits = np.flatnonzero(policy.misfits(layout, phi, self.lattice, boxes))
         windows = list(layout.windows)
         if misfits.size == 0:  # most substeps: no views of the fields to make
             return windows, None
         fields = layout.scatter(phi)
-        for i in misfits:
+        for slot in misfits:
+            i = layout.order[slot]
             w = windows[i]
-            fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice)
+            fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice, boxes[slot])
             if fitted != w:
                 fields[i] = transfer(fields[i].reshape(w.shape), w, fitted, self.grid.nx).ravel()
                 windows[i] = fitted

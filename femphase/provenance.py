@@ -20,9 +20,10 @@ from pathlib import Path
 from . import IMPORT_TIME, __version__
 
 #: The distributions a run imports (pyproject.toml's dependencies that ``femphase run``
-#: loads; matplotlib only plots). tqdm is imported only when a progress bar is shown, and
-#: tomli only before Python 3.11 (tomllib after); they are recorded all the same.
-DEPENDENCIES = ("numpy", "scipy", "scikit-fem", "pyamg", "meshio", "h5py", "tqdm") + (
+#: loads; matplotlib only plots). tqdm is imported only when a progress bar is shown, numba
+#: only for the structured channel's windows, and tomli only before Python 3.11 (tomllib
+#: after); they are recorded all the same.
+DEPENDENCIES = ("numpy", "scipy", "scikit-fem", "pyamg", "meshio", "h5py", "tqdm", "numba") + (
     ("tomli",) if sys.version_info < (3, 11) else ())
 
 #: Environment variables that set the threads of the BLAS/OpenMP libraries under numpy

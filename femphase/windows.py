@@ -107,66 +107,73 @@ class WindowPolicy:
         ix0 = (cols[0] - (nx - (cols[1] - cols[0] + 1)) // 2) % lattice_nx
         return Window(int(iy0), int(ny), int(ix0), int(nx))
 
-    def misfits(self, layout: "Layout", phi: np.ndarray, lattice: tuple[int, int]) -> np.ndarray:
+    def occupied(self, layout: "Layout", phi: np.ndarray) -> np.ndarray:
+        """(windows, 4), layout order: the first and last row and the first and last column
+        (local nodes) where each window's field exceeds the threshold; −1 in all four for a
+        window where it nowhere does (:func:`femphase.kernels.occupied_boxes`, one compiled
+        scan of all windows)."""
+        from . import kernels  # numba loads only where a scene needs it
+
+        return kernels.occupied_boxes(phi, layout.offsets, layout.window_shapes, phi.dtype.type(self.threshold))
+
+    def misfits(self, layout: "Layout", phi: np.ndarray, lattice: tuple[int, int],
+                boxes: np.ndarray | None = None) -> np.ndarray:
         """For the fields ``phi`` (layout order) on the layout's windows: which need another
-        window (bool per window, layout order).
+        window (bool per window, layout order); ``boxes``: :meth:`occupied` of ``phi``, if
+        known.
 
         A window fits while every margin not at a wall lies within [margin, longest_margin];
         full-width windows are always re-examined (the particle may fit a narrower one). The
-        margins come group by group from the (k, ny, nx) block of the windows of one shape:
-        its occupied rows and columns, two reductions of one boolean pass (in the stepper
-        0.33 ms against 0.55 for gathering the occupied positions' coordinates on the N = 100
-        lattice, and the check runs after every substep)."""
+        check runs after every substep: with the occupied boxes from one compiled scan it
+        costs 0.15 ms on the random packing at γ̇ = 1, against 0.42 ms for numpy's boolean
+        reductions group by group (benchmarks/README.md, "Session 15")."""
         n = len(layout.windows)
         if not self.enabled or n == 0:
             return np.zeros(n, dtype=bool)
-        margins = np.empty((n, 4), dtype=int)  # left, right, bottom, top (nodes; layout order)
-        empty = np.empty(n, dtype=bool)
-        unchecked = np.zeros((n, 4), dtype=bool)  # sides at a wall
-        full_width = np.zeros(n, dtype=bool)
-        first = 0  # a group's windows are contiguous in layout order
-        for group, (_key, members, *_) in enumerate(layout.groups):
-            slots = slice(first, first + members.size)
-            first += members.size
-            occupied = layout.group_block(phi, group) > self.threshold
-            for axis, (low, high) in ((1, (0, 1)), (2, (2, 3))):
-                hits = occupied.any(axis=axis)  # (k, nx) occupied columns, then (k, ny) rows
-                margins[slots, low] = np.argmax(hits, axis=1)
-                margins[slots, high] = np.argmax(hits[:, ::-1], axis=1)
-            empty[slots] = ~hits.any(axis=1)
-            # the windows of a group share their walls and width (Window.key): one looks for all
-            w = layout.representative(group)
-            unchecked[slots, 2], unchecked[slots, 3] = w.iy0 == 0, w.iy0 + w.ny == lattice[0]
-            full_width[slots] = w.nx == lattice[1]
-        bad = ((margins < self.margin) | (margins > self.longest_margin)) & ~unchecked
-        return (bad.any(axis=1) | full_width) & ~empty
+        boxes = self.occupied(layout, phi) if boxes is None else boxes
+        shapes = layout.window_shapes
+        # left, right, bottom, top (nodes)
+        margins = np.stack([boxes[:, 2], shapes[:, 1] - 1 - boxes[:, 3], boxes[:, 0], shapes[:, 0] - 1 - boxes[:, 1]],
+                           axis=1)
+        bad = (margins < self.margin) | (margins > self.longest_margin)
+        # the windows of a group share their walls and width (Window.key): one looks for all
+        walls = np.array([(w.iy0 == 0, w.iy0 + w.ny == lattice[0], w.nx == lattice[1])
+                          for w in map(layout.representative, range(len(layout.groups)))], dtype=bool)
+        bottom, top, full_width = np.repeat(walls, [members.size for _, members, *_ in layout.groups], axis=0).T
+        bad[:, 2] &= ~bottom
+        bad[:, 3] &= ~top
+        return (bad.any(axis=1) | full_width) & (boxes[:, 0] >= 0)
 
-    def fit(self, phi: np.ndarray, window: Window, lattice: tuple[int, int]) -> Window:
-        """The window ``phi`` (ny, nx on ``window``) should live on next."""
+    def fit(self, phi: np.ndarray, window: Window, lattice: tuple[int, int],
+            box: np.ndarray | None = None) -> Window:
+        """The window ``phi`` (ny, nx on ``window``) should live on next; ``box``: its row of
+        :meth:`occupied`, if known."""
+        from . import kernels
+
         lattice_ny, lattice_nx = lattice
-        occupied = phi > self.threshold
-        row_hits = np.flatnonzero(occupied.any(axis=1))
-        if row_hits.size == 0:
+        if box is None:
+            box = kernels.occupied_boxes(phi.ravel(), np.array([0, phi.size]), np.array([phi.shape]),
+                                         phi.dtype.type(self.threshold))[0]
+        if box[0] < 0:
             return window
-        rows = (window.iy0 + row_hits[0], window.iy0 + row_hits[-1])
-        col_occupied = occupied.any(axis=0)
+        row_span = (int(box[0]), int(box[1]))
+        rows = (window.iy0 + row_span[0], window.iy0 + row_span[1])
         if window.nx == lattice_nx:
-            c0, c1 = _circular_extent(col_occupied)
+            c0, c1 = _circular_extent((phi > self.threshold).any(axis=0))
             if c1 - c0 + 1 + 2 * (self.margin + self.room) + self.quantum <= lattice_nx:
                 return self.cover(rows, (c0, c1), lattice)
             # the particle needs the whole width; its rows must still follow it (a channel
             # narrower than a window: the y-extent must not freeze)
-            if self._rows_fit(window, row_hits, lattice_ny):
+            if self._rows_fit(window, row_span, lattice_ny):
                 return window
             return self.cover(rows, (0, lattice_nx - 1), lattice)
-        col_hits = np.flatnonzero(col_occupied)
-        cols = (window.ix0 + col_hits[0], window.ix0 + col_hits[-1])
-        return self._recentred(window, row_hits, cols, lattice) or self.cover(rows, cols, lattice)
+        cols = (window.ix0 + int(box[2]), window.ix0 + int(box[3]))
+        return self._recentred(window, row_span, cols, lattice) or self.cover(rows, cols, lattice)
 
-    def _recentred(self, window: Window, row_hits: np.ndarray, cols: tuple[int, int],
+    def _recentred(self, window: Window, row_span: tuple[int, int], cols: tuple[int, int],
                    lattice: tuple[int, int]) -> Window | None:
-        """``window`` moved to centre its particle (occupied rows ``row_hits``, local; occupied
-        columns ``cols``, lattice), its shape kept, if the centred margins lie in [margin,
+        """``window`` moved to centre its particle (first and last occupied row ``row_span``,
+        local; occupied columns ``cols``, lattice), its shape kept, if the centred margins lie in [margin,
         longest_margin] and it touches the same walls; else None. Under flow a particle
         drifts out of its window sideways (the advection moves windows by whole nodes and
         leaves the rest of each row's shift to the field): on the random packing at γ̇ = 1,
@@ -174,9 +181,9 @@ class WindowPolicy:
         as not, and a new shape costs a new layout (groups rebuilt), where a window of the
         same shape only moves the layout (:meth:`Layout.moved`)."""
         lattice_ny, lattice_nx = lattice
-        rows = (window.iy0 + row_hits[0], window.iy0 + row_hits[-1])
+        rows = (window.iy0 + row_span[0], window.iy0 + row_span[1])
         if window.iy0 == 0 or window.iy0 + window.ny == lattice_ny:  # at a wall: those rows stay
-            if not self._rows_fit(window, row_hits, lattice_ny):
+            if not self._rows_fit(window, row_span, lattice_ny):
                 return None
             iy0 = window.iy0
         else:
@@ -186,11 +193,12 @@ class WindowPolicy:
         ix0 = self._centred_start(cols, window.nx)
         return None if ix0 is None else Window(int(iy0), window.ny, int(ix0 % lattice_nx), window.nx)
 
-    def _rows_fit(self, window: Window, row_hits: np.ndarray, lattice_ny: int) -> bool:
-        """Whether the margins of the occupied rows ``row_hits`` (local) lie in [margin,
-        longest_margin] on every side of ``window`` not at a wall (none is needed there)."""
+    def _rows_fit(self, window: Window, row_span: tuple[int, int], lattice_ny: int) -> bool:
+        """Whether the margins of the occupied rows ``row_span`` (first, last; local) lie in
+        [margin, longest_margin] on every side of ``window`` not at a wall (none is needed
+        there)."""
         at_wall = (window.iy0 == 0, window.iy0 + window.ny == lattice_ny)
-        margins = (row_hits[0], window.ny - 1 - row_hits[-1])
+        margins = (row_span[0], window.ny - 1 - row_span[1])
         return all(wall or self.margin <= m <= self.longest_margin for wall, m in zip(at_wall, margins))
 
     def _centred_start(self, occupied: tuple[int, int], length: int) -> int | None:
@@ -447,6 +455,13 @@ class Layout:
         """:attr:`mass` in the precision of ``values`` (float32 or float64): a product of
         mixed precisions would be computed, and returned, in double."""
         return self.single_mass if values.dtype == np.float32 else self.mass
+
+    @cached_property
+    def window_shapes(self) -> np.ndarray:
+        """(windows, 2) int64: every window's shape, in layout order (2-D shapes: the
+        channel's windows). The same for every layout :meth:`moved` from this one."""
+        return np.repeat(np.array(self.shapes, dtype=np.int64).reshape(-1, 2),
+                         [members.size for _, members, *_ in self.groups], axis=0)
 
     @cached_property
     def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
