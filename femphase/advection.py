@@ -108,7 +108,7 @@ class RowShift(StepAdvection):
     """Exact advection of the structured channel's windows in a row flow (u(y, t), 0), in
     the fields' precision (:func:`shift_rows`; numerics.precision = "mixed" passes float32)."""
 
-    #: Groups whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
+    #: Runs whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
     #: stepper keeps up to 8 advections): a new layout regroups a few windows and leaves the
     #: other groups as they were
     STACK_CACHE = 32
@@ -117,72 +117,91 @@ class RowShift(StepAdvection):
         super().__init__(domain, flow, dt)
         _, self._y = domain.grid.coordinates()
         self._steady_shift = self._row_shift(0.0) if flow.steady else None
-        #: per group of windows (its shape, particles and precision): their first rows,
-        #: whole-node moves (k,) and stacked phase factors (k, ny, nx//2 + 1)
+        #: per run of windows (:func:`row_runs`; its width, particles, heights and
+        #: precision): their first rows (k,), whole-node moves (k,) and stacked phase
+        #: factors (rows, nx//2 + 1)
         self._stacks: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
 
     def _row_shift(self, time: float) -> np.ndarray:
         return np.asarray(self.flow.row_velocity(self._y, time + 0.5 * self.dt), dtype=float) * self.dt / self.domain.grid.h
 
-    def _window_shifts(self, row_shift: np.ndarray, windows: list[Window]) -> tuple[np.ndarray, np.ndarray]:
-        """For windows of one shape: the whole nodes each moves (k,), and the fractional
-        shifts (k, ny) left for its rows."""
-        w0 = windows[0]
-        iy0 = np.array([w.iy0 for w in windows])
-        shifts = row_shift[iy0[:, None] + np.arange(w0.ny)[None, :]]
-        if w0.nx == self.domain.grid.nx:
-            return np.zeros(len(windows), dtype=int), shifts
-        whole = np.rint(shifts.mean(axis=1))
-        return whole.astype(int), shifts - whole[:, None]
+    def _window_shifts(self, row_shift: np.ndarray, first_rows: np.ndarray, heights: np.ndarray,
+                       full_width: bool) -> tuple[np.ndarray, np.ndarray]:
+        """For windows of one width, first rows ``first_rows`` and ``heights`` rows each: the
+        whole nodes each moves (k,), the mean of its rows' shifts rounded (none for
+        full-width windows), and the fractional shifts left for their rows, all rows one
+        after the other (Σ heights,)."""
+        starts = np.concatenate([[0], np.cumsum(heights)])
+        shifts = row_shift[np.arange(starts[-1]) + np.repeat(first_rows - starts[:-1], heights)]
+        if full_width:
+            return np.zeros(heights.size, dtype=np.int64), shifts
+        whole = np.rint(np.add.reduceat(shifts, starts[:-1]) / heights)
+        return whole.astype(np.int64), shifts - np.repeat(whole, heights)
 
-    def _group_phases(self, windows: list[Window], members: np.ndarray,
-                      single: bool) -> tuple[np.ndarray, np.ndarray]:
-        """The whole-node moves (k,) and phase factors (k, ny, nx//2 + 1; complex64 if
-        ``single``) of the windows of particles ``members``, all of one shape, in a steady
-        flow. A row flow never changes
-        them while the windows keep their rows, so they are kept per group and renewed
-        window by window when a refit moves windows across rows (building them every
-        substep was 6 % of the lattice's step, stacking them window by window 4 %; under
-        strong shear refits move a window or two across rows every substep, and building
-        the group's factors afresh then cost 5 % of the random packing's time at γ̇ = 1)."""
-        ny, nx = windows[0].ny, windows[0].nx
-        rows = np.fromiter((w.iy0 for w in windows), dtype=np.int64, count=len(windows))
-        key = (ny, nx, members.tobytes(), single)
+    def _run_phases(self, first_rows: np.ndarray, heights: np.ndarray, members: np.ndarray, nx: int,
+                    single: bool) -> tuple[np.ndarray, np.ndarray]:
+        """The whole-node moves (k,) and phase factors (Σ heights, nx//2 + 1; complex64 if
+        ``single``) of the windows of particles ``members``, all ``nx`` wide, in a steady
+        flow. A row flow never changes them while the windows keep their rows, so they are
+        kept per run of windows and renewed window by window when a refit moves windows
+        across rows (building them every substep was 6 % of the lattice's step, stacking
+        them window by window 4 %; under strong shear refits move a window or two across
+        rows every substep, and building a group's factors afresh then cost 5 % of the
+        random packing's time at γ̇ = 1)."""
+        key = (nx, single, members.tobytes(), heights.tobytes())
         kept = self._stacks.get(key)
         if kept is None:
             if len(self._stacks) >= self.STACK_CACHE:
                 self._stacks.clear()
-            changed = np.arange(len(windows))
-            kept = self._stacks[key] = (rows.copy(), np.empty(len(windows), dtype=np.int64),
-                                        np.empty((len(windows), ny, nx // 2 + 1),
+            changed = np.ones(members.size, dtype=bool)
+            kept = self._stacks[key] = (first_rows.copy(), np.empty(members.size, dtype=np.int64),
+                                        np.empty((int(heights.sum()), nx // 2 + 1),
                                                  dtype=np.complex64 if single else complex))
         else:
-            changed = np.flatnonzero(kept[0] != rows)
-        if changed.size:
+            changed = kept[0] != first_rows
+        if changed.any():
             kept_rows, kept_wholes, kept_phases = kept
-            wholes, shifts = self._window_shifts(self._steady_shift, [windows[i] for i in changed])
-            kept_wholes[changed], kept_phases[changed] = wholes, row_phases(shifts, nx, single)
-            kept_rows[changed] = rows[changed]
+            wholes, shifts = self._window_shifts(self._steady_shift, first_rows, heights,
+                                                 nx == self.domain.grid.nx)
+            rows = np.repeat(changed, heights)
+            kept_wholes[changed], kept_phases[rows] = wholes[changed], row_phases(shifts[rows], nx, single)
+            kept_rows[changed] = first_rows[changed]
         return kept[1], kept[2]
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
         grid = self.domain.grid
         row_shift = None if self._steady_shift is not None else self._row_shift(time)
         windows = list(layout.windows)
-        for group, (_key, members, *_) in enumerate(layout.groups):
-            block = layout.group_block(phi, group)
+        for start, stop, members, heights, nx in row_runs(layout):
+            block = phi[start:stop].reshape(-1, nx)
+            first_rows = np.fromiter((windows[i].iy0 for i in members), dtype=np.int64, count=members.size)
             if row_shift is None:
-                wholes, phases = self._group_phases([windows[i] for i in members], members,
-                                                    block.dtype == np.float32)
+                wholes, phases = self._run_phases(first_rows, heights, members, nx, block.dtype == np.float32)
                 block[...] = shift_rows(block, None, phases)
             else:
-                wholes, shifts = self._window_shifts(row_shift, [windows[i] for i in members])
+                wholes, shifts = self._window_shifts(row_shift, first_rows, heights, nx == grid.nx)
                 block[...] = shift_rows(block, shifts)
             for i, k in zip(members[wholes != 0], wholes[wholes != 0]):
                 w = windows[i]
                 windows[i] = Window(w.iy0, w.ny, (w.ix0 + int(k)) % grid.nx, w.nx)
         moved = self.domain.layout(windows)
         return regather(phi, layout, moved), moved
+
+
+def row_runs(layout: Layout) -> list[tuple[int, int, np.ndarray, np.ndarray, int]]:
+    """The layout's windows in runs of consecutive groups of one width (the channel's window
+    keys start with nx): (first position, end position, the particles (k,), their windows'
+    heights (k,), nx). A row shift transforms a run's rows in one call: on the random
+    packing 4 runs instead of 14 groups (benchmarks/README.md, "Session 15")."""
+    runs = []  # [first position, end position, members, heights, nx]
+    for (_, members, start, stop, _), (ny, nx) in zip(layout.groups, layout.shapes):
+        if not runs or runs[-1][4] != nx:
+            runs.append([start, stop, [], [], nx])
+        runs[-1][1] = stop
+        runs[-1][2].append(members)
+        runs[-1][3].append(np.full(members.size, ny, dtype=np.int64))
+    return [(start, stop, np.concatenate(members), np.concatenate(heights), nx)
+            for start, stop, members, heights, nx in runs]
 
 
 class SemiLagrangian(StepAdvection):

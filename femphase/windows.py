@@ -54,7 +54,9 @@ class Window:
         """Everything the window's submatrix depends on: shape, walls touched, periodicity,
         and (alternating diagonals only) the chequerboard parity."""
         parity = (self.ix0 + self.iy0) % 2 if alternating else 0
-        return (self.ny, self.nx, self.iy0 == 0, self.iy0 + self.ny == lattice_ny, self.nx == lattice_nx, parity)
+        # nx first: windows of one width are then contiguous in a layout, and a row shift
+        # transforms them in one call (femphase.advection.row_runs)
+        return (self.nx, self.ny, self.iy0 == 0, self.iy0 + self.ny == lattice_ny, self.nx == lattice_nx, parity)
 
 
 @dataclass(frozen=True)
