@@ -32,7 +32,7 @@ from .errors import SceneError
 from .mesh import ChannelGrid, channel_grid, grid_dof_map, load_mesh, structured_channel_mesh
 from .placement import random_centres
 from .solvers import TensorBasis, TensorSolver
-from .windows import Layout, Window, WindowPolicy, pad_window, transfer
+from .windows import GridLayout, Layout, Window, WindowPolicy, pad_window, transfer
 
 if TYPE_CHECKING:
     from .flows import Flow
@@ -71,8 +71,9 @@ class ChannelDomain(Domain):
         #: the rows of the last layout moved to: what a move that keeps them reuses
         self._rows: RowOffsets | None = None
         lumped = self.operators.lumped_mass.reshape(grid.ny, grid.nx)
-        #: whether the lumped mass depends on the row alone (then a move along x keeps it)
-        self._mass_by_row = bool(np.all(lumped == lumped[:, :1]))
+        #: the lumped mass of every row where it depends on the row alone (then a move along
+        #: x keeps it), else None
+        self._row_mass = lumped[:, 0].copy() if np.all(lumped == lumped[:, :1]) else None
 
     @classmethod
     def from_table(cls, table: dict, base_dir: Path, numerics: "Numerics") -> "ChannelDomain":
@@ -154,8 +155,8 @@ class ChannelDomain(Domain):
         if last is not None and len(last.windows) == len(windows) and self._same_keys(last.windows, windows):
             self._layout = self._moved(last, windows)
         else:
-            self._layout = Layout(windows, self.window_key, self._group_dofs, lambda w: w.shape,
-                                  self.operators.lumped_mass)
+            self._layout = GridLayout(windows, self.window_key, self._group_dofs, self.operators.lumped_mass,
+                                      self.lattice)
         return self._layout
 
     def _same_keys(self, old: Sequence[Window], new: Sequence[Window]) -> bool:
@@ -168,14 +169,15 @@ class ChannelDomain(Domain):
                    for a, b in zip(old, new))
 
     def _moved(self, last: Layout, windows: tuple[Window, ...]) -> Layout:
-        """``last`` with its windows moved to ``windows`` (of the same keys). Its dofs and
-        lumped masses are computed on first use: a substep moves the layout twice (the
-        advection, then the refit's recentred windows) and uses the dofs of the first move
-        only, as the next substep's advection moves on from the second (at γ̇ = 1 on the
-        random packing, 0.5 ms a move). The dofs of all positions come at once from the
-        windows' corners and :attr:`Layout.cells`; their rows' part, and the masses where
-        they depend on the row alone, are shared by the moves that keep the rows (the
-        advection's)."""
+        """``last`` with its windows moved to ``windows`` (of the same keys), their corners
+        given (:attr:`GridLayout.corners`, all the substeps' sums over windows need). Its
+        dofs and lumped masses are computed on first use: a substep moves the layout twice
+        (the advection, then the refit's recentred windows) and, since the sums run from the
+        corners (session 15), needs the dofs of neither (at γ̇ = 1 on the random packing,
+        0.3 ms a move); frames and T1 looks still use them. The dofs of all positions come
+        at once from the windows' corners and :attr:`Layout.cells`; their rows' part, and
+        the masses where they depend on the row alone, are shared by the moves that keep
+        the rows (the advection's)."""
         slot, row, column = last.cells
         ordered = [windows[i] for i in last.order]
         iy0 = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
@@ -183,8 +185,11 @@ class ChannelDomain(Domain):
         rows = self._rows
         # the cache describes ``last`` itself: it is the layout the last move made (a layout
         # built afresh has new groups)
+        shapes = last.window_shapes
+        corners = np.stack([iy0, shapes[:, 0], ix0, shapes[:, 1]], axis=1)
         if rows is None or rows.groups is not last.groups or not np.array_equal(rows.iy0, iy0):
-            rows = self._rows = RowOffsets(last.groups, iy0, slot, row, self.grid.nx, self.operators.lumped_mass)
+            rows = self._rows = RowOffsets(last.groups, iy0, slot, row, self.grid.nx, self._row_mass, last.offsets,
+                                           corners)
         nx, lumped = self.grid.nx, self.operators.lumped_mass
 
         @cache
@@ -195,8 +200,10 @@ class ChannelDomain(Domain):
             dofs += rows.offsets
             return dofs
 
-        mass = (lambda: rows.mass) if self._mass_by_row else (lambda: lumped[node_index()])
-        return last.moved(windows, node_index, mass)
+        mass = (lambda: rows.mass) if self._row_mass is not None else (lambda: lumped[node_index()])
+        moved = last.moved(windows, node_index, mass)
+        moved.corners = corners
+        return moved
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
@@ -263,13 +270,15 @@ class ChannelDomain(Domain):
 class RowOffsets:
     """The rows of a moved layout's positions (:meth:`ChannelDomain._moved`): its groups, its
     windows' first rows in layout order, and, computed on first use, each position's row
-    times nx (its dof at column 0) and, for a lumped mass that depends on the row alone,
-    each position's mass."""
+    times nx (its dof at column 0) and, for a lumped mass that depends on the row alone
+    (``row_mass``, per lattice row), each position's mass (from the windows' ``offsets``
+    and ``corners``, :func:`femphase.kernels.row_values`)."""
 
     def __init__(self, groups: list, iy0: np.ndarray, slot: np.ndarray, row: np.ndarray, nx: int,
-                 lumped_mass: np.ndarray) -> None:
+                 row_mass: np.ndarray | None, offsets: np.ndarray, corners: np.ndarray) -> None:
         self.groups, self.iy0 = groups, iy0
-        self._slot, self._row, self._nx, self._lumped_mass = slot, row, nx, lumped_mass
+        self._slot, self._row, self._nx = slot, row, nx
+        self._row_mass, self._offsets, self._corners = row_mass, offsets, corners
 
     @cached_property
     def offsets(self) -> np.ndarray:
@@ -280,7 +289,9 @@ class RowOffsets:
 
     @cached_property
     def mass(self) -> np.ndarray:
-        return self._lumped_mass[self.offsets]
+        from . import kernels  # numba loads only where a scene needs it
+
+        return kernels.row_values(self._row_mass, self._offsets, self._corners)
 
 
 def _has_alternating_diagonals(mesh, grid: ChannelGrid) -> bool:

@@ -1,5 +1,5 @@
-"""Compiled loops over window fields (numba), for scans numpy cannot express without one
-call per window group.
+"""Compiled loops over the structured channel's window fields (numba): scans and sums that
+numpy expresses only with one call per window group or with a per-position dof table.
 
 Each function is compiled on first use for the dtype it is given (float32 inside the
 mixed-precision flow steps, float64 elsewhere) and cached on disk (numba's ``cache=True``),
@@ -52,3 +52,75 @@ def occupied_boxes(phi: np.ndarray, offsets: np.ndarray, shapes: np.ndarray, thr
             boxes[window, 0], boxes[window, 1] = first_row, last_row
             boxes[window, 2], boxes[window, 3] = first_column, last_column
     return boxes
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def others_squared(squares: np.ndarray, offsets: np.ndarray, corners: np.ndarray,
+                   lattice_ny: int, lattice_nx: int) -> np.ndarray:
+    """Σ_{j≠i} φ_j² at every position of the structured channel's windows: ``squares``
+    (φ_i² at every position, window w's from ``offsets[w]``, row by row) summed over all
+    windows at every node of the (lattice_ny, lattice_nx) lattice, minus each position's
+    own term. ``corners`` (windows, 4): iy0, ny, ix0, nx of every window (columns ix0 …
+    ix0+nx−1 mod lattice_nx), in the order of ``offsets``.
+
+    The sums are accumulated in double in position order and rounded to the fields' dtype
+    once, then the own term is subtracted in that dtype: the operations, in the order, of
+    ``np.bincount(dofs, weights=squares).astype(dtype)[dofs] − squares`` with every
+    position's dof (bitwise equal, ``tests/test_kernels.py``), without that dof table,
+    which a layout moved by the advection would build afresh at every substep. Each window
+    row is one or two contiguous runs of lattice nodes (two across the periodic seam),
+    walked as slices, which numba vectorises."""
+    total = np.zeros(lattice_ny * lattice_nx)
+    for window in range(corners.shape[0]):
+        iy0, ny, ix0, nx = corners[window, 0], corners[window, 1], corners[window, 2], corners[window, 3]
+        before_seam = min(nx, lattice_nx - ix0)
+        position = offsets[window]
+        for row in range(iy0, iy0 + ny):
+            _add_into(total[row * lattice_nx + ix0:row * lattice_nx + ix0 + before_seam],
+                      squares[position:position + before_seam])
+            _add_into(total[row * lattice_nx:row * lattice_nx + nx - before_seam],
+                      squares[position + before_seam:position + nx])
+            position += nx
+    rounded = total.astype(squares.dtype)
+    out = np.empty_like(squares)
+    for window in range(corners.shape[0]):
+        iy0, ny, ix0, nx = corners[window, 0], corners[window, 1], corners[window, 2], corners[window, 3]
+        before_seam = min(nx, lattice_nx - ix0)
+        position = offsets[window]
+        for row in range(iy0, iy0 + ny):
+            _difference(out[position:position + before_seam],
+                        rounded[row * lattice_nx + ix0:row * lattice_nx + ix0 + before_seam],
+                        squares[position:position + before_seam])
+            _difference(out[position + before_seam:position + nx],
+                        rounded[row * lattice_nx:row * lattice_nx + nx - before_seam],
+                        squares[position + before_seam:position + nx])
+            position += nx
+    return out
+
+
+@numba.njit(inline="always", boundscheck=False)
+def _add_into(target: np.ndarray, values: np.ndarray) -> None:
+    for k in range(values.size):
+        target[k] += values[k]
+
+
+@numba.njit(inline="always", boundscheck=False)
+def _difference(out: np.ndarray, minuend: np.ndarray, subtrahend: np.ndarray) -> None:
+    for k in range(out.size):
+        out[k] = minuend[k] - subtrahend[k]
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def row_values(values: np.ndarray, offsets: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """A value per lattice row (``values``, (lattice_ny,)) at every position of the windows
+    (``offsets``, ``corners`` as in :func:`others_squared`): e.g. the channel's lumped mass,
+    which depends on the row alone. Each window row is one vectorised fill, where a gather
+    through every position's row costs three passes over the positions."""
+    out = np.empty(offsets[-1], dtype=values.dtype)
+    for window in range(corners.shape[0]):
+        iy0, ny, nx = corners[window, 0], corners[window, 1], corners[window, 3]
+        position = offsets[window]
+        for row in range(iy0, iy0 + ny):
+            out[position:position + nx] = values[row]
+            position += nx
+    return out

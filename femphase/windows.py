@@ -429,14 +429,14 @@ class Layout:
         its positions' dofs and lumped masses, called on first use (a layout that is only
         moved on needs neither). Several times cheaper than building a layout, and the
         advection moves windows every substep."""
-        moved = object.__new__(Layout)
+        moved = object.__new__(type(self))
         moved.__dict__.update({k: v for k, v in self.__dict__.items() if k not in self._PER_POSITION})
         moved.windows = tuple(windows)
         moved._pending = {"node_index": node_index, "mass": mass}
         return moved
 
     #: What a moved layout does not share with the layout it was moved from
-    _PER_POSITION = ("node_index", "mass", "single_mass", "overlap_positions", "_parts", "_pending")
+    _PER_POSITION = ("node_index", "mass", "single_mass", "overlap_positions", "_parts", "_pending", "corners")
 
     @cached_property
     def node_index(self) -> np.ndarray:
@@ -510,7 +510,8 @@ class Layout:
     def _part(self, pieces: list[tuple[int, int, int]]) -> tuple[int, int, "Layout"]:
         """(first position, end position, the layout of the windows in ``pieces``: (group,
         first member, members), consecutive in layout order)."""
-        part = object.__new__(Layout)
+        part = object.__new__(type(self))
+        part.__dict__.update({name: getattr(self, name) for name in self._SHARED_WITH_PARTS})
         part.windows, part._n_dofs = self.windows, self._n_dofs
         part.groups, part.shapes = [], []
         begin = end = None
@@ -560,6 +561,9 @@ class Layout:
         """``ufunc`` reduced over every window's slice, in layout order."""
         return ufunc.reduceat(values, self.offsets[:-1])
 
+    #: What a part (:meth:`parts`) takes from its whole layout besides windows and dofs
+    _SHARED_WITH_PARTS: tuple[str, ...] = ()
+
     def others_squared(self, squares: np.ndarray) -> np.ndarray:
         """Σ_{j≠i} φ_j² at every position: the sum over all windows at each dof, minus the
         position's own term. Exactly zero where no other window overlaps (x + 0 − x), and,
@@ -570,3 +574,32 @@ class Layout:
         others = np.take(total, self.node_index)  # 25 % faster than total[index] here
         others -= squares
         return others
+
+
+class GridLayout(Layout):
+    """A layout of the structured channel's rectangular windows (:class:`Window`) on its
+    lattice of ``lattice`` = (ny, nx) nodes, whose sums over windows run from the windows'
+    corners (:mod:`femphase.kernels`) instead of through :attr:`node_index`: a layout moved
+    by the advection, at every substep under shear, then needs no dof table."""
+
+    _SHARED_WITH_PARTS = ("lattice",)
+
+    def __init__(self, windows: Sequence[Window], key: Callable[[Window], Hashable],
+                 group_dofs: Callable[[list], np.ndarray], lumped_mass: np.ndarray,
+                 lattice: tuple[int, int]) -> None:
+        super().__init__(windows, key, group_dofs, lambda w: w.shape, lumped_mass)
+        self.lattice = lattice
+
+    @cached_property
+    def corners(self) -> np.ndarray:
+        """(windows, 4) int64: iy0, ny, ix0, nx of every window, in layout order (a moved
+        layout's are given by the move)."""
+        ordered = [self.windows[i] for i in self.order]
+        return np.array([[w.iy0, w.ny, w.ix0, w.nx] for w in ordered], dtype=np.int64).reshape(-1, 4)
+
+    def others_squared(self, squares: np.ndarray) -> np.ndarray:
+        """Σ_{j≠i} φ_j² at every position, bitwise as :meth:`Layout.others_squared`
+        (:func:`femphase.kernels.others_squared`)."""
+        from . import kernels  # numba loads only where a scene needs it
+
+        return kernels.others_squared(squares, self.offsets, self.corners, *self.lattice)

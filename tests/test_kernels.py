@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from femphase.kernels import occupied_boxes
+from femphase.kernels import occupied_boxes, others_squared
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])
@@ -36,3 +36,24 @@ def test_occupied_boxes_match_numpy(dtype):
         else:
             assert box.tolist() == [rows.min(), rows.max(), columns.min(), columns.max()]
     assert 0 < empty < len(fields)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_others_squared_is_bincount_through_the_dof_table(dtype):
+    """The kernel's sums equal np.bincount over every position's dof, bitwise: windows that
+    overlap, cross the periodic seam, span the whole width or touch the walls."""
+    rng = np.random.default_rng(5)
+    lattice_ny, lattice_nx = 30, 24
+    corners = [(0, 8, 20, 9), (3, 10, 0, lattice_nx), (22, 8, 17, 7), (10, 12, 5, 11), (12, 6, 8, 16)]
+    corners += [(int(iy0), int(ny), int(rng.integers(0, lattice_nx)), int(nx))
+                for iy0, ny, nx in zip(rng.integers(0, 20, 20), rng.integers(1, 11, 20), rng.integers(1, lattice_nx, 20))]
+    corners = np.array(corners, dtype=np.int64)
+    sizes = corners[:, 1] * corners[:, 3]
+    offsets = np.concatenate([[0], np.cumsum(sizes)])
+    squares = rng.uniform(0.0, 1.0, offsets[-1]).astype(dtype)
+    dofs = np.concatenate([((iy0 + np.arange(ny))[:, None] * lattice_nx + (ix0 + np.arange(nx)) % lattice_nx).ravel()
+                           for iy0, ny, ix0, nx in corners])
+    expected = np.bincount(dofs, weights=squares).astype(dtype)[dofs] - squares
+    result = others_squared(squares, offsets, corners, lattice_ny, lattice_nx)
+    assert result.dtype == dtype and np.array_equal(result, expected)
+    assert (np.bincount(dofs) > 1).any() and (corners[:, 2] + corners[:, 3] > lattice_nx).any()
