@@ -206,21 +206,35 @@ class ChannelDomain(Domain):
         return moved
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: WindowPolicy,
-              motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
-        boxes = policy.occupied(layout, phi) if policy.enabled else None
+              motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
+        if not policy.enabled:
+            return layout, phi
+        boxes = policy.occupied(layout, phi)
         misfits = np.flatnonzero(policy.misfits(layout, phi, self.lattice, boxes))
-        windows = list(layout.windows)
-        if misfits.size == 0:  # most substeps: no views of the fields to make
-            return windows, None
-        fields = layout.scatter(phi)
+        windows, changed = list(layout.windows), {}  # changed: slot → the field on its new window
         for slot in misfits:
             i = layout.order[slot]
             w = windows[i]
-            fitted = policy.fit(fields[i].reshape(w.shape), w, self.lattice, boxes[slot])
+            field = phi[layout.offsets[slot]:layout.offsets[slot + 1]].reshape(w.shape)
+            fitted = policy.fit(field, w, self.lattice, boxes[slot])
             if fitted != w:
-                fields[i] = transfer(fields[i].reshape(w.shape), w, fitted, self.grid.nx).ravel()
+                changed[slot] = transfer(field, w, fitted, self.grid.nx).ravel()
                 windows[i] = fitted
-        return windows, fields
+        if not changed:  # most substeps
+            return layout, phi
+        refitted = self.layout(windows)
+        if refitted.groups is not layout.groups:  # a window changed shape: new groups
+            fields = layout.scatter(phi)
+            for slot, field in changed.items():
+                fields[layout.order[slot]] = field
+            return self.refitted(layout, phi, windows, fields)
+        # windows moved within their groups (under shear nearly every refit: recentred
+        # windows, :meth:`WindowPolicy.fit`): the same slots, only theirs rewritten, where
+        # scattering and gathering all windows cost 0.3 ms a refit at γ̇ = 1
+        phi = phi.copy()
+        for slot, field in changed.items():
+            phi[layout.offsets[slot]:layout.offsets[slot + 1]] = field
+        return refitted, phi
 
     def windows_to_array(self, windows: Sequence[Window]) -> np.ndarray:
         return np.array([[w.iy0, w.ny, w.ix0, w.nx] for w in windows], dtype=np.int64).reshape(-1, 4)

@@ -134,10 +134,20 @@ class Domain(ABC):
 
     @abstractmethod
     def refit(self, layout: Layout, phi: np.ndarray, policy, motion: Callable[[], np.ndarray] | None
-              ) -> tuple[list, list[np.ndarray] | None]:
-        """Windows and fields (particle order) after refitting every window that no longer
-        fits its field (fields None: no window changed); ``motion()`` gives every particle's
-        displacement (N, 2) over the coming step, for domains that leave room for it."""
+              ) -> tuple[Layout, np.ndarray]:
+        """(layout, φ in its order) after refitting every window that no longer fits its
+        field (``layout`` and ``phi`` themselves where none changed; ``phi`` is never
+        written); ``motion()`` gives every particle's displacement (N, 2) over the coming
+        step, for domains that leave room for it."""
+
+    def refitted(self, layout: Layout, phi: np.ndarray, windows: list, fields: list[np.ndarray]
+                 ) -> tuple[Layout, np.ndarray]:
+        """(layout, φ) of ``windows`` and ``fields`` (particle order), which replaced some of
+        ``layout``'s windows and ``phi``'s fields: :meth:`refit`'s result."""
+        if tuple(windows) == layout.windows:
+            return layout, phi
+        refitted = self.layout(windows)
+        return refitted, refitted.gather(fields)
 
     @abstractmethod
     def windows_to_array(self, windows: Sequence[Hashable]) -> np.ndarray:

@@ -285,7 +285,7 @@ class MeshDomain(Domain):
         return last
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
-              motion: Callable[[], np.ndarray] | None) -> tuple[list, list[np.ndarray]]:
+              motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
         """Boxes refitted to the field and to the coming step's motion (see BoxPolicy)."""
         boxes, fields = list(layout.windows), layout.scatter(phi)
         steps = np.zeros((len(boxes), 2)) if motion is None else motion()
@@ -318,7 +318,7 @@ class MeshDomain(Domain):
             fields[i] = scratch[new]
             scratch[old] = 0.0
             boxes[i] = fitted
-        return boxes, fields
+        return self.refitted(layout, phi, boxes, fields)
 
     def windows_to_array(self, windows: Sequence[Box]) -> np.ndarray:
         return np.array([[b.x0, b.width, b.y0, b.y1] for b in windows], dtype=float).reshape(-1, 4)

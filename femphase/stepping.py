@@ -346,11 +346,7 @@ class Stepper:
         """(layout, φ) after refitting the windows that no longer fit their fields; with
         ``time``, windows leave room for the motion of a step from then (meshes)."""
         motion = None if time is None else (lambda: self._motion(layout, phi, time))
-        windows, fields = self.domain.refit(layout, phi, self.policy, motion)
-        if fields is not None and tuple(windows) != layout.windows:
-            layout = self.domain.layout(windows)
-            phi = layout.gather(fields)
-        return layout, phi
+        return self.domain.refit(layout, phi, self.policy, motion)
 
     def _motion(self, layout: Layout, phi: np.ndarray, time: float) -> np.ndarray:
         """(N, 2): each particle's displacement over the coming step, its φ²-weighted mean
