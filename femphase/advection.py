@@ -58,6 +58,7 @@ if TYPE_CHECKING:
     from .domain import Domain
     from .meshed import MeshDomain
     from .stepping import Numerics
+    from .windows import GridLayout
 
 
 def row_phases(shifts: np.ndarray, nx: int, single: bool = False) -> np.ndarray:
@@ -121,6 +122,8 @@ class RowShift(StepAdvection):
         #: precision): their first rows (k,), whole-node moves (k,) and stacked phase
         #: factors (rows, nx//2 + 1)
         self._stacks: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        #: (groups, :func:`row_runs`) of the last layout advected: moved layouts keep both
+        self._runs: tuple[list, list] | None = None
 
     def _row_shift(self, time: float) -> np.ndarray:
         return np.asarray(self.flow.row_velocity(self._y, time + 0.5 * self.dt), dtype=float) * self.dt / self.domain.grid.h
@@ -168,40 +171,45 @@ class RowShift(StepAdvection):
             kept_rows[changed] = first_rows[changed]
         return kept[1], kept[2]
 
-    def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
+    def advect(self, phi: np.ndarray, layout: "GridLayout", time: float) -> tuple[np.ndarray, Layout]:
         grid = self.domain.grid
         row_shift = None if self._steady_shift is not None else self._row_shift(time)
-        windows = list(layout.windows)
-        for start, stop, members, heights, nx in row_runs(layout):
+        if self._runs is None or self._runs[0] is not layout.groups:  # kept while the groups are
+            self._runs = (layout.groups, row_runs(layout))
+        corners = layout.corners
+        first_columns = corners[:, 2].copy()
+        for start, stop, slots, members, heights, nx in self._runs[1]:
             block = phi[start:stop].reshape(-1, nx)
-            first_rows = np.fromiter((windows[i].iy0 for i in members), dtype=np.int64, count=members.size)
+            first_rows = corners[slots, 0]
             if row_shift is None:
                 wholes, phases = self._run_phases(first_rows, heights, members, nx, block.dtype == np.float32)
                 block[...] = shift_rows(block, None, phases)
             else:
                 wholes, shifts = self._window_shifts(row_shift, first_rows, heights, nx == grid.nx)
                 block[...] = shift_rows(block, shifts)
-            for i, k in zip(members[wholes != 0], wholes[wholes != 0]):
-                w = windows[i]
-                windows[i] = Window(w.iy0, w.ny, (w.ix0 + int(k)) % grid.nx, w.nx)
-        moved = self.domain.layout(windows)
+            first_columns[slots] += wholes
+        np.remainder(first_columns, grid.nx, out=first_columns)
+        moved = self.domain.moved_along_rows(layout, first_columns)
         return regather(phi, layout, moved), moved
 
 
-def row_runs(layout: Layout) -> list[tuple[int, int, np.ndarray, np.ndarray, int]]:
+def row_runs(layout: Layout) -> list[tuple[int, int, slice, np.ndarray, np.ndarray, int]]:
     """The layout's windows in runs of consecutive groups of one width (the channel's window
-    keys start with nx): (first position, end position, the particles (k,), their windows'
-    heights (k,), nx). A row shift transforms a run's rows in one call: on the random
-    packing 4 runs instead of 14 groups (benchmarks/README.md, "Session 15")."""
-    runs = []  # [first position, end position, members, heights, nx]
+    keys start with nx): (first position, end position, the run's slots (layout order),
+    their particles (k,), their windows' heights (k,), nx). A row shift transforms a run's
+    rows in one call: on the random packing 4 runs instead of 14 groups
+    (benchmarks/README.md, "Session 15")."""
+    runs = []  # [first position, end position, first slot, members, heights, nx]
+    slot = 0
     for (_, members, start, stop, _), (ny, nx) in zip(layout.groups, layout.shapes):
-        if not runs or runs[-1][4] != nx:
-            runs.append([start, stop, [], [], nx])
+        if not runs or runs[-1][5] != nx:
+            runs.append([start, stop, slot, [], [], nx])
         runs[-1][1] = stop
-        runs[-1][2].append(members)
-        runs[-1][3].append(np.full(members.size, ny, dtype=np.int64))
-    return [(start, stop, np.concatenate(members), np.concatenate(heights), nx)
-            for start, stop, members, heights, nx in runs]
+        runs[-1][3].append(members)
+        runs[-1][4].append(np.full(members.size, ny, dtype=np.int64))
+        slot += members.size
+    return [(start, stop, slice(first, first + sum(m.size for m in members)), np.concatenate(members),
+             np.concatenate(heights), nx) for start, stop, first, members, heights, nx in runs]
 
 
 class SemiLagrangian(StepAdvection):

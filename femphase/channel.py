@@ -168,25 +168,45 @@ class ChannelDomain(Domain):
         return all(a is b or (parity_free and a.iy0 == b.iy0 and a.ny == b.ny and a.nx == b.nx) or key(a) == key(b)
                    for a, b in zip(old, new))
 
-    def _moved(self, last: Layout, windows: tuple[Window, ...]) -> Layout:
-        """``last`` with its windows moved to ``windows`` (of the same keys), their corners
-        given (:attr:`GridLayout.corners`, all the substeps' sums over windows need). Its
-        dofs and lumped masses are computed on first use: a substep moves the layout twice
-        (the advection, then the refit's recentred windows) and, since the sums run from the
-        corners (session 15), needs the dofs of neither (at γ̇ = 1 on the random packing,
-        0.3 ms a move); frames and T1 looks still use them. The dofs of all positions come
-        at once from the windows' corners and :attr:`Layout.cells`; their rows' part, and
-        the masses where they depend on the row alone, are shared by the moves that keep
-        the rows (the advection's)."""
+    def moved_along_rows(self, layout: GridLayout, first_columns: np.ndarray) -> GridLayout:
+        """``layout`` with its windows' first columns (layout order) moved to
+        ``first_columns``, their rows and shapes kept: the advection's whole-node moves,
+        whose keys stay (with alternating diagonals an odd move changes a key's parity: then
+        the layout is regrouped as any other)."""
+        moving = np.flatnonzero(first_columns != layout.corners[:, 2])
+        if moving.size == 0:
+            return layout
+        windows = list(layout.windows)
+        for slot in moving:
+            i = layout.order[slot]
+            w = windows[i]
+            windows[i] = Window(w.iy0, w.ny, int(first_columns[slot]), w.nx)
+        if self.alternating:
+            return self.layout(windows)
+        corners = layout.corners.copy()
+        corners[:, 2] = first_columns
+        self._layout = self._moved(layout, tuple(windows), corners)
+        return self._layout
+
+    def _moved(self, last: Layout, windows: tuple[Window, ...], corners: np.ndarray | None = None) -> Layout:
+        """``last`` with its windows moved to ``windows`` (of the same keys; ``corners``, in
+        layout order, if known), their corners given (:attr:`GridLayout.corners`, all the
+        substeps' sums over windows need). Its dofs and lumped masses are computed on first
+        use: a substep moves the layout twice (the advection, then the refit's recentred
+        windows) and, since the sums run from the corners (session 15), needs the dofs of
+        neither (at γ̇ = 1 on the random packing, 0.3 ms a move); frames and T1 looks still
+        use them. The dofs of all positions come at once from the windows' corners and
+        :attr:`Layout.cells`; their rows' part, and the masses where they depend on the row
+        alone, are shared by the moves that keep the rows (the advection's)."""
         slot, row, column = last.cells
-        ordered = [windows[i] for i in last.order]
-        iy0 = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
-        ix0 = np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered))
+        if corners is None:
+            ordered = [windows[i] for i in last.order]
+            iy0 = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
+            ix0 = np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered))
+            shapes = last.window_shapes
+            corners = np.stack([iy0, shapes[:, 0], ix0, shapes[:, 1]], axis=1)
+        iy0, ix0 = corners[:, 0], corners[:, 2]
         rows = self._rows
-        # the cache describes ``last`` itself: it is the layout the last move made (a layout
-        # built afresh has new groups)
-        shapes = last.window_shapes
-        corners = np.stack([iy0, shapes[:, 0], ix0, shapes[:, 1]], axis=1)
         if rows is None or rows.groups is not last.groups or not np.array_equal(rows.iy0, iy0):
             rows = self._rows = RowOffsets(last.groups, iy0, slot, row, self.grid.nx, self._row_mass, last.offsets,
                                            corners)

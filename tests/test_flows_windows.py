@@ -8,7 +8,7 @@ from femphase.channel import ChannelDomain
 from femphase.errors import SceneError
 from femphase.flows import flow_from_spec, linear_shear, poiseuille, python_flow
 from femphase.mesh import channel_grid
-from femphase.windows import Window, WindowPolicy, transfer
+from femphase.windows import GridLayout, Window, WindowPolicy, transfer
 
 from helpers import small_system, stepper
 
@@ -112,6 +112,14 @@ def test_a_moved_layout_is_the_layout_built_from_scratch():
     for name in ("node_index", "mass"):
         assert np.array_equal(getattr(moved_along, name), getattr(fresh, name)), name
     along_groups = moved_along.groups
+    # the advection's moves: first columns given in layout order, the corners handed on
+    advected = domain.moved_along_rows(moved_along, (moved_along.corners[:, 2] + 7) % 40)
+    expected = [Window(w.iy0, w.ny, (w.ix0 + 7) % 40, w.nx) for w in along]
+    assert advected.windows == tuple(expected) and advected.groups is along_groups
+    fresh = GridLayout(expected, domain.window_key, domain._group_dofs, domain.operators.lumped_mass, domain.lattice)
+    for name in ("node_index", "mass", "corners"):
+        assert np.array_equal(getattr(advected, name), getattr(fresh, name)), name
+    assert domain.moved_along_rows(advected, advected.corners[:, 2].copy()) is advected  # no move
     # a moved layout's dofs and masses are computed on first use: moves on from layouts
     # whose dofs nobody asked for (rows changed, then along x), each still its own
     unread = [domain.layout([Window(w.iy0 + k, w.ny, (w.ix0 + 3) % 40, w.nx) for w, k in zip(along, (0, -1, 1, 0))])]
@@ -133,11 +141,14 @@ def test_a_moved_layout_is_the_layout_built_from_scratch():
     start = alternating.layout(windows)
     odd = alternating.layout([Window(w.iy0, w.ny, (w.ix0 + 1) % 40, w.nx) for w in windows[:3]] + windows[3:])
     assert [k for k, *_ in odd.groups] != [k for k, *_ in start.groups]
+    advected = alternating.moved_along_rows(start, (start.corners[:, 2] + 1) % 40)
+    assert [k for k, *_ in advected.groups] != [k for k, *_ in start.groups]
+    assert advected.windows == tuple(Window(w.iy0, w.ny, (w.ix0 + 1) % 40, w.nx) for w in windows)
 
 
 def test_misfits_of_a_whole_layout_follow_the_rule_window_by_window():
-    """WindowPolicy.misfits finds every window's margins group by group from the blocks of
-    windows of one shape; the rule, checked here window by window from each field's occupied nodes: a window
+    """WindowPolicy.misfits finds every window's margins from one compiled scan of all windows
+    (their occupied boxes); the rule, checked here window by window from each field's occupied nodes: a window
     fits while every margin not at a wall lies in [margin, longest_margin], full-width
     windows are always re-examined, empty ones never."""
     domain = ChannelDomain(channel_grid(40, 30, 1.0))
