@@ -201,10 +201,9 @@ class ChannelDomain(Domain):
         slot, row, column = last.cells
         if corners is None:
             ordered = [windows[i] for i in last.order]
-            iy0 = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
-            ix0 = np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered))
-            shapes = last.window_shapes
-            corners = np.stack([iy0, shapes[:, 0], ix0, shapes[:, 1]], axis=1)
+            corners = last.corners.copy()  # the shapes stay
+            corners[:, 0] = np.fromiter((w.iy0 for w in ordered), dtype=np.int64, count=len(ordered))
+            corners[:, 2] = np.fromiter((w.ix0 for w in ordered), dtype=np.int64, count=len(ordered))
         iy0, ix0 = corners[:, 0], corners[:, 2]
         rows = self._rows
         if rows is None or rows.groups is not last.groups or not np.array_equal(rows.iy0, iy0):

@@ -14,20 +14,21 @@ import numpy as np
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def occupied_boxes(phi: np.ndarray, offsets: np.ndarray, shapes: np.ndarray, threshold: float) -> np.ndarray:
+def occupied_boxes(phi: np.ndarray, offsets: np.ndarray, corners: np.ndarray, threshold: float) -> np.ndarray:
     """(windows, 4) int64: the first and last row and the first and last column (local
     nodes) where a window's field exceeds ``threshold``, −1 in all four for a window where
-    it nowhere does. Window w's field is ``phi[offsets[w]:offsets[w + 1]]``, ``shapes[w]``
-    = (ny, nx) nodes stored row by row.
+    it nowhere does. Window w's field is ``phi[offsets[w]:offsets[w + 1]]``, its ny × nx
+    nodes (``corners[w]`` = iy0, ny, ix0, nx, as in :func:`others_squared`) stored row by
+    row.
 
     Each row is scanned from both ends up to its first node above the threshold, so a
     particle's interior is not read: 0.1 ms on the random packing's 10⁵ positions, against
     0.4 ms for numpy's boolean reductions group by group (benchmarks/README.md, "Session
     15"). A NaN counts as below the threshold, as in numpy's ``>``."""
-    n = shapes.shape[0]
+    n = corners.shape[0]
     boxes = np.full((n, 4), -1, dtype=np.int64)
     for window in range(n):
-        ny, nx = shapes[window, 0], shapes[window, 1]
+        ny, nx = corners[window, 1], corners[window, 3]
         first_row, last_row, first_column, last_column = -1, -1, nx, -1
         start = offsets[window]
         for row in range(ny):

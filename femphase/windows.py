@@ -109,16 +109,16 @@ class WindowPolicy:
         ix0 = (cols[0] - (nx - (cols[1] - cols[0] + 1)) // 2) % lattice_nx
         return Window(int(iy0), int(ny), int(ix0), int(nx))
 
-    def occupied(self, layout: "Layout", phi: np.ndarray) -> np.ndarray:
+    def occupied(self, layout: "GridLayout", phi: np.ndarray) -> np.ndarray:
         """(windows, 4), layout order: the first and last row and the first and last column
         (local nodes) where each window's field exceeds the threshold; −1 in all four for a
         window where it nowhere does (:func:`femphase.kernels.occupied_boxes`, one compiled
         scan of all windows)."""
         from . import kernels  # numba loads only where a scene needs it
 
-        return kernels.occupied_boxes(phi, layout.offsets, layout.window_shapes, phi.dtype.type(self.threshold))
+        return kernels.occupied_boxes(phi, layout.offsets, layout.corners, phi.dtype.type(self.threshold))
 
-    def misfits(self, layout: "Layout", phi: np.ndarray, lattice: tuple[int, int],
+    def misfits(self, layout: "GridLayout", phi: np.ndarray, lattice: tuple[int, int],
                 boxes: np.ndarray | None = None) -> np.ndarray:
         """For the fields ``phi`` (layout order) on the layout's windows: which need another
         window (bool per window, layout order); ``boxes``: :meth:`occupied` of ``phi``, if
@@ -126,25 +126,20 @@ class WindowPolicy:
 
         A window fits while every margin not at a wall lies within [margin, longest_margin];
         full-width windows are always re-examined (the particle may fit a narrower one). The
-        check runs after every substep: with the occupied boxes from one compiled scan it
-        costs 0.15 ms on the random packing at γ̇ = 1, against 0.42 ms for numpy's boolean
-        reductions group by group (benchmarks/README.md, "Session 15")."""
+        check runs after every substep: from the occupied boxes of one compiled scan and the
+        windows' corners, on the random packing at γ̇ = 1 it costs ~0.25 ms against 0.42 for
+        numpy's boolean reductions group by group (benchmarks/README.md, "Session 15")."""
         n = len(layout.windows)
         if not self.enabled or n == 0:
             return np.zeros(n, dtype=bool)
         boxes = self.occupied(layout, phi) if boxes is None else boxes
-        shapes = layout.window_shapes
-        # left, right, bottom, top (nodes)
-        margins = np.stack([boxes[:, 2], shapes[:, 1] - 1 - boxes[:, 3], boxes[:, 0], shapes[:, 0] - 1 - boxes[:, 1]],
-                           axis=1)
+        iy0, ny, nx = layout.corners[:, 0], layout.corners[:, 1], layout.corners[:, 3]
+        # left, right, bottom, top (nodes); none is needed at a wall
+        margins = np.stack([boxes[:, 2], nx - 1 - boxes[:, 3], boxes[:, 0], ny - 1 - boxes[:, 1]], axis=1)
         bad = (margins < self.margin) | (margins > self.longest_margin)
-        # the windows of a group share their walls and width (Window.key): one looks for all
-        walls = np.array([(w.iy0 == 0, w.iy0 + w.ny == lattice[0], w.nx == lattice[1])
-                          for w in map(layout.representative, range(len(layout.groups)))], dtype=bool)
-        bottom, top, full_width = np.repeat(walls, [members.size for _, members, *_ in layout.groups], axis=0).T
-        bad[:, 2] &= ~bottom
-        bad[:, 3] &= ~top
-        return (bad.any(axis=1) | full_width) & (boxes[:, 0] >= 0)
+        bad[:, 2] &= iy0 != 0
+        bad[:, 3] &= iy0 + ny != lattice[0]
+        return (bad.any(axis=1) | (nx == lattice[1])) & (boxes[:, 0] >= 0)
 
     def fit(self, phi: np.ndarray, window: Window, lattice: tuple[int, int],
             box: np.ndarray | None = None) -> Window:
@@ -154,8 +149,8 @@ class WindowPolicy:
 
         lattice_ny, lattice_nx = lattice
         if box is None:
-            box = kernels.occupied_boxes(phi.ravel(), np.array([0, phi.size]), np.array([phi.shape]),
-                                         phi.dtype.type(self.threshold))[0]
+            corners = np.array([[window.iy0, window.ny, window.ix0, window.nx]])
+            box = kernels.occupied_boxes(phi.ravel(), np.array([0, phi.size]), corners, phi.dtype.type(self.threshold))[0]
         if box[0] < 0:
             return window
         row_span = (int(box[0]), int(box[1]))
@@ -175,8 +170,8 @@ class WindowPolicy:
     def _recentred(self, window: Window, row_span: tuple[int, int], cols: tuple[int, int],
                    lattice: tuple[int, int]) -> Window | None:
         """``window`` moved to centre its particle (first and last occupied row ``row_span``,
-        local; occupied columns ``cols``, lattice), its shape kept, if the centred margins lie in [margin,
-        longest_margin] and it touches the same walls; else None. Under flow a particle
+        local; occupied columns ``cols``, lattice), its shape kept, if the centred margins
+        lie in [margin, longest_margin] and it touches the same walls; else None. Under flow a particle
         drifts out of its window sideways (the advection moves windows by whole nodes and
         leaves the rest of each row's shift to the field): on the random packing at γ̇ = 1,
         90 % of misfits. A fresh cover rounds the particle's size to another shape as often
@@ -457,13 +452,6 @@ class Layout:
         """:attr:`mass` in the precision of ``values`` (float32 or float64): a product of
         mixed precisions would be computed, and returned, in double."""
         return self.single_mass if values.dtype == np.float32 else self.mass
-
-    @cached_property
-    def window_shapes(self) -> np.ndarray:
-        """(windows, 2) int64: every window's shape, in layout order (2-D shapes: the
-        channel's windows). The same for every layout :meth:`moved` from this one."""
-        return np.repeat(np.array(self.shapes, dtype=np.int64).reshape(-1, 2),
-                         [members.size for _, members, *_ in self.groups], axis=0)
 
     @cached_property
     def cells(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -24,7 +24,8 @@ def test_occupied_boxes_match_numpy(dtype):
             phi.flat[rng.integers(0, phi.size)] = np.nan  # never above, as in numpy
         fields.append(phi.ravel())
     offsets = np.concatenate([[0], np.cumsum([f.size for f in fields])])
-    boxes = occupied_boxes(np.concatenate(fields), offsets, shapes, threshold)
+    corners = np.stack([np.zeros(len(shapes)), shapes[:, 0], np.zeros(len(shapes)), shapes[:, 1]], axis=1)
+    boxes = occupied_boxes(np.concatenate(fields), offsets, corners.astype(np.int64), threshold)
     assert boxes.shape == (len(fields), 4) and boxes.dtype == np.int64
     empty = 0
     for box, field, (ny, nx) in zip(boxes, fields, shapes):
