@@ -17,6 +17,11 @@ the same numbers from run to run within the machine's noise.
 by the default scheme as in ``step_time.py --random-rates``), sheared at γ̇ = R with its
 scene's outer step. Its windows come in more shapes than the lattice's, and every part
 above loops over the shapes (groups): the mean number of groups is printed too.
+
+``--scaling-n N``: ``scaling.py``'s scene of N particles instead (a channel grown in both
+directions, relaxed as there, the default scheme at its outer step): with the cost per
+position and substep printed, ``--scaling-n 100`` against ``--scaling-n 1600`` tells how the
+step grows with N without the exponent's sensitivity to one size's noise.
 """
 
 from __future__ import annotations
@@ -24,6 +29,7 @@ from __future__ import annotations
 import argparse
 import time
 from collections import defaultdict
+from dataclasses import replace
 
 import common  # pins BLAS threads before numpy loads
 import numpy as np
@@ -60,17 +66,35 @@ def random_stepper(rate: float):
     return stepper, state, phase.dt
 
 
+def scaling_stepper(n: int):
+    """(stepper, state, outer step) of scaling.py's N-particle scene, relaxed as there, the
+    default scheme after one set-up step."""
+    from scaling import sheared_stepper, square_channel
+
+    scene = square_channel(n)
+    state, _, simulation = sheared_stepper(scene, scheme="euler")
+    phase = replace(scene.phases[0], dt=FRAME)
+    stepper = Stepper(simulation.domain, scene.model, scene.numerics, FRAME, scene.flow(phase), state.radii)
+    stepper.step(state)
+    return stepper, state, FRAME
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--steps", type=int, default=100)
-    parser.add_argument("--random-rate", type=float, default=None,
-                        help="shear the relaxed random packing at this rate instead of the lattice")
+    scene = parser.add_mutually_exclusive_group()
+    scene.add_argument("--random-rate", type=float, default=None,
+                       help="shear the relaxed random packing at this rate instead of the lattice")
+    scene.add_argument("--scaling-n", type=int, default=None,
+                       help="scaling.py's scene of this many particles instead of the lattice")
     args = parser.parse_args()
-    if args.random_rate is None:
+    if args.random_rate is not None:
+        stepper, state, outer = random_stepper(args.random_rate)
+    elif args.scaling_n is not None:
+        stepper, state, outer = scaling_stepper(args.scaling_n)
+    else:
         simulation, scene, state = relaxed_lattice()
         stepper, outer = shear_stepper(simulation, scene, state, FRAME), FRAME
-    else:
-        stepper, state, outer = random_stepper(args.random_rate)
     seconds, calls = defaultdict(float), defaultdict(int)
     for name, (owner, method) in PARTS.items():
         setattr(owner, method, timed(seconds, calls, name, getattr(owner, method)))
@@ -83,7 +107,8 @@ def main() -> None:
     counts = state.memory["adaptive_counts"] - counted
     print(f"{args.steps} outer steps of {outer:g}: {1e3 * total / (args.steps * outer):.2f} ms per time unit, "
           f"{1e3 * total / max(int(counts[0]), 1):.2f} ms per accepted substep ({int(counts[0])} accepted, "
-          f"{int(counts[1])} rejected), {np.mean(groups):.1f} window shapes (groups)")
+          f"{int(counts[1])} rejected), {np.mean(groups):.1f} window shapes (groups), "
+          f"{1e9 * total / max(int(counts[0]), 1) / state.flat()[1].size:.1f} ns per position and substep")
     print("| part | share | ms per call | calls |\n|---|---|---|---|")
     for name in PARTS:
         print(f"| {name} | {100 * seconds[name] / total:.0f} % | {1e3 * seconds[name] / max(calls[name], 1):.3f} | "
