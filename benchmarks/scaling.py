@@ -55,7 +55,11 @@ RESULTS = Path(__file__).parent / "results"
 PAPER_RATE, PAPER_LY = 0.1487, 240.0
 PROFILE_STEPS = 300
 SIZES = (100, 400, 1600)
-STEPS, SHEAR_TIME, FRAME = 20, 100.0, 10.0
+#: SHEAR_TIME: 1000 time units since session 15; over 100 (300 ms of N = 100's shear) the
+#: medians of three of N = 100 ranged over 0.73–1.18 ms per time unit between runs and the
+#: exponent over 1.06–1.17, where 1000 gave 1.18 and 1.30 at N = 100 and 21.4 and 21.3 at
+#: N = 1600 in interleaved runs (N^1.03)
+STEPS, SHEAR_TIME, FRAME = 20, 1000.0, 10.0
 
 
 def grown_channel(n: int, h: float = 1.0):
