@@ -50,6 +50,7 @@ from femphase.simulation import Simulation
 from femphase.stepping import Stepper
 
 from common import EXAMPLE_CALL, markdown_table, update_readme
+from step_time import step_ms
 
 RESULTS = Path(__file__).parent / "results"
 PAPER_RATE, PAPER_LY = 0.1487, 240.0
@@ -101,22 +102,12 @@ def sheared_stepper(scene, relax_steps: int = 100, **numerics):
     return state, stepper, simulation
 
 
-def timed_steps(stepper, state, calls: int, steps_per_call: int = 1) -> list[float]:
-    """CPU seconds of each of ``calls`` calls ``stepper.step(state, steps_per_call)``."""
-    samples = []
-    for _ in range(calls):
-        started = time.process_time()
-        stepper.step(state, steps_per_call)
-        samples.append(time.process_time() - started)
-    return samples
-
-
 def time_per_step(scene, steps: int) -> dict:
     state, stepper, _ = sheared_stepper(scene)
-    samples = timed_steps(stepper, state, steps)
+    samples = step_ms(stepper, state, steps, time.process_time)
     return {"N": state.n_particles, "h": scene.domain.spacing, "Ly": scene.domain.width, "steps": steps,
             "nodes": scene.domain.grid.n_nodes, "window_dofs": int(sum(f.size for f in state.fields)),
-            "ms_per_step": 1e3 * float(np.median(samples)), "mean_ms": 1e3 * float(np.mean(samples))}
+            "ms_per_step": float(np.median(samples)), "mean_ms": float(np.mean(samples))}
 
 
 def measure_size(n: int, steps: int, shear_time: float) -> dict:
@@ -127,14 +118,15 @@ def measure_size(n: int, steps: int, shear_time: float) -> dict:
 
     scene = square_channel(n)
     state, stepper, simulation = sheared_stepper(scene, scheme="euler")
-    euler = timed_steps(stepper, state, steps)
+    euler = step_ms(stepper, state, steps, time.process_time)
     default = Numerics()
     phase = replace(scene.phases[0], dt=FRAME)
     stepper = Stepper(simulation.domain, scene.model, scene.numerics, FRAME, scene.flow(phase), state.radii)
     stepper.step(state)  # set-up
     counted = state.memory["adaptive_counts"].copy()
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
-    shear = sum(timed_steps(stepper, state, round(shear_time / (FRAME * EXAMPLE_CALL)), EXAMPLE_CALL))
+    shear = 1e-3 * float(step_ms(stepper, state, round(shear_time / (FRAME * EXAMPLE_CALL)), time.process_time,
+                                 EXAMPLE_CALL).sum())
     faults = resource.getrusage(resource.RUSAGE_SELF).ru_minflt - faults
     substeps = int(state.memory["adaptive_counts"][0] - counted[0])
     frames = []
@@ -149,7 +141,7 @@ def measure_size(n: int, steps: int, shear_time: float) -> dict:
         frames.append(time.process_time() - started)
     return {"N": n, "domain": f"{scene.domain.period:g} × {scene.domain.width:g}", "nodes": simulation.domain.n_dofs,
             "window_dofs": int(sum(f.size for f in state.fields)),
-            "euler_ms_per_step": 1e3 * float(np.median(euler)),
+            "euler_ms_per_step": float(np.median(euler)),
             "default_scheme": f"{default.scheme} (tolerance_t {default.tolerance_t:g}, outer dt {FRAME:g})",
             "default_ms_per_time_unit": 1e3 * shear / shear_time, "default_substeps": substeps,
             "default_ms_per_substep": 1e3 * shear / max(substeps, 1),
