@@ -140,15 +140,6 @@ class Domain(ABC):
         written); ``motion()`` gives every particle's displacement (N, 2) over the coming
         step, for domains that leave room for it."""
 
-    def refitted(self, layout: Layout, phi: np.ndarray, windows: list, fields: list[np.ndarray]
-                 ) -> tuple[Layout, np.ndarray]:
-        """(layout, φ) of ``windows`` and ``fields`` (particle order), which replaced some of
-        ``layout``'s windows and ``phi``'s fields: :meth:`refit`'s result."""
-        if tuple(windows) == layout.windows:
-            return layout, phi
-        refitted = self.layout(windows)
-        return refitted, refitted.gather(fields)
-
     @abstractmethod
     def windows_to_array(self, windows: Sequence[Hashable]) -> np.ndarray:
         """Windows as an (N, 4) array for checkpoints."""

@@ -318,7 +318,10 @@ class MeshDomain(Domain):
             fields[i] = scratch[new]
             scratch[old] = 0.0
             boxes[i] = fitted
-        return self.refitted(layout, phi, boxes, fields)
+        if tuple(boxes) == layout.windows:
+            return layout, phi
+        refitted = self.layout(boxes)
+        return refitted, refitted.gather(fields)
 
     def windows_to_array(self, windows: Sequence[Box]) -> np.ndarray:
         return np.array([[b.x0, b.width, b.y0, b.y1] for b in windows], dtype=float).reshape(-1, 4)

@@ -206,6 +206,12 @@ class WindowPolicy:
         return occupied[0] - low if self.margin <= low and spare - low <= self.longest_margin else None
 
 
+def window_corners(windows: Sequence[Window]) -> np.ndarray:
+    """(windows, 4) int64: iy0, ny, ix0, nx of every window, in the given order (also the
+    channel's checkpoint format)."""
+    return np.array([[w.iy0, w.ny, w.ix0, w.nx] for w in windows], dtype=np.int64).reshape(-1, 4)
+
+
 def _round_up(n: int, quantum: int) -> int:
     return -(-n // quantum) * quantum
 
@@ -582,8 +588,7 @@ class GridLayout(Layout):
     def corners(self) -> np.ndarray:
         """(windows, 4) int64: iy0, ny, ix0, nx of every window, in layout order (a moved
         layout's are given by the move)."""
-        ordered = [self.windows[i] for i in self.order]
-        return np.array([[w.iy0, w.ny, w.ix0, w.nx] for w in ordered], dtype=np.int64).reshape(-1, 4)
+        return window_corners([self.windows[i] for i in self.order])
 
     def others_squared(self, squares: np.ndarray) -> np.ndarray:
         """Σ_{j≠i} φ_j² at every position, bitwise as :meth:`Layout.others_squared`
