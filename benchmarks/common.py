@@ -12,7 +12,7 @@ from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from femphase.scene import load_scene, scene_from_dict  # noqa: E402
-from femphase.simulation import Simulation  # noqa: E402
+from femphase.run.simulation import Simulation  # noqa: E402
 
 README = Path(__file__).parent / "README.md"
 RANDOM_SCENE = Path(__file__).parents[1] / "examples" / "random.toml"

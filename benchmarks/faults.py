@@ -2,11 +2,11 @@
 
     python benchmarks/faults.py [--kills 40] [--seed 0]
 
-1. Kills a real ``femphase run`` (the small scene of :mod:`femphase.faults`) ``--kills`` times —
+1. Kills a real ``femphase run`` (the small scene of :mod:`femphase.testing.faults`) ``--kills`` times —
    SIGKILL at random moments and at every failpoint (half-written CSV rows, field frames,
    checkpoints, fields.xdmf, run.json before their rename), SIGTERM and SIGINT — resuming
    after each, and compares the outputs with an uninterrupted run.
-2. Feeds every generated bad input (:func:`femphase.fuzzing.bad_inputs`: bad scenes,
+2. Feeds every generated bad input (:func:`femphase.testing.fuzzing.bad_inputs`: bad scenes,
    ``--set`` values, mesh files, run directories) to the command line, and again into a
    finished run directory with ``--resume``.
 
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import common  # noqa: F401  (pins BLAS threads before numpy loads)
 
-from femphase.faults import SCENE, campaign
-from femphase.fuzzing import run_fuzz
+from femphase.testing.faults import SCENE, campaign
+from femphase.testing.fuzzing import run_fuzz
 
 
 def main() -> None:

@@ -42,9 +42,9 @@ RELAX, SAMPLE = 200.0, 100.0
 def worker(stokes_time: float) -> None:
     import time
 
-    from femphase.logs import memory_mib
+    from femphase.run.trackers import memory_mib
     from femphase.scene import load_scene
-    from femphase.simulation import Simulation, Tracker
+    from femphase.run.simulation import Simulation, Tracker
 
     class Probe(Tracker):
         def __init__(self) -> None:

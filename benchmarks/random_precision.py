@@ -42,7 +42,7 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 
 from femphase.analysis.shape import shape_observables
-from femphase.simulation import Simulation
+from femphase.run.simulation import Simulation
 
 RESULTS = Path(__file__).parent / "results"
 FRAME = 10.0
@@ -173,7 +173,7 @@ def main() -> None:
     if args.report:
         common.update_readme("random_precision", report(json.loads(out.read_text())))
         return
-    from femphase.stepping import Numerics
+    from femphase.config import Numerics
 
     scene, _, relaxed, _ = common.relaxed_random_packing()
     result = {"relax_time": scene.phases[0].duration, "shear_time": args.shear_time, "rates": {},

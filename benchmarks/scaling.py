@@ -11,7 +11,7 @@
   ``default_ms_per_time_unit``, the default scheme (numerics defaults, outer step
   ``FRAME``, in calls of ``common.EXAMPLE_CALL`` steps as the examples take them, since
   session 12) over ``SHEAR_TIME`` time units; ``frame_ms``, a frame with every observable
-  (shape, energy, order) and the field data of fields.xdmf (`femphase.io.point_data`).
+  (shape, energy, order) and the field data of fields.xdmf (`femphase.io.fields.point_data`).
   Frames compute energies and field data window by window, so they should grow linearly
   in N (before the one-core redesign they built dense N × nodes arrays: ~10 GB at N = 1600).
 * h = 2, 1, 0.5 for the paper's N = 100 scene, first-order scheme at dt = 1.
@@ -46,8 +46,8 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 
 from femphase.scene import scene_from_dict
-from femphase.simulation import Simulation
-from femphase.stepping import Stepper
+from femphase.run.simulation import Simulation
+from femphase.timestepping.stepper import Stepper
 
 from common import EXAMPLE_CALL, markdown_table, update_readme
 from step_time import step_ms
@@ -112,9 +112,9 @@ def time_per_step(scene, steps: int) -> dict:
 
 def measure_size(n: int, steps: int, shear_time: float) -> dict:
     """The by-N row of one size (run in a subprocess: its peak memory is its own)."""
-    from femphase.io import point_data
-    from femphase.simulation import Frame
-    from femphase.stepping import Numerics
+    from femphase.io.fields import point_data
+    from femphase.run.simulation import Frame
+    from femphase.config import Numerics
 
     scene = square_channel(n)
     state, stepper, simulation = sheared_stepper(scene, scheme="euler")

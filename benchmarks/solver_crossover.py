@@ -38,13 +38,14 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 from common import markdown_table, update_readme
 
-from femphase.channel import TENSOR_MAX_SIDES, ChannelDomain, tensor_solver
-from femphase.energy import FreeEnergy, WindowedFields
-from femphase.mesh import channel_grid
-from femphase.model import ModelParameters
-from femphase.solvers import DIRECT_MAX_DOFS, make_solver
-from femphase.stepping import Numerics, Stepper
-from femphase.windows import Window
+from femphase.domains.grid.domain import TENSOR_MAX_SIDES, GridDomain, tensor_solver
+from femphase.model.energy import FreeEnergy, WindowedFields
+from femphase.domains.grid.lattice import channel_grid
+from femphase.model.parameters import ModelParameters
+from femphase.fem.solvers import DIRECT_MAX_DOFS, make_solver
+from femphase.config import Numerics
+from femphase.timestepping.stepper import Stepper
+from femphase.domains.grid.windows import Window
 
 RESULTS = Path(__file__).parent / "results"
 PARAMS = ModelParameters()
@@ -56,7 +57,7 @@ ISOLATED = FreeEnergy([term for term in FreeEnergy.paper(PARAMS).terms if term.n
 
 
 # -- the measurement ----------------------------------------------------------------------------
-def relaxation_rhs(phi: np.ndarray, domain: ChannelDomain, window: Window) -> np.ndarray:
+def relaxation_rhs(phi: np.ndarray, domain: GridDomain, window: Window) -> np.ndarray:
     """b = M_L φ/dt − J0 M_L g(φ) for fields phi (n, k) of isolated discs (no overlap), all on
     ``window``."""
     n, k = phi.shape
@@ -66,7 +67,7 @@ def relaxation_rhs(phi: np.ndarray, domain: ChannelDomain, window: Window) -> np
     return (layout.mass * (flat / DT - PARAMS.mobility * g)).reshape(k, n).T.copy()
 
 
-def window_problem(domain: ChannelDomain, system, window: Window, k: int, rng) -> tuple:
+def window_problem(domain: GridDomain, system, window: Window, k: int, rng) -> tuple:
     """(matrix, rhs (n, k), warm start (n, k)) on ``window``: discs of radius R/2 at random
     centres inside the window (clipped by its edge when the window is small)."""
     nodes = domain.window_dofs(window)
@@ -182,7 +183,7 @@ def square_windows(sizes: list[int]) -> list[dict]:
     """Interior m × m windows of one large mesh at h = 1 (every window's submatrix has the
     same entries, so one assembly serves all sizes)."""
     side = max(sizes) + 4
-    domain = ChannelDomain(channel_grid(float(side), float(side), 1.0))
+    domain = GridDomain(channel_grid(float(side), float(side), 1.0))
     stepper = Stepper(domain, PARAMS, Numerics(), DT)
     system = stepper_matrix(stepper)
     rng = np.random.default_rng(0)

@@ -9,7 +9,7 @@ Schemes: ``fem-adaptive`` (the default: error-controlled second-order substeps, 
 largest), ``fem-sav2`` (second order at fixed dt), ``fem-euler`` (first order, lumped mass,
 stabilisation "auto"; the default before issue 12), ``fem-consistent`` (first order,
 consistent mass, "auto"), ``fem-S0`` (first order, lumped, stabilisation 0) and ``fd`` (the
-paper's explicit Heun scheme, :mod:`femphase.fd`; its constructor refuses a dt above its
+paper's explicit Heun scheme, :mod:`femphase.timestepping.fd`; its constructor refuses a dt above its
 stability limit, which is recorded as outcome "rejected"). The accuracy sweep
 (``fem-default``) runs the scene defaults.
 
@@ -42,11 +42,11 @@ import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 
 from femphase.analysis.shape import shape_observables
-from femphase.energy import WindowedFields
+from femphase.model.energy import WindowedFields
 from femphase.errors import BlowUpError, SceneError
-from femphase.fd import explicit_stability_limit
+from femphase.timestepping.fd import explicit_stability_limit
 from femphase.scene import Phase, scene_from_dict
-from femphase.simulation import Simulation, Tracker
+from femphase.run.simulation import Simulation, Tracker
 
 from common import markdown_table, update_readme
 

@@ -8,7 +8,7 @@ runs ``--steps`` outer steps with a timer around each of these methods (a part's
 includes the parts it calls: a refit includes its misfit checks and layout moves):
 ``Stepper.solve`` (the tensor solves), ``Stepper.refit`` (window refits),
 ``WindowPolicy.misfits`` (their checks), ``RowShift.advect`` (advection),
-``ChannelDomain.layout`` (layouts moved or built, by refits and advections) and
+``GridDomain.layout`` (layouts moved or built, by refits and advections) and
 ``RelaxedSAV2.decay`` (the repulsion's decay). Prints each part's share of the run, its
 ms per call and its calls. Less overhead than a sampling profiler on calls this short, and
 the same numbers from run to run within the machine's noise.
@@ -34,16 +34,16 @@ from dataclasses import replace
 import common  # pins BLAS threads before numpy loads
 import numpy as np
 
-from femphase.advection import RowShift
-from femphase.channel import ChannelDomain
-from femphase.schemes import RelaxedSAV2
-from femphase.stepping import Stepper
-from femphase.windows import WindowPolicy
+from femphase.domains.grid.advection import RowShift
+from femphase.domains.grid.domain import GridDomain
+from femphase.timestepping.sav2 import RelaxedSAV2
+from femphase.timestepping.stepper import Stepper
+from femphase.domains.grid.windows import WindowPolicy
 from step_time import relaxed_lattice, shear_stepper
 from work_precision import FRAME
 
 PARTS = {"solves": (Stepper, "solve"), "refits": (Stepper, "refit"), "misfit checks": (WindowPolicy, "misfits"),
-         "advection": (RowShift, "advect"), "layouts": (ChannelDomain, "layout"), "decay": (RelaxedSAV2, "decay")}
+         "advection": (RowShift, "advect"), "layouts": (GridDomain, "layout"), "decay": (RelaxedSAV2, "decay")}
 
 
 def timed(seconds: dict, calls: dict, name: str, method):

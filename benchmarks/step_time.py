@@ -40,8 +40,9 @@ from pathlib import Path
 import common  # pins BLAS threads before numpy loads
 import numpy as np
 
-from femphase.simulation import Simulation
-from femphase.stepping import Numerics, Stepper
+from femphase.run.simulation import Simulation
+from femphase.config import Numerics
+from femphase.timestepping.stepper import Stepper
 from work_precision import FRAME, is_default_scheme
 
 RESULTS = Path(__file__).parent / "results"

@@ -31,7 +31,7 @@ import numpy as np
 
 from femphase.analysis.lattice import t1_event_times
 from femphase.scene import Output
-from femphase.simulation import Simulation, Tracker
+from femphase.run.simulation import Simulation, Tracker
 
 RESULTS = Path(__file__).parent / "results"
 STRIDES = (1, 2, 4, 8, 16, 32, 64, 160)

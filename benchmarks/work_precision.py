@@ -57,7 +57,7 @@ from femphase.analysis.periods import first_period
 from femphase.analysis.shape import shape_observables
 from femphase.errors import BlowUpError
 from femphase.scene import scene_from_dict
-from femphase.simulation import Simulation, Tracker
+from femphase.run.simulation import Simulation, Tracker
 
 from common import markdown_table, update_readme
 
@@ -389,7 +389,7 @@ def scheme_rows(points: list[Point], converged: dict, in_time: dict) -> list[dic
 
 def is_default_scheme(row: dict) -> bool:
     """Whether a row runs the scheme and tolerance a scene gets by default."""
-    from femphase.stepping import Numerics
+    from femphase.config import Numerics
 
     defaults = Numerics()
     options = row["options"]

@@ -6,7 +6,7 @@ import time
 __version__ = "0.1.0"
 
 #: When this process first imported femphase (seconds since the epoch): run.json records
-#: the modules whose source changed after it (:mod:`femphase.provenance`), since
+#: the modules whose source changed after it (:mod:`femphase.io.provenance`), since
 #: a long-lived process (a sweep worker) runs the code it imported, not the checkout's.
 IMPORT_TIME = time.time()
 

@@ -34,24 +34,16 @@ which is the same for the paper's protocol. A run that has not finished (status 
 "done") is averaged over the last fifth of the frames it has written in its last phase, and
 NaN if it never reached it; its row says so in ``status``, ``window_start``/``window_end``.
 
-``femphase plot DIR`` on a sweep directory (it has sweep.json) aggregates first when
-summary.csv is missing or older than any run's outputs, then draws, against the swept key
-(the first axis that is not a sample axis), the mean over the sample axes of the runs that
-are done, with ±1 sample standard deviation (ddof = 1, the paper's Fig. 1a band) shaded:
-``sweep_order`` (Ψ6, Ψ2^L), ``sweep_dynamics`` (mean elongation, T1 rate) and
-``sweep_period`` (only when some run has a detectable period). Other non-sample axes give
-one curve per combination of their values.
+``femphase plot DIR`` on a sweep directory draws the summary (:mod:`femphase.plot.sweep`).
 """
 
 from __future__ import annotations
 
-import argparse
 import csv
 import io
 import json
 import math
 import os
-import sys
 import time as wallclock
 from dataclasses import dataclass
 from pathlib import Path
@@ -59,18 +51,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from . import __version__
-from .errors import InputError
+from femphase import __version__
+from femphase.analysis.lattice import frame_average, t1_event_times
+from femphase.errors import InputError
+from femphase.io.files import atomic_write
+from femphase.io.reader import TIME_TOLERANCE, RunData, frame_index, merge_times, open_run
+from femphase.io.rundir import Status
+from femphase.oscillations import measured_period, order_series
 
 if TYPE_CHECKING:
     import xarray as xr
 
-    from .plot import RunData
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
 
 SWEEP_INDEX = "sweep.json"
 DATASET = "sweep.nc"
@@ -247,98 +238,10 @@ def read_sweep(directory: str | Path) -> Sweep:
     return Sweep(directory, mode, dict(axes), checked)
 
 
-# -- one run's tables ----------------------------------------------------------------------
-@dataclass
-class RunTables:
-    """A run directory's CSVs on its frame times (the union of both files' times).
-
-    time       (F,) frame times (time units)
-    globals    global.csv column → (F,), NaN where the file lacks the frame
-    particles  particles.csv column → (F, N), NaN where the file lacks the row
-    """
-
-    time: np.ndarray
-    globals: dict[str, np.ndarray]
-    particles: dict[str, np.ndarray]
-
-    @property
-    def n_particles(self) -> int:
-        return next(iter(self.particles.values())).shape[1] if self.particles else 0
-
-
-def merge_times(*times: np.ndarray) -> np.ndarray:
-    """The sorted union of frame times, times within compare.TIME_TOLERANCE taken as one (the
-    first): runs with different time steps reach the same frame time up to round-off."""
-    from .compare import TIME_TOLERANCE
-
-    merged = np.sort(np.concatenate([np.asarray(t, dtype=float).ravel() for t in times] + [np.empty(0)]))
-    if merged.size == 0:
-        return merged
-    return merged[np.concatenate([[True], np.diff(merged) > TIME_TOLERANCE])]
-
-
-def _frame_index(times: np.ndarray, frames: np.ndarray) -> np.ndarray:
-    """Index into ``frames`` (sorted, from :func:`merge_times` of ``times``) of each time."""
-    from .compare import match_times
-
-    rows, index = match_times(np.asarray(times, dtype=float), frames)
-    if rows.size != len(times):  # merge_times covers every time: a miss is a bug here
-        raise AssertionError("frame times not covered by their union")
-    return index
-
-
-def read_run_tables(directory: str | Path) -> RunTables:
-    """The CSVs of a run directory (docs/outputs.md) as :class:`RunTables`; no frames when the
-    directory or its CSVs do not exist yet (a pending run)."""
-    from .io import read_csv
-
-    directory = Path(directory)
-    tables = {name: read_csv(directory / name) if (directory / name).is_file() else {}
-              for name in ("particles.csv", "global.csv")}
-    rows, frame_rows = tables["particles.csv"], tables["global.csv"]
-    time = merge_times(rows.get("time", np.empty(0)), frame_rows.get("time", np.empty(0)))
-    globals_ = {}
-    if frame_rows:
-        at = _frame_index(frame_rows["time"], time)
-        for name, values in frame_rows.items():
-            if name != "time":
-                globals_[name] = np.full(time.size, np.nan)
-                globals_[name][at] = values
-    particles = {}
-    if rows and rows["id"].size:
-        at, ids = _frame_index(rows["time"], time), rows["id"].astype(int)
-        for name, values in rows.items():
-            if name not in ("time", "id"):
-                particles[name] = np.full((time.size, ids.max() + 1), np.nan)
-                particles[name][at, ids] = values
-    return RunTables(time, globals_, particles)
-
-
-def run_data(directory: str | Path, tables: RunTables) -> RunData | None:
-    """The run as :class:`femphase.plot.RunData` (the frames particles.csv has complete), for
-    the analyses of femphase.plot; None without scene.toml or a complete frame."""
-    from .plot import RunData
-
-    directory = Path(directory)
-    if not (directory / "scene.toml").is_file() or "x" not in tables.particles:
-        return None
-    complete = np.isfinite(tables.particles["x"]).all(axis=1)
-    if not complete.any():
-        return None
-    info_path = directory / "run.json"
-    return RunData(directory, tomllib.loads((directory / "scene.toml").read_text()),
-                   json.loads(info_path.read_text()) if info_path.is_file() else {},
-                   tables.time[complete], tables.particles["x"][complete], tables.particles["y"][complete],
-                   tables.particles["elongation"][complete], tables.particles["orientation"][complete],
-                   {name: values[complete] for name, values in tables.globals.items()})
-
-
 # -- per-run summaries ---------------------------------------------------------------------
 def last_phase_frames(time: np.ndarray, phases: list[dict]) -> np.ndarray:
     """Indices of the frames written during the last phase (``phases`` as in run.json's
     settings): those after its start; the frame at its start ends the phase before."""
-    from .compare import TIME_TOLERANCE
-
     start = sum(float(phase["duration"]) for phase in phases[:-1])
     return np.flatnonzero(np.asarray(time) > start + TIME_TOLERANCE)
 
@@ -360,7 +263,6 @@ def t1_rate(run: RunData, window: np.ndarray) -> float:
     between frames (its scene has ``output.t1_interval``: runs written since that key exists), else those
     found again from the frames' centroids (:func:`femphase.analysis.lattice.t1_event_times`),
     which miss flips that come and go between frames (docs/aggregation.md)."""
-    from .analysis.lattice import t1_event_times
 
     if run.n_particles < 3 or window.size == 0:
         return float("nan")
@@ -381,16 +283,13 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
     """The :data:`SUMMARY_COLUMNS` of one run (NaN, and counts 0, for what it lacks).
 
     Ψ6 and Ψ2^L: global.csv's columns, or computed from particles.csv when the run did not
-    write them (:func:`femphase.plot.order_series`), averaged with
+    write them (:func:`femphase.oscillations.order_series`), averaged with
     :func:`femphase.analysis.lattice.frame_average` over :func:`averaging_window`. Elongation:
     mean over the window and the bulk particles (farther than 2R from the walls at shear
-    onset, :meth:`femphase.plot.RunData.bulk_particles`: at a wall r is not an aspect
-    ratio). Period: :func:`femphase.plot.measured_period`, the period of the bulk-mean r(t)
+    onset, :meth:`femphase.io.reader.RunData.bulk_particles`: at a wall r is not an aspect
+    ratio). Period: :func:`femphase.oscillations.measured_period`, the period of the bulk-mean r(t)
     after shear onset with its first quarter discarded, NaN when none is detectable.
     T1 rate: :func:`t1_rate`. CPU time: run.json's ``cpu_time_s``."""
-    from .analysis.lattice import frame_average
-    from .plot import measured_period, order_series
-
     out = {name: 0 if name in _COUNTS else float("nan") for name in SUMMARY_COLUMNS}
     if run is None:
         return out
@@ -422,8 +321,6 @@ class Aggregate:
 
 
 def _run_status(directory: Path) -> str:
-    from .rundir import Status
-
     info = Status.read(directory)
     return str(info.get("status", "")) if info else ""
 
@@ -431,12 +328,13 @@ def _run_status(directory: Path) -> str:
 def aggregate(directory: str | Path) -> Aggregate:
     """Read a sweep directory into a dataset and its per-run summary (nothing is written)."""
     sweep = read_sweep(directory)
-    tables = {run.id: read_run_tables(run.directory) for run in sweep.runs}
+    tables = {run.id: open_run(run.directory, pending=True) for run in sweep.runs}
     summary = []
     for run in sweep.runs:
         row = {"run_id": run.id, **run.values, "status": run.status, "run_status": _run_status(run.directory),
                "error": run.error or ""}
-        row.update(summarise_run(run_data(run.directory, tables[run.id])))
+        complete = tables[run.id].complete()
+        row.update(summarise_run(complete if complete.scene and len(complete.time) else None))
         summary.append(row)
     return Aggregate(sweep, build_dataset(sweep, tables, summary), summary)
 
@@ -448,7 +346,7 @@ def _coordinate(values: list) -> np.ndarray:
     return np.asarray([json.dumps(v) for v in values])
 
 
-def build_dataset(sweep: Sweep, tables: dict[str, RunTables], summary: list[dict]) -> xr.Dataset:
+def build_dataset(sweep: Sweep, tables: dict[str, RunData], summary: list[dict]) -> xr.Dataset:
     """The sweep's Dataset (module docstring) from its runs' tables and summary rows."""
     import xarray as xr
 
@@ -467,7 +365,7 @@ def build_dataset(sweep: Sweep, tables: dict[str, RunTables], summary: list[dict
     particle_names = {c for t in tables.values() for c in t.particles}
     for run in sweep.runs:
         run_tables = tables[run.id]
-        frames = _frame_index(run_tables.time, time) if run_tables.time.size else np.empty(0, int)
+        frames = frame_index(run_tables.time, time) if run_tables.time.size else np.empty(0, int)
         for column, values in run_tables.globals.items():
             name = GLOBAL_RENAMES.get(column, column)
             if name in particle_names:  # a scene's own energy term named like a particle column
@@ -572,7 +470,6 @@ def is_current(sweep: Sweep) -> bool:
 
 def write_aggregate(directory: str | Path) -> dict[str, Path]:
     """Write DIR/sweep.nc and DIR/summary.csv (each replaced atomically); returns their paths."""
-    from .io import atomic_write
 
     directory = Path(directory)
     result = aggregate(directory)
@@ -582,146 +479,3 @@ def write_aggregate(directory: str | Path) -> dict[str, Path]:
     os.replace(tmp, paths["dataset"])
     atomic_write(paths["summary"], summary_csv(result.summary, list(result.sweep.axes)))
     return paths
-
-
-# -- figures ------------------------------------------------------------------------------------
-#: figure → panels, each (y label, [(summary column, legend label)]).
-FIGURE_PANELS = {
-    "sweep_order": [("order parameter (last fifth of the last phase)", [("Psi6_mean", "Ψ6"), ("Psi2_mean", "Ψ2^L")])],
-    "sweep_dynamics": [("mean elongation r (bulk)", [("elongation_mean", "r")]),
-                       ("T1 rate (1/(particle · time unit))", [("t1_rate", "T1 rate")])],
-    "sweep_period": [("period of the bulk-mean r(t) (time units)", [("period", "period")])],
-}
-
-
-@dataclass
-class Curve:
-    """Sample statistics of one summary column along the swept key, for one combination of the
-    other swept keys: at each x the mean, the sample standard deviation (ddof = 1; NaN for
-    one sample) and the number of samples."""
-
-    x: list
-    mean: np.ndarray
-    sd: np.ndarray
-    n: np.ndarray
-
-
-def sample_curves(rows: list[dict], column: str, x_key: str, curve_keys: list[str]) -> dict[tuple, Curve]:
-    """The rows' finite values of ``column`` grouped by the other swept keys' values (the
-    curves) and by ``x_key`` (the points), averaged over what remains: the sample axes."""
-    groups: dict[tuple, dict] = {}
-    for row in rows:
-        value = row[column]
-        if isinstance(value, float) and np.isfinite(value):
-            groups.setdefault(tuple(row[k] for k in curve_keys), {}).setdefault(row[x_key], []).append(value)
-    curves = {}
-    for label, by_x in groups.items():
-        xs = sorted(by_x, key=lambda v: (isinstance(v, str), v if not isinstance(v, str) else 0, str(v)))
-        samples = [np.asarray(by_x[x]) for x in xs]
-        curves[label] = Curve(xs, np.array([s.mean() for s in samples]),
-                              np.array([s.std(ddof=1) if s.size > 1 else np.nan for s in samples]),
-                              np.array([s.size for s in samples]))
-    return curves
-
-
-def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str = "png") -> dict[str, Path]:
-    """Draw :data:`FIGURE_PANELS` from summary rows (module docstring) into ``output``; the
-    period figure only when some run that is done has a period. Returns {figure: path}."""
-    from .plot import _pyplot, _save
-
-    samples = [k for k in keys if k.endswith(SAMPLE_SUFFIX)]
-    swept = [k for k in keys if k not in samples]
-    x_key = swept[0] if swept else keys[0]
-    curve_keys = swept[1:]
-    averaged = [k for k in samples if k != x_key]
-    done = [row for row in rows if row["status"] == "done"]
-    if not done:
-        statuses = sorted({row["status"] for row in rows})
-        raise InputError(f"no run of the sweep is done (statuses: {', '.join(statuses) or 'no runs'}); "
-                         "nothing to plot yet")
-    x_all = sorted({row[x_key] for row in done}, key=str)
-    numeric = all(isinstance(x, float) for x in x_all)
-    plt = _pyplot()
-    paths = {}
-    for figure, panels in FIGURE_PANELS.items():
-        columns = [column for _, entries in panels for column, _ in entries]
-        if not any(isinstance(row[c], float) and np.isfinite(row[c]) for row in done for c in columns):
-            continue  # e.g. no run has a detectable period: no figure rather than an empty one
-        fig, axes = plt.subplots(1, len(panels), figsize=(max(4.8 * len(panels), 6.4), 3.8), squeeze=False)
-        for ax, (ylabel, entries) in zip(axes[0], panels):
-            for column, name in entries:
-                for label, curve in sample_curves(done, column, x_key, curve_keys).items():
-                    x = curve.x if numeric else [x_all.index(v) for v in curve.x]
-                    text = name + "".join(f", {k} = {v:g}" if isinstance(v, float) else f", {k} = {v}"
-                                          for k, v in zip(curve_keys, label))
-                    n = f"{curve.n.min()}–{curve.n.max()}" if curve.n.min() != curve.n.max() else f"{curve.n[0]}"
-                    # error bars too: a band needs two neighbouring points with a spread to show
-                    bars = ax.errorbar(x, curve.mean, yerr=curve.sd, marker="o", capsize=3, label=f"{text} (n = {n})")
-                    ax.fill_between(x, curve.mean - curve.sd, curve.mean + curve.sd, color=bars.lines[0].get_color(),
-                                    alpha=0.2, lw=0)
-            if not numeric:
-                ax.set_xticks(range(len(x_all)), [str(v) for v in x_all])
-            elif min(x_all) > 0 and max(x_all) > 100 * min(x_all):  # rates over decades, as the paper plots them
-                ax.set_xscale("log")
-            ax.set_xlabel(x_key)
-            ax.set_ylabel(ylabel)
-            ax.legend(fontsize=7)
-        over = (f"mean over {', '.join(averaged)} ± 1 s.d. (ddof = 1; bars and band)" if averaged
-                else "one run per point")
-        fig.suptitle(f"{len(done)} of {len(rows)} runs done; {over}", fontsize=8)
-        paths[figure] = _save(fig, Path(output) / f"{figure}.{fmt}")
-    return paths
-
-
-def plot_sweep(directory: str | Path, output: str | Path | None = None, fmt: str = "png") -> dict[str, Path]:
-    """Figures of a sweep directory (module docstring), aggregating first unless sweep.nc and
-    summary.csv are newer than every input. ``output`` defaults to DIR/figures."""
-    directory = Path(directory)
-    sweep = read_sweep(directory)
-    if not is_current(sweep):
-        write_aggregate(directory)
-    return plot_summary(read_summary(directory / SUMMARY), list(sweep.axes),
-                        directory / "figures" if output is None else output, fmt)
-
-
-# -- command line ---------------------------------------------------------------------------------
-def plot_cli(args: argparse.Namespace) -> int:
-    """`femphase plot DIR` on a sweep directory (dispatched from :func:`femphase.plot.run_cli`)."""
-    if args.ode_rate is not None:
-        raise InputError(f"--ode-rate = {args.ode_rate!r} applies to a run directory, not to the sweep "
-                         f"{str(args.directory)!r}; plot one of its runs/<id> for the ODE comparison")
-    try:
-        paths = plot_sweep(args.directory, args.output, fmt=args.format)
-    except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
-        raise InputError(str(exc)) from None
-    for path in paths.values():
-        print(path)
-    if "sweep_period" not in paths:
-        print("femphase: no run that is done has a detectable period: no sweep_period figure")
-    return 0
-
-
-def run_cli(args: argparse.Namespace) -> int:
-    """`femphase aggregate DIR`: write sweep.nc and summary.csv and say what they hold."""
-    try:
-        paths = write_aggregate(args.directory)
-    except (ValueError, OSError) as exc:
-        raise InputError(str(exc)) from None
-    rows = read_summary(paths["summary"])
-    counts = {status: sum(row["status"] == status for row in rows) for status in STATUSES}
-    print(f"{len(rows)} runs ({', '.join(f'{n} {s}' for s, n in counts.items() if n)})")
-    for path in paths.values():
-        print(path)
-    return 0
-
-
-def register_cli(subparsers: argparse._SubParsersAction) -> None:
-    """Add the `aggregate` subcommand to the femphase command line."""
-    parser = subparsers.add_parser(
-        "aggregate", help="collect a sweep's runs into sweep.nc (xarray/netCDF) and summary.csv",
-        description="Write DIR/sweep.nc (every run's global.csv and particles.csv on the sweep's axes × time "
-                    "× particle) and DIR/summary.csv (one row per run: Ψ6, Ψ2^L and elongation averaged over "
-                    "the last fifth of the last phase, period, T1 rate). docs/aggregation.md.",
-    )
-    parser.add_argument("directory", type=Path, help="sweep directory written by `femphase sweep` (holds sweep.json)")
-    parser.set_defaults(func=run_cli)

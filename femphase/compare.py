@@ -2,7 +2,7 @@
 
     femphase compare DIR_A DIR_B [-o OUT] [--fields]
 
-Each input is a run directory (see :mod:`femphase.io`) of a structured-grid or a meshed
+Each input is a run directory (read by :func:`femphase.io.reader.open_run`) of a structured-grid or a meshed
 run, or a file of **external grid data**,
 NumPy ``.npz`` or HDF5 (``.h5``/``.hdf5``) holding four arrays:
 
@@ -11,13 +11,13 @@ NumPy ``.npz`` or HDF5 (``.h5``/``.hdf5``) holding four arrays:
     y     (ny,)            node rows y = iy·h, iy = 0 … ny−1 (the walls are y = 0 and y = Ly)
     phi   (F, N, ny, nx)   nodal values of every particle's field, phi[f, i, iy, ix]
 
-i.e. the nodes of the run's grid (:mod:`femphase.mesh`), the particles in the run's order.
+i.e. the nodes of the run's grid (:mod:`femphase.domains.grid.lattice`), the particles in the run's order.
 :func:`grid_data_from_run` and :func:`save_grid_data` write a grid run in this layout.
 
 Which inputs can be compared: two grid inputs only on the same grid (same nx, ny, h). Two
 meshed runs, or a meshed and a grid run, always by their observables and energies (their
 periods must agree); their fields only when both are on the same domain (the same
-:meth:`~femphase.domain.Domain.describe`: kind, dofs, period, mesh checksum), else a clear
+:meth:`~femphase.domains.base.Domain.describe`: kind, dofs, period, mesh checksum), else a clear
 error. Grid data is compared only with grid runs.
 
 What is compared, at the frame times both inputs have (matched to 1e-6 time units):
@@ -44,23 +44,26 @@ per-particle field differences) and compare.png; a summary table is printed.
 
 from __future__ import annotations
 
-import argparse
 import csv
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from skfem import MeshTri
 
-from .analysis.shape import shape_observables
-from .domain import Domain
-from .errors import InputError
-from .io import read_csv
-from .mesh import ChannelGrid
-from .state import State
+from femphase.analysis.shape import shape_observables
+from femphase.domains.base import Domain
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import ChannelGrid, grid_dof_map
+from femphase.io.reader import FieldFrames, match_times, open_run
+from femphase.state import State
 
-#: Frame times closer than this (time units) are the same frame.
-TIME_TOLERANCE = 1e-6
+__all__ = ["ENERGIES", "FIELD_NORMS", "GRID_SUFFIXES", "OBSERVABLES", "ORIENTATION_MIN_ELONGATION", "GridData",
+           "Source", "compare_runs", "default_output", "format_table", "grid_data_from_run", "load_grid_data",
+           "open_source", "save_grid_data", "write_comparison"]
+
+#: Suffixes of grid data files (NumPy .npz, HDF5).
 GRID_SUFFIXES = (".npz", ".h5", ".hdf5")
 #: Orientations are compared only where both elongations are at least this: a disc has none.
 ORIENTATION_MIN_ELONGATION = 0.01
@@ -165,7 +168,7 @@ class Source:
     energies: dict = field(default_factory=dict)  # name → (F,)
     field_times: np.ndarray = field(default_factory=lambda: np.empty(0))
     per_particle: bool = False
-    _reader: object = None
+    _frames: FieldFrames | None = None
     _grid_data: GridData | None = None
     _dof_map: np.ndarray | None = None
 
@@ -190,36 +193,22 @@ class Source:
         if self._grid_data is not None:
             phi = self._grid_data.phi[k].reshape(self._grid_data.phi.shape[1], -1)
             return phi.sum(axis=0), phi
-        _, data, _ = self._reader.read_data(k)
+        _, data = self._frames.read(k)
         names = sorted(n for n in data if n.startswith("phi_") and n[4:].isdigit())
 
         def on_dofs(values):  # mesh nodes → dofs (the seam's copy lands on its partner)
             out = np.empty(self.domain.n_dofs)
-            out[self._dof_map] = np.asarray(values).ravel()
+            out[self._dof_map] = values
             return out
 
         phi = np.stack([on_dofs(data[n]) for n in names]) if names else None
         return on_dofs(data["phi_sum"]), phi
 
     def close(self) -> None:
-        if self._reader is not None:
-            self._reader.__exit__(None, None, None)
+        if self._frames is not None:
+            self._frames.close()
 
 
-def _per_frame(columns: dict[str, np.ndarray], names) -> tuple[np.ndarray, dict]:
-    """particles.csv columns → frame times and {name: (F, N)} with particles ordered by id."""
-    times, frame = np.unique(columns["time"], return_inverse=True)
-    ids = columns["id"].astype(int)
-    n = ids.max() + 1 if ids.size else 0
-    counts = np.bincount(frame, minlength=times.size)
-    if np.any(counts != n):
-        raise ValueError("particles.csv: every frame must list the same particles 0 … N−1")
-    out = {}
-    for name in names:
-        table = np.empty((times.size, n))
-        table[frame, ids] = columns[name]
-        out[name] = table
-    return times, out
 
 
 def open_source(path: str | Path, need_fields: bool) -> Source:
@@ -236,55 +225,47 @@ def open_source(path: str | Path, need_fields: bool) -> Source:
 
 
 def _open_run(path: Path, need_fields: bool) -> Source:
-    from .mesh import grid_dof_map
-    from .scene import load_scene
-
     for name in ("scene.toml", "particles.csv", "global.csv"):
         if not (path / name).is_file():
             raise ValueError(f"'{path}' is not a run directory: it has no {name}")
-    scene = load_scene(path / "scene.toml")
+    run = open_run(path)
+    scene = run.loaded_scene
     domain = scene.domain
     source = Source(str(path), domain, True)
-    source.particle_times, source.observables = _per_frame(read_csv(path / "particles.csv"), OBSERVABLES)
-    energies = read_csv(path / "global.csv")
-    source.energy_times = energies["time"]
-    source.energies = {ENERGIES[k]: energies[k] for k in ENERGIES}
+    frames = run.complete()
+    source.particle_times = frames.time
+    source.observables = {name: frames.particles[name] for name in OBSERVABLES}
+    written = np.isfinite(run.globals["free_energy"])
+    source.energy_times = run.time[written]
+    source.energies = {ENERGIES[k]: run.globals[k][written] for k in ENERGIES}
     if need_fields:
-        import meshio
-        from skfem import MeshTri
-
-        xdmf = path / "fields.xdmf"
-        if not xdmf.is_file():
+        if not (path / "fields.xdmf").is_file():
             raise ValueError(
                 f"run '{path}' has no fields.xdmf (it was run with output.fields = false); "
                 "compare it without --fields"
             )
-        reader = meshio.xdmf.TimeSeriesReader(str(xdmf.resolve()))
-        points, cells = reader.read_points_cells()
-        triangles = np.vstack([c.data for c in cells if c.type == "triangle"])
-        source._reader = reader
+        fields = run.fields()
+        source._frames = fields
         if source.grid is not None:
-            source._dof_map = grid_dof_map(MeshTri(points[:, :2].T.copy(), triangles.T.copy()), source.grid)
-        else:  # written on the domain's own mesh (femphase.io.point_data)
+            source._dof_map = grid_dof_map(MeshTri(fields.points.T.copy(), fields.triangles.T.copy()), source.grid)
+        else:  # written on the domain's own mesh (femphase.io.fields.point_data)
             mesh = domain.mesh
-            if points.shape[0] != mesh.p.shape[1] or not np.allclose(points[:, :2].T, mesh.p,
-                                                                    atol=1e-9 * domain.spacing):
-                reader.__exit__(None, None, None)
+            if fields.points.shape[0] != mesh.p.shape[1] or not np.allclose(fields.points.T, mesh.p,
+                                                                            atol=1e-9 * domain.spacing):
+                fields.close()
                 raise ValueError(
-                    f"run '{path}': fields.xdmf is not on the mesh of its scene ({points.shape[0]} nodes, "
+                    f"run '{path}': fields.xdmf is not on the mesh of its scene ({fields.points.shape[0]} nodes, "
                     f"the mesh {mesh.p.shape[1]}); was the mesh file changed after the run?"
                 )
             source._dof_map = domain.dof_map
-        source.field_times = np.array([float(e.find("Time").get("Value")) for e in reader.collection])
+        source.field_times = fields.times
         source.per_particle = bool(scene.output.per_particle_fields)
     return source
 
 
 def _open_grid_data(path: Path) -> Source:
-    from .channel import ChannelDomain
-
     data = load_grid_data(path)
-    domain = ChannelDomain(data.grid())
+    domain = GridDomain(data.grid())
     source = Source(str(path), domain, False, _grid_data=data)
     source.field_times = data.time
     source.per_particle = True
@@ -318,15 +299,6 @@ def grid_data_from_run(directory: str | Path) -> GridData:
 
 
 # -- the comparison -----------------------------------------------------------------------
-def match_times(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (ia, ib) of the frame times a and b share (within TIME_TOLERANCE); b sorted."""
-    if a.size == 0 or b.size == 0:
-        return np.empty(0, dtype=int), np.empty(0, dtype=int)
-    position = np.searchsorted(b, a)
-    below, above = np.clip(position - 1, 0, b.size - 1), np.clip(position, 0, b.size - 1)
-    nearest = np.where(np.abs(b[below] - a) <= np.abs(b[above] - a), below, above)
-    keep = np.abs(b[nearest] - a) <= TIME_TOLERANCE
-    return np.flatnonzero(keep), nearest[keep]
 
 
 def _span(times: np.ndarray) -> str:
@@ -354,7 +326,7 @@ def compare_runs(a: str | Path, b: str | Path, fields: bool = False) -> dict:
     """Differences between two runs, or a run and grid data (see the module docstring).
 
     Returns {"a", "b", "grid" (nx, ny, h; None for a meshed domain), "domain" (A's
-    :meth:`~femphase.domain.Domain.describe`), "time" (common frame times), "series"
+    :meth:`~femphase.domains.base.Domain.describe`), "time" (common frame times), "series"
     {quantity: per-frame values}, "summary" {quantity: {"max", "at_time", "final"}},
     "per_particle" {"phi_l2": (F, N) list when available}, "field_mode"}. Raises ValueError
     with the reason when an input cannot be read, the grids (or, for fields, the domains)
@@ -561,32 +533,3 @@ def _plot(result: dict, path: Path) -> None:
 def default_output(b: str | Path) -> Path:
     b = Path(b)
     return b / "compare" if b.is_dir() else b.with_name(b.stem + "_compare")
-
-
-def run_cli(args: argparse.Namespace) -> int:
-    try:
-        result = compare_runs(args.a, args.b, fields=args.fields)
-    except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
-        raise InputError(str(exc)) from None
-    out = write_comparison(result, args.output or default_output(args.b))
-    print(format_table(result))
-    print(f"\nper-frame differences in {out / 'compare.csv'}, {out / 'compare.json'}, plot {out / 'compare.png'}")
-    return 0
-
-
-def register_cli(subparsers: argparse._SubParsersAction) -> None:
-    """Add the `compare` subcommand to the femphase command line."""
-    parser = subparsers.add_parser(
-        "compare",
-        help="compare two runs, or a run and external grid data",
-        description="Per-frame differences of observables, energies and (with --fields) fields between "
-        "two run directories, or a run directory and grid data (.npz/.h5 with time, x, y, "
-        "phi[F, N, ny, nx]; see `python -c 'import femphase.compare; help(femphase.compare)'`).",
-    )
-    parser.add_argument("a", metavar="DIR_A", help="run directory or grid data file")
-    parser.add_argument("b", metavar="DIR_B", help="run directory or grid data file")
-    parser.add_argument("-o", "--output", type=Path, default=None,
-                        help="output directory (default: DIR_B/compare)")
-    parser.add_argument("--fields", action="store_true",
-                        help="also compare the fields (L2 with the lumped mass, L∞), per frame")
-    parser.set_defaults(func=run_cli)

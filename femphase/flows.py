@@ -7,7 +7,7 @@ u = 4 γ̇ y (Ly − y)/Ly², so γ̇ is the centre-line velocity. y is measured
 wall of the domain.
 
 A flow whose velocity is (u(y, t), 0) is a *row flow*: on the structured channel its
-advection is an exact shift of every row of nodes (:mod:`femphase.advection`). A scene
+advection is an exact shift of every row of nodes (:mod:`femphase.domains.grid.advection`). A scene
 names a flow by ``type``; :data:`FLOWS` maps the name to a builder ``(spec, domain) → Flow``,
 so a new flow is one registered function (``docs/architecture.md``).
 """
@@ -16,15 +16,16 @@ from __future__ import annotations
 
 import importlib
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Callable
+from typing import Callable, Protocol
 
 import numpy as np
 
-from .errors import SceneError
-from .registry import Registry
+from femphase.errors import SceneError
+from femphase.registry import Registry
 
-if TYPE_CHECKING:
-    from .domain import Domain
+__all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "linear_shear", "no_flow",
+           "number", "poiseuille", "python_flow", "row_flow"]
+
 
 SHEAR_SCALES = ("wall_velocity", "shear_rate")
 
@@ -37,7 +38,7 @@ class Flow:
 
     row_velocity  u(y, t) for flows (u(y, t), 0), else None
     steady        v does not depend on t (advection operators are then built once)
-    stokes        the :class:`femphase.stokes.StokesFlow` behind a ``stokes`` flow, whose P2
+    stokes        the :class:`femphase.domains.mesh.stokes.StokesFlow` behind a ``stokes`` flow, whose P2
                   field the meshed domain's advection integrates exactly
     """
 
@@ -52,7 +53,19 @@ class Flow:
         return self.velocity is None
 
 
-FLOWS: Registry[Callable[[dict, "Domain"], Flow]] = Registry("Flows", "flow.type")
+class FlowDomain(Protocol):
+    """What a flow builder reads of the domain it is built for (lengths in lattice units):
+    every :class:`femphase.domains.base.Domain` has it."""
+
+    coordinates: np.ndarray   # (2, n_dofs): x and y of every dof
+    n_dofs: int
+
+    @property
+    def y_range(self) -> tuple[float, float]:
+        """Lowest and highest y of the domain (the walls' extremes)."""
+
+
+FLOWS: Registry[Callable[[dict, FlowDomain], Flow]] = Registry("Flows", "flow.type")
 
 
 def no_flow() -> Flow:
@@ -107,20 +120,20 @@ def number(spec: dict, key: str, meaning: str, default: float | None = None, pos
     return float(value)
 
 
-def _walls(domain: "Domain") -> tuple[float, float]:
+def _walls(domain: FlowDomain) -> tuple[float, float]:
     low, high = domain.y_range
     return low, high - low
 
 
 @FLOWS.register("none")
-def _none(spec: dict, domain: "Domain") -> Flow:
+def _none(spec: dict, domain: FlowDomain) -> Flow:
     """No flow: relaxation only."""
     check_keys(spec, {"type"})
     return no_flow()
 
 
 @FLOWS.register("shear")
-def _shear(spec: dict, domain: "Domain") -> Flow:
+def _shear(spec: dict, domain: FlowDomain) -> Flow:
     """Linear shear u = γ̇ y/Ly, bottom wall at rest (keys: `rate` = γ̇, a velocity; `scale` =
     "wall_velocity" (default) or "shear_rate" for the plain u = γ̇ y)."""
     check_keys(spec, {"type", "rate", "scale"})
@@ -132,7 +145,7 @@ def _shear(spec: dict, domain: "Domain") -> Flow:
 
 
 @FLOWS.register("poiseuille")
-def _poiseuille(spec: dict, domain: "Domain") -> Flow:
+def _poiseuille(spec: dict, domain: FlowDomain) -> Flow:
     """Poiseuille flow u = 4γ̇ y(Ly − y)/Ly² (key: `rate` = γ̇, the centre-line velocity)."""
     check_keys(spec, {"type", "rate"})
     y0, width = _walls(domain)
@@ -140,7 +153,7 @@ def _poiseuille(spec: dict, domain: "Domain") -> Flow:
 
 
 @FLOWS.register("oscillating_shear")
-def _oscillating_shear(spec: dict, domain: "Domain") -> Flow:
+def _oscillating_shear(spec: dict, domain: FlowDomain) -> Flow:
     """Oscillatory linear shear u = γ̇ sin(ωt + φ0) y/Ly (keys: `rate` = γ̇, `frequency` = ω in
     radians per time unit, `phase` = φ0 in radians, default 0)."""
     check_keys(spec, {"type", "rate", "frequency", "phase"})
@@ -153,7 +166,7 @@ def _oscillating_shear(spec: dict, domain: "Domain") -> Flow:
 
 
 @FLOWS.register("python")
-def _python(spec: dict, domain: "Domain") -> Flow:
+def _python(spec: dict, domain: FlowDomain) -> Flow:
     """Any importable callable (keys: `function` = "module:name"; `row_flow` = true for u(y);
     `steady` = false to pass the time t as the last argument)."""
     check_keys(spec, {"type", "function", "row_flow", "steady"})
@@ -177,7 +190,7 @@ def _python(spec: dict, domain: "Domain") -> Flow:
     return flow
 
 
-def _try_flow(flow: Flow, spec: dict, domain: "Domain") -> None:
+def _try_flow(flow: Flow, spec: dict, domain: FlowDomain) -> None:
     """Evaluate a python flow at a few dofs at t = 0 (when the scene is checked, not at the
     first step): SceneError naming flow.function when it fails or returns no (u, v)."""
     row, steady = spec.get("row_flow", False), spec.get("steady", True)
@@ -195,21 +208,7 @@ def _try_flow(flow: Flow, spec: dict, domain: "Domain") -> None:
                          "(it gave NaN or inf)")
 
 
-@FLOWS.register("stokes")
-def _stokes(spec: dict, domain: "Domain") -> Flow:
-    """Stokes flow solved on the domain's mesh, no-slip on every wall (keys: exactly one of
-    `max_velocity`, `flux`, `pressure_drop`; `viscosity`, default 1). Meshed domains only."""
-    from .stokes import stokes_drive
-
-    stokes_drive(spec)
-    if not hasattr(domain, "stokes_flow"):
-        raise SceneError("flow.type", "stokes", f"a flow of {FLOWS.names()} without 'stokes': a stokes flow "
-                         f"needs a meshed domain ([domain] kind = \"mesh\")")
-    stokes = domain.stokes_flow(spec)
-    return Flow("stokes", lambda x, y, t: stokes(x, y), stokes=stokes)
-
-
-def flow_from_spec(spec: dict, domain: "Domain") -> Flow:
+def flow_from_spec(spec: dict, domain: FlowDomain) -> Flow:
     """The flow a scene's ``flow`` table describes, e.g. {type = "shear", rate = 0.1487}."""
     if not isinstance(spec, dict):
         raise SceneError("flow", spec, 'a table such as {type = "shear", rate = 0.1}')

@@ -10,7 +10,7 @@ from typing import Callable
 
 import numpy as np
 
-from .errors import SceneError
+from femphase.errors import SceneError
 
 
 def hexagonal_centres(n: int, length: float, width: float, per_row: int | None = None) -> np.ndarray:

@@ -4,7 +4,8 @@ A registry maps a name to a class or builder. Scenes name entries (``[domain] ki
 ``flow = {type = "shear", …}``, ``numerics.scheme = "euler"``, ``output.observables``); an
 unknown name raises :class:`~femphase.errors.SceneError` listing the registered ones, and
 ``docs/scenes.md`` lists every registry from the entries' docstrings
-(:func:`femphase.registry.markdown`, checked by ``tests/test_docs.py``).
+(:func:`markdown` of :func:`femphase.scene.registries`, written by ``python docs/registries.py``
+and checked by ``tests/test_docs.py``).
 
 Adding an entry is one decorated definition::
 
@@ -15,9 +16,11 @@ Adding an entry is one decorated definition::
 from __future__ import annotations
 
 import inspect
-from typing import Callable, Generic, TypeVar
+from typing import Callable, Generic, Iterable, TypeVar
 
-from .errors import SceneError
+from femphase.errors import SceneError
+
+__all__ = ["MARKERS", "Registry", "markdown", "with_registries"]
 
 T = TypeVar("T")
 
@@ -60,22 +63,10 @@ class Registry(Generic[T]):
         return " ".join(doc.split("\n\n")[0].split())
 
 
-def builtin() -> tuple[Registry, ...]:
-    """femphase's registries, each filled with its built-in entries."""
-    from . import channel, meshed  # noqa: F401  (register the domain kinds)
-    from .domain import DOMAINS
-    from .flows import FLOWS
-    from .observables import OBSERVABLES
-    from .stepping import SCHEMES, _load_schemes
-
-    _load_schemes()
-    return DOMAINS, FLOWS, SCHEMES, OBSERVABLES
-
-
-def markdown(*registries: Registry) -> str:
+def markdown(registries: Iterable[Registry]) -> str:
     """One markdown table per registry: name and summary of every entry."""
     blocks = []
-    for registry in registries or builtin():
+    for registry in registries:
         lines = [f"### {registry.title} (`{registry.key}`)", "", "| name | what it is |", "|---|---|"]
         lines += [f"| `{name}` | {registry.summary(name).replace('|', chr(92) + '|')} |" for name in registry.names()]
         blocks.append("\n".join(lines))
@@ -85,23 +76,9 @@ def markdown(*registries: Registry) -> str:
 MARKERS = ("<!-- registries -->", "<!-- /registries -->")
 
 
-def with_registries(document: str) -> str:
+def with_registries(document: str, registries: Iterable[Registry]) -> str:
     """``document`` with the text between its :data:`MARKERS` replaced by :func:`markdown`."""
     begin, end = MARKERS
     head, _, rest = document.partition(begin)
     _, _, tail = rest.partition(end)
-    return f"{head}{begin}\n{markdown()}\n{end}{tail}"
-
-
-if __name__ == "__main__":
-    import argparse
-    from pathlib import Path
-
-    parser = argparse.ArgumentParser(description="Print (or write into a document) femphase's registries.")
-    parser.add_argument("--write", metavar="FILE", help="replace the section between the markers of FILE")
-    args = parser.parse_args()
-    if args.write:
-        path = Path(args.write)
-        path.write_text(with_registries(path.read_text()))
-    else:
-        print(markdown())
+    return f"{head}{begin}\n{markdown(registries)}\n{end}{tail}"

@@ -9,7 +9,6 @@ values raise :class:`~femphase.errors.SceneError` naming the key, the value and 
 from __future__ import annotations
 
 import math
-import sys
 import warnings
 from dataclasses import asdict, dataclass, field, fields
 from functools import cached_property
@@ -17,18 +16,24 @@ from pathlib import Path
 
 import numpy as np
 
-from .domain import Domain, domain_from_table
-from .errors import ResolutionWarning, SceneError
-from .flows import FLOWS, Flow, flow_from_spec
-from .model import PAPER_SYMBOLS, ModelParameters
-from .placement import hexagonal_centres
-from .state import State, discs_state
-from .stepping import Numerics
+from femphase import tomlio
+from femphase.analysis.observables import OBSERVABLES
+from femphase.config import Numerics
+from femphase.domains import DOMAINS, Domain, domain_from_table
+from femphase.errors import ResolutionWarning, SceneError
+from femphase.flows import FLOWS, Flow, flow_from_spec
+from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
+from femphase.placement import hexagonal_centres
+from femphase.registry import Registry
+from femphase.state import State, discs_state
+from femphase.timestepping import SCHEMES, Stepper
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+
+def registries() -> tuple[Registry, ...]:
+    """The names a scene may use, each registry filled with its built-in entries: domain
+    kinds, flows, time schemes and observables (``docs/scenes.md`` lists them)."""
+    return DOMAINS, FLOWS, SCHEMES, OBSERVABLES
+
 
 LAYOUTS = ("single", "hexagonal", "random", "list")
 #: Largest total target area Σ πR_i² over the domain's area that a scene may ask for (the
@@ -67,7 +72,7 @@ class Particles:
 class Output:
     """What a run writes. fields: fields.xdmf every frame; per_particle_fields: one φ_i
     per particle in it too (large); observables: names in
-    :data:`femphase.observables.OBSERVABLES` ("shape" and "energy" always, e.g. "order"
+    :data:`femphase.analysis.observables.OBSERVABLES` ("shape" and "energy" always, e.g. "order"
     for Ψ6, Ψ2^L, lattice angle, T1 count); checkpoint: checkpoint.h5 every frame;
     t1_interval: time units between the looks of the "order" observable's T1 counter at
     the centroids, between frames too (after the step that reaches each multiple of it),
@@ -248,6 +253,7 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     stabilisation = numerics_table.get("stabilisation", "auto")
     if stabilisation != "auto" and not (_is_number(stabilisation) and stabilisation >= 0):
         raise SceneError("numerics.stabilisation", stabilisation, '"auto" or a finite number ≥ 0')
+    SCHEMES.get(numerics_table.get("scheme", Numerics.scheme), "numerics.scheme")
     numerics = _from_table(Numerics, numerics_table, "numerics")
     output = _output(_table(data, "output"))
     phase_tables = data.get("phases", [])
@@ -280,7 +286,7 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     limit, and the tensor solver where the system has no tensor-product form.
 
     ``scheme``: the time scheme the run uses, if not the scene's ``numerics.scheme`` (``femphase
-    run --method fd`` uses "fd-heun"); :func:`femphase.simulation.run_scene` should call this
+    run --method fd`` uses "fd-heun"); :func:`femphase.run.runner.run_scene` should call this
     with it before touching the run directory."""
     numerics, domain = scene.numerics, scene.domain
     scheme = numerics.scheme if scheme is None else scheme
@@ -289,8 +295,6 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
         if domain.kind != "grid":
             raise SceneError(key, scheme, '"euler": the finite-difference reference needs the structured channel '
                              f'([domain] kind = "grid"; this scene\'s kind is "{domain.kind}")')
-        from .stepping import Stepper
-
         for i, phase in enumerate(scene.phases):
             # the scheme's own checks (its stability limit), phase by phase
             try:
@@ -324,8 +328,6 @@ def _table(data: dict, name: str) -> dict:
 
 def _output(table: dict) -> Output:
     """The [output] table, every key checked."""
-    from .observables import OBSERVABLES
-
     table = dict(table)
     _check_keys(Output, table, "output")
     for key in ("fields", "per_particle_fields", "checkpoint"):
@@ -373,9 +375,6 @@ def _check_particle_types(table: dict) -> None:
 
 def _check_domain_types(table: dict) -> None:
     """The [domain] keys every kind shares; the kind's own checks follow when it is built."""
-    from . import channel, meshed  # noqa: F401  (register the domain kinds)
-    from .domain import DOMAINS
-
     DOMAINS.get(table["kind"], "domain.kind")
     for key in ("Lx", "Ly", "h"):
         if key in table:
@@ -388,7 +387,7 @@ def check_flow(spec: dict, domain: Domain) -> None:
     """Validate a phase's flow table without solving anything (a stokes flow is solved
     when its phase starts)."""
     if isinstance(spec, dict) and spec.get("type") == "stokes" and "stokes" in FLOWS:
-        from .stokes import stokes_drive
+        from femphase.domains.mesh.stokes import stokes_drive
 
         stokes_drive(spec)
         if domain.kind != "mesh":
@@ -510,7 +509,7 @@ def set_value(data: dict, assignment: str) -> None:
     parts = [part.strip() for part in key.split(".")]
     if not all(parts):
         raise SceneError("--set", assignment, "a dotted key without empty parts, e.g. phases.1.flow.rate=0.3")
-    value = _toml_value(text)
+    value = tomlio.parse_value(text)
     target = data
     for depth, part in enumerate(parts):
         path, last = ".".join(parts[: depth + 1]), depth == len(parts) - 1
@@ -535,15 +534,6 @@ def set_value(data: dict, assignment: str) -> None:
                              f"'{parent}' holds a {type(target).__name__}")
 
 
-def _toml_value(text: str):
-    """``text`` as a TOML value, or the string itself when it is none."""
-    try:
-        document = tomllib.loads(f"v = {text}")
-    except (tomllib.TOMLDecodeError, RecursionError, ValueError):
-        return text
-    return document["v"] if set(document) == {"v"} else text
-
-
 def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> dict:
     """The parsed TOML of a scene file with ``--set`` assignments applied (not validated)."""
     path = Path(path)
@@ -556,8 +546,8 @@ def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> d
     except UnicodeDecodeError as exc:
         raise SceneError("scene", str(path), f"a UTF-8 text file (TOML); byte {exc.start} is not UTF-8") from None
     try:
-        data = tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, RecursionError, ValueError) as exc:
+        data = tomlio.loads(text)
+    except (tomlio.TOMLDecodeError, RecursionError, ValueError) as exc:
         raise SceneError("scene", str(path), f"valid TOML ({exc})") from None
     for assignment in assignments or []:
         set_value(data, assignment)

@@ -7,8 +7,10 @@ from typing import Hashable
 
 import numpy as np
 
-from .domain import Domain
-from .windows import Layout
+from femphase.domains.base import Domain
+from femphase.domains.layout import Layout
+
+__all__ = ["State", "discs_state"]
 
 
 @dataclass

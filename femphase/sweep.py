@@ -38,8 +38,8 @@ DIR, the sweep directory:
                  "values": {key: value}, "status": "pending" | "done" | "failed" | "interrupted",
                  "error": str | null}]}
 
-* ``runs/<id>/``: an ordinary run directory (:mod:`femphase.rundir`), written by
-  :func:`femphase.simulation.run_scene` as ``femphase run`` writes it. The id is
+* ``runs/<id>/``: an ordinary run directory (:mod:`femphase.io.rundir`), written by
+  :func:`femphase.run.runner.run_scene` as ``femphase run`` writes it. The id is
   ``label=value`` per axis joined by ``_``; the label is the shortest dotted suffix of the
   key that tells the axes apart (``phases.1.flow.rate`` → ``rate``), values are spelled as
   Python spells them (``0.1083``, ``1e-05``, ``true``) with characters other than
@@ -51,7 +51,7 @@ first (the same model, domain, particles incl. the seed, numerics, output and fi
 start from one run of the first phase alone, ``shared/<hash>/`` (hash of that one-phase
 scene), computed once under a file lock; each run copies its outputs and checkpoint and
 continues with ``resume=True``. The outputs are bit-identical to running the whole scene
-(``tests/test_sweep.py``): a resumed run continues exactly (:mod:`femphase.rundir`).
+(``tests/test_sweep.py``): a resumed run continues exactly (:mod:`femphase.io.rundir`).
 Scenes with one phase, or with ``output.checkpoint = false``, are never shared, nor is a
 first phase no other run has.
 
@@ -73,7 +73,6 @@ another worker; a lock per run keeps two processes out of one run directory.
 
 from __future__ import annotations
 
-import argparse
 import fcntl
 import hashlib
 import itertools
@@ -81,8 +80,6 @@ import json
 import os
 import re
 import shutil
-import signal
-import sys
 import time as wallclock
 import uuid
 from collections.abc import Callable, Iterator
@@ -90,15 +87,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from .errors import FemphaseError, Interrupted, SceneError
-from .io import _jsonable, atomic_write, toml_value
-from .rundir import CHECKPOINT, OUTPUTS, Status
-from .scene import Scene, read_scene_data, scene_from_dict, set_value
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from femphase import tomlio
+from femphase.errors import FemphaseError, Interrupted, SceneError
+from femphase.io.files import atomic_write, jsonable
+from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
+from femphase.run.runner import run_scene
+from femphase.scene import Scene, read_scene_data, scene_from_dict, set_value
+from femphase.tomlio import toml_value
 
 FORMAT, VERSION = "femphase-sweep", 1
 MODES = ("product", "zip")
@@ -186,8 +181,8 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
         raise SweepError("sweep", str(path), "a TOML sweep file that exists")
     try:
         text = path.read_text(encoding="utf-8")
-        document = tomllib.loads(text)
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        document = tomlio.loads(text)
+    except (OSError, UnicodeDecodeError, tomlio.TOMLDecodeError) as exc:
         raise SweepError("sweep", str(path), f"a readable UTF-8 TOML file ({exc})") from None
     for name, value in document.items():
         if name not in TABLES:
@@ -273,7 +268,7 @@ def _run(scene: Path, overrides: dict, values: dict, labels: dict[str, str]) -> 
     relaxation = None
     # a relaxation is shared through its checkpoint, and only makes sense before other phases
     if len(validated.phases) > 1 and validated.output.checkpoint:
-        text = json.dumps(_relaxation(validated).to_dict(), sort_keys=True, default=_jsonable)
+        text = json.dumps(_relaxation(validated).to_dict(), sort_keys=True, default=jsonable)
         relaxation = hashlib.sha256(text.encode()).hexdigest()[:16]
     return Run(run_id, values, data, sum(p.n_steps for p in validated.phases), relaxation)
 
@@ -303,7 +298,7 @@ def _index(sweep: Sweep, statuses: dict[str, tuple[str, str | None]]) -> dict:
 
 
 def _write_index(directory: Path, index: dict) -> None:
-    atomic_write(directory / "sweep.json", json.dumps(index, indent=2, default=_jsonable) + "\n")
+    atomic_write(directory / "sweep.json", json.dumps(index, indent=2, default=jsonable) + "\n")
 
 
 @contextmanager
@@ -338,7 +333,7 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
         return {}
     try:
         index = json.loads(stored.read_text())
-        old = tomllib.loads((directory / "sweep.toml").read_text(encoding="utf-8"))
+        old = tomlio.loads((directory / "sweep.toml").read_text(encoding="utf-8"))
         old_set = _overrides(old, json.loads((directory / "sweep-set.json").read_text()))
         old_scene = (directory / "base-scene.toml").read_text(encoding="utf-8")
     except (OSError, ValueError) as exc:
@@ -361,7 +356,7 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     runs = {run.id: run for run in sweep.runs}
     recorded = {entry["id"]: entry for entry in index.get("runs", [])}
     for run_id, entry in recorded.items():
-        if run_id not in runs or json.loads(json.dumps(runs[run_id].values, default=_jsonable)) != entry["values"]:
+        if run_id not in runs or json.loads(json.dumps(runs[run_id].values, default=jsonable)) != entry["values"]:
             raise SweepError("axes", sweep.axes, f"values that include those of run {run_id!r} "
                              f"({entry['values']}) {hint}")
     return recorded
@@ -389,7 +384,7 @@ def _ensure(scene: Scene, directory: Path, fresh: Callable[[], None] | None = No
     status, _ = run_status(directory, sum(p.n_steps for p in scene.phases))
     if status == "done":
         return
-    from .simulation import run_scene
+
 
     if status in ("failed", "pending") and fresh is not None:
         fresh()
@@ -588,47 +583,3 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
         _write_index(directory, _index(sweep, statuses))
         client.cancel(list(futures) + list(relaxations.values()))
         raise
-
-
-# -- command line -------------------------------------------------------------------------
-
-def run_cli(args: argparse.Namespace) -> int:
-    if args.workers is not None and args.workers < 1:
-        raise SweepError("--workers", args.workers, "a whole number ≥ 1 (worker processes)")
-    terminated: list[int] = []
-
-    def terminate(number, frame):  # SIGTERM (Slurm, timeout) stops the sweep as Ctrl-C does
-        terminated.append(number)
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, terminate)
-    try:
-        index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler,
-                          workers=args.workers, log=lambda line: print(line, flush=True))
-    except KeyboardInterrupt:
-        print(f"femphase sweep: interrupted; rerun the same command to continue (sweep.json in {args.output} "
-              "says where each run stands)", file=sys.stderr)
-        return 143 if terminated else 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-    counts = {s: sum(r["status"] == s for r in index["runs"]) for s in ("done", "failed", "interrupted", "pending")}
-    print("femphase sweep: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; index in "
-          f"{Path(args.output) / 'sweep.json'}")
-    return 0 if counts["done"] == len(index["runs"]) else EXIT_INCOMPLETE
-
-
-def register_cli(subparsers: argparse._SubParsersAction) -> None:
-    """Add the `sweep` subcommand to the femphase command line."""
-    parser = subparsers.add_parser("sweep", help="run a sweep file's runs on Dask (resumable)",
-                                   description=__doc__.split("\n\n")[0])
-    parser.add_argument("sweep", help="sweep file (TOML), e.g. verification/sweeps/fig1a.toml")
-    parser.add_argument("-o", "--output", required=True, help="sweep directory (rerun the command to continue it)")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="override a scene value in every run (after the sweep file's [set]), e.g. "
-                             "--set phases.1.duration=100")
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--workers", type=int, default=None, help="worker processes of the local cluster "
-                       "(default: one per core)")
-    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                       help="a running Dask scheduler, e.g. tcp://10.0.0.1:8786 (dask-jobqueue, docs/sweeps.md)")
-    parser.set_defaults(func=run_cli)

@@ -7,7 +7,8 @@ The paper's channel, 70 × 240 lattice units at spacing h = 1, as a non-periodic
 import sys
 from pathlib import Path
 
-from femphase.mesh import channel_grid, save_mesh, structured_channel_mesh
+from femphase.domains.grid.lattice import channel_grid, structured_channel_mesh
+from femphase.fem.meshfiles import save_mesh
 
 length, width, spacing = (float(v) for v in (sys.argv[1:4] if len(sys.argv) > 3 else (70, 240, 1)))
 path = Path(__file__).parent / f"channel_{length:g}x{width:g}_h{spacing:g}.vtu"

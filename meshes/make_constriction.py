@@ -13,8 +13,8 @@ from pathlib import Path
 
 import numpy as np
 
-from femphase.meshed import write_domain
-from femphase.meshing import delaunay_channel, edge_for_spacing, mesh_quality
+from femphase.domains.mesh.domain import write_domain
+from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing, mesh_quality
 
 LENGTH, HEIGHT, DEPTH, SPACING = 70.0, 240.0, 48.0, 1.0
 

@@ -8,8 +8,8 @@ obstacle (tag 5), written as .vtu.
 
 from pathlib import Path
 
-from femphase.meshed import write_domain
-from femphase.meshing import delaunay_channel, edge_for_spacing, mesh_quality
+from femphase.domains.mesh.domain import write_domain
+from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing, mesh_quality
 
 LENGTH, HEIGHT, SPACING = 70.0, 240.0, 1.0
 OBSTACLE = (35.0, 120.0, 16.0)  # centre x, centre y, radius

@@ -4,16 +4,16 @@ The paper's channel, 70 × 240 lattice units, one node per unit area (h = 1):
 
 * straight_structured.vtu    femphase's structured mesh (right diagonals), tagged boundaries;
 * straight_unstructured.vtu  a Delaunay mesh of a rotated, jittered hexagonal lattice
-                             (femphase.meshing.delaunay_channel).
+                             (femphase.domains.mesh.generation.delaunay_channel).
 
-Boundaries are line cells with cell data "boundary" = femphase.meshed.BOUNDARY_TAGS
+Boundaries are line cells with cell data "boundary" = femphase.domains.mesh.domain.BOUNDARY_TAGS
 (left 1, right 2, bottom 3, top 4); ``right`` is ``left`` moved by 70 in x (periodic pair).
 """
 
 from pathlib import Path
 
-from femphase.meshed import write_domain
-from femphase.meshing import delaunay_channel, edge_for_spacing, mesh_quality, structured_channel
+from femphase.domains.mesh.domain import write_domain
+from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing, mesh_quality, structured_channel
 
 LENGTH, HEIGHT, SPACING = 70.0, 240.0, 1.0
 HERE = Path(__file__).parent

@@ -2,18 +2,19 @@
 
 import numpy as np
 
-from femphase.channel import ChannelDomain
-from femphase.energy import EnergyParts, FreeEnergy, WindowedFields
-from femphase.mesh import channel_grid
-from femphase.model import ModelParameters
+from femphase.config import Numerics
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import channel_grid
+from femphase.model.energy import EnergyParts, FreeEnergy, WindowedFields
+from femphase.model.parameters import ModelParameters
 from femphase.state import State, discs_state
-from femphase.stepping import Numerics, Stepper
+from femphase.timestepping.stepper import Stepper
 
 
 def small_system(centres, length=40.0, width=40.0, h=1.0, radius=8.0, initial_radius=None,
                  windows=True, diagonals="right"):
     """(domain, state) for discs at ``centres`` in a small structured channel."""
-    domain = ChannelDomain(channel_grid(length, width, h), diagonals)
+    domain = GridDomain(channel_grid(length, width, h), diagonals)
     centres = np.asarray(centres, dtype=float)
     n = len(centres)
     r0 = np.full(n, radius if initial_radius is None else initial_radius)

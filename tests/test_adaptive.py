@@ -5,8 +5,9 @@ import time
 import numpy as np
 import pytest
 
+from femphase.run.simulation import Simulation, Tracker
+from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, Simulation, Tracker
 
 
 class SubstepCounts(Tracker):
@@ -70,7 +71,7 @@ def test_a_too_large_first_substep_is_rejected_and_redone(reference):
 
 def test_a_resumed_adaptive_run_continues_bit_for_bit(tmp_path):
     from femphase.cli import main
-    from femphase.io import load_checkpoint
+    from femphase.io.checkpoints import load_checkpoint
     from femphase.scene import load_scene
 
     scene = tmp_path / "scene.toml"
@@ -105,8 +106,8 @@ flow = { type = "shear", rate = 0.3 }
 
 def test_each_phase_starts_the_step_controller_afresh(monkeypatch):
     # the error history of a quiet relaxation made the PI controller refine a shear's first
-    # substeps, and its sticky sizes then kept them small (femphase.schemes.AdaptiveSAV2.start_phase)
-    from femphase.schemes import AdaptiveSAV2
+    # substeps, and its sticky sizes then kept them small (femphase.timestepping.adaptive.AdaptiveSAV2.start_phase)
+    from femphase.timestepping.adaptive import AdaptiveSAV2
 
     calls, original = [], AdaptiveSAV2.start_phase
 
@@ -126,7 +127,7 @@ def test_each_phase_starts_the_step_controller_afresh(monkeypatch):
 def test_substep_sizes_tile_the_step_and_include_thirds():
     # sizes dt/m, m = 2^k or 3·2^k, each starting at a multiple of its own length: whatever
     # sizes the controller asks for, the substeps end exactly on the step
-    from femphase.schemes import AdaptiveSAV2 as Adaptive
+    from femphase.timestepping.adaptive import AdaptiveSAV2 as Adaptive
 
     assert Adaptive.divisions_for(0.4, 0) == 3  # 1/3 of the step: the largest size ≤ 0.4
     assert Adaptive.divisions_for(1.0, 0) == 1
@@ -145,7 +146,7 @@ def test_substep_sizes_tile_the_step_and_include_thirds():
 @pytest.fixture
 def substep_sizes(monkeypatch) -> list[float]:
     """The size of every relaxation substep taken while the test runs, in order."""
-    from femphase.schemes import RelaxedSAV2
+    from femphase.timestepping.sav2 import RelaxedSAV2
 
     sizes, relax = [], RelaxedSAV2.relax
 
@@ -164,11 +165,13 @@ def test_substeps_stay_where_the_explicit_area_mode_is_damped(substep_sizes):
     # substeps stay below RANK_ONE_STEP / c
     from dataclasses import replace
 
-    from femphase.flows import linear_shear
-    from femphase.model import ModelParameters
-    from femphase.schemes import AdaptiveSAV2
-    from femphase.stepping import Numerics, Stepper
     from helpers import small_system
+
+    from femphase.config import Numerics
+    from femphase.flows import linear_shear
+    from femphase.model.parameters import ModelParameters
+    from femphase.timestepping.adaptive import AdaptiveSAV2
+    from femphase.timestepping.stepper import Stepper
 
     params = replace(ModelParameters(), area_stiffness=200.0)
     domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
@@ -184,10 +187,12 @@ def test_substeps_stay_where_the_explicit_area_mode_is_damped(substep_sizes):
 
 def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(substep_sizes):
     # checkpoints written before session 10 hold the substep as "adaptive_level" k (dt/2^k)
-    from femphase.flows import linear_shear
-    from femphase.model import ModelParameters
-    from femphase.stepping import Numerics, Stepper
     from helpers import small_system
+
+    from femphase.config import Numerics
+    from femphase.flows import linear_shear
+    from femphase.model.parameters import ModelParameters
+    from femphase.timestepping.stepper import Stepper
 
     domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
     stepper = Stepper(domain, ModelParameters(), Numerics(), 2.0, linear_shear(0.5, 40.0), state.radii)
@@ -199,7 +204,7 @@ def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(substep_size
 
 def _two_sheared(merged_steps: int, frame_interval: float = 80.0):
     """(final state, RowShift.advect calls) of two particles sheared for 16 steps of 10."""
-    from femphase.advection import RowShift
+    from femphase.domains.grid.advection import RowShift
 
     scene = scene_from_dict({
         "domain": {"Lx": 40.0, "Ly": 40.0},
@@ -255,7 +260,7 @@ def test_calls_end_at_frames_t1_looks_phase_ends_and_every_merged_steps():
 
 def test_a_blow_up_inside_a_call_of_several_steps_names_its_step_and_leaves_the_state_unchanged(monkeypatch):
     from femphase.errors import BlowUpError
-    from femphase.schemes import AdaptiveSAV2
+    from femphase.timestepping.adaptive import AdaptiveSAV2
 
     scene = scene_from_dict({
         "domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"}, "output": {"fields": False},

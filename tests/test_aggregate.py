@@ -17,14 +17,25 @@ import pytest
 import xarray as xr
 
 from femphase import __version__
-from femphase.aggregate import (GLOBAL_COLUMNS, PARTICLE_COLUMNS, SUMMARY_COLUMNS, aggregate, averaging_window,
-                                is_current, plot_summary, read_run_tables, read_summary, read_sweep, run_data,
-                                summarise_run, write_aggregate)
+from femphase.aggregate import (
+    GLOBAL_COLUMNS,
+    PARTICLE_COLUMNS,
+    SUMMARY_COLUMNS,
+    aggregate,
+    averaging_window,
+    is_current,
+    read_summary,
+    read_sweep,
+    summarise_run,
+    write_aggregate,
+)
 from femphase.analysis.lattice import t1_event_times
 from femphase.cli import main
 from femphase.errors import InputError, ResolutionWarning
+from femphase.io.reader import open_run
+from femphase.plot.sweep import plot_summary
+from femphase.run.runner import run_scene
 from femphase.scene import read_scene_data, scene_from_dict
-from femphase.simulation import run_scene
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 RATE, SEED = "phases.1.flow.rate", "particles.seed"
@@ -164,11 +175,11 @@ def test_run_caught_while_appending_a_frame(sweep, tmp_path):
     shutil.copytree(sweep / "runs" / "000", run)
     with (run / "particles.csv").open("a") as handle:
         handle.write("85.0,0,1.5,2.5,40.0,0.1,0.2,0,0.5,0.5\n85.0,1,3.5,4.5,40.0,0.1,0.2,0,0.5,0.5\n85.0,2,3.")
-    tables = read_run_tables(run)
+    tables = open_run(run, pending=True)
     np.testing.assert_array_equal(tables.time, np.append(TIMES, 85.0))
     np.testing.assert_array_equal(tables.particles["x"][-1], [1.5, 3.5] + [np.nan] * 4)
     assert np.isnan(tables.globals["Psi6"][-1]) and np.isfinite(tables.globals["Psi6"][:-1]).all()
-    complete = run_data(run, tables)  # the analyses see the complete frames only
+    complete = tables.complete()  # the analyses see the complete frames only
     np.testing.assert_array_equal(complete.time, TIMES)
     assert summarise_run(complete)["n_frames"] == TIMES.size
 
@@ -216,10 +227,11 @@ def test_summary_is_the_average_over_the_last_fifth_of_the_frames(sweep):
 def test_runs_without_t1_interval_count_their_t1s_again_from_the_frames(sweep):
     from dataclasses import replace
 
-    from femphase.aggregate import read_run_tables, run_data, t1_rate
+    from femphase.aggregate import t1_rate
+    from femphase.io.reader import open_run
 
     directory = sweep / "runs" / "003"
-    run = run_data(directory, read_run_tables(directory))
+    run = open_run(directory).complete()
     output = {k: v for k, v in run.scene["output"].items() if k != "t1_interval"}
     older = replace(run, scene={**run.scene, "output": output}, globals={})  # as written before the key existed
     window = averaging_window(run.time, run.scene["phases"])

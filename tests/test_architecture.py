@@ -4,9 +4,9 @@ term, a new observable and a new time scheme, each registered, used by a scene a
 import re
 from pathlib import Path
 
+from femphase.analysis.observables import OBSERVABLES
 from femphase.flows import FLOWS
-from femphase.observables import OBSERVABLES
-from femphase.stepping import SCHEMES
+from femphase.timestepping.base import SCHEMES
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "architecture.md"
 

@@ -7,16 +7,10 @@ import argparse
 import numpy as np
 import pytest
 
-from femphase.compare import (
-    GridData,
-    compare_runs,
-    grid_data_from_run,
-    load_grid_data,
-    register_cli,
-    save_grid_data,
-)
+from femphase.cli.compare import register
+from femphase.compare import GridData, compare_runs, grid_data_from_run, load_grid_data, save_grid_data
+from femphase.run.runner import run_scene
 from femphase.scene import scene_from_dict
-from femphase.simulation import run_scene
 
 
 def tiny_scene(h: float = 1.0, per_particle: bool = True, fields: bool = True, frame: float = 1.0):
@@ -106,7 +100,7 @@ def test_grid_data_against_another_run_reports_the_difference(runs, tmp_path):
 
 def test_cli_prints_a_table_and_writes_csv_json_and_plot(runs, tmp_path, capsys):
     parser = argparse.ArgumentParser()
-    register_cli(parser.add_subparsers())
+    register(parser.add_subparsers())
     args = parser.parse_args(["compare", str(runs["fem"]), str(runs["fd"]), "--fields", "-o", str(tmp_path / "out")])
     assert args.func(args) == 0
     printed = capsys.readouterr().out
@@ -119,7 +113,7 @@ def test_cli_prints_a_table_and_writes_csv_json_and_plot(runs, tmp_path, capsys)
 
 def test_default_output_is_inside_dir_b(runs):
     parser = argparse.ArgumentParser()
-    register_cli(parser.add_subparsers())
+    register(parser.add_subparsers())
     args = parser.parse_args(["compare", str(runs["fem"]), str(runs["fem_again"])])
     assert args.func(args) == 0
     assert (runs["fem_again"] / "compare" / "compare.csv").exists()
@@ -177,8 +171,8 @@ def mesh_scene(mesh_file, dt: float = 0.1, per_particle: bool = True):
 def mesh_runs(tmp_path_factory):
     """Two identical runs on a Delaunay mesh, one with half the time step, one on the
     structured channel's triangulation read as a mesh."""
-    from femphase.meshed import write_domain
-    from femphase.meshing import delaunay_channel, edge_for_spacing, structured_channel
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing, structured_channel
 
     root = tmp_path_factory.mktemp("mesh_runs")
     wall = lambda height: (lambda x: 0 * x + height)  # noqa: E731
@@ -251,7 +245,7 @@ def test_grid_data_and_mesh_runs_are_not_compared(runs, mesh_runs, tmp_path):
 
 def test_cli_compares_mesh_runs_into_dir_b(mesh_runs, capsys):
     parser = argparse.ArgumentParser()
-    register_cli(parser.add_subparsers())
+    register(parser.add_subparsers())
     args = parser.parse_args(["compare", str(mesh_runs["mesh"]), str(mesh_runs["half_dt"]), "--fields"])
     assert args.func(args) == 0
     assert "phi_l2" in capsys.readouterr().out

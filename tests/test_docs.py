@@ -2,15 +2,16 @@
 
 from pathlib import Path
 
-from femphase.registry import builtin, with_registries
+from femphase.registry import with_registries
+from femphase.scene import registries
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 def test_scenes_md_lists_every_registered_name():
     text = (DOCS / "scenes.md").read_text()
-    assert with_registries(text) == text, "run: python -m femphase.registry --write docs/scenes.md"
-    for registry in builtin():
+    assert with_registries(text, registries()) == text, "run: python docs/registries.py"
+    for registry in registries():
         for name in registry.names():
             assert f"| `{name}` |" in text
 
@@ -19,6 +20,7 @@ def _table_defaults(section: str) -> dict[str, object]:
     """{key: default} of the key/default/meaning table under ``## `[section]```, defaults
     parsed as TOML values."""
     import re
+
     import tomllib
 
     text = (DOCS / "scenes.md").read_text()
@@ -30,8 +32,8 @@ def _table_defaults(section: str) -> dict[str, object]:
 def test_the_documented_defaults_are_the_code_defaults():
     from dataclasses import asdict
 
-    from femphase.model import ModelParameters
-    from femphase.stepping import Numerics
+    from femphase.config import Numerics
+    from femphase.model.parameters import ModelParameters
 
     for section, defaults in (("numerics", asdict(Numerics())), ("model", asdict(ModelParameters()))):
         documented = _table_defaults(section)

@@ -2,21 +2,20 @@
 
 import numpy as np
 import pytest
-
-from femphase.channel import ChannelDomain
-from femphase.energy import FreeEnergy, WindowedFields
-from femphase.mesh import channel_grid
-from femphase.model import ModelParameters, double_well
-from femphase.state import State
-from femphase.windows import Window
-
 from helpers import energy_of, small_system, stepper
+
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import channel_grid
+from femphase.domains.grid.windows import Window
+from femphase.model.energy import FreeEnergy, WindowedFields
+from femphase.model.parameters import ModelParameters, double_well
+from femphase.state import State
 
 
 def random_state(seed=3):
     """Three random fields (values in [−0.1, 1.1]) on overlapping windows of a 12 × 11 lattice:
     the whole channel, one wrapping across the seam from the bottom wall, one at the top wall."""
-    domain = ChannelDomain(channel_grid(12, 10, 1.0))
+    domain = GridDomain(channel_grid(12, 10, 1.0))
     ny, nx = domain.lattice
     windows = [domain.full_window(), Window(0, 6, 8, 7), Window(ny - 5, 5, 3, 6)]
     rng = np.random.default_rng(seed)
@@ -91,7 +90,7 @@ def test_window_wise_energy_equals_the_dense_energy(case):
 
 
 def test_parts_follow_the_stated_conventions():
-    domain = ChannelDomain(channel_grid(20, 20, 1.0))
+    domain = GridDomain(channel_grid(20, 20, 1.0))
     params = ModelParameters()
     full = domain.full_window()
     one = [np.zeros(domain.n_dofs), np.zeros(domain.n_dofs)]

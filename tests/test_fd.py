@@ -1,4 +1,4 @@
-"""The finite-difference reference scheme (femphase.fd) against the finite-element stepper."""
+"""The finite-difference reference scheme (femphase.timestepping.fd) against the finite-element stepper."""
 
 from __future__ import annotations
 
@@ -6,23 +6,25 @@ import numpy as np
 import pytest
 
 from femphase.analysis.shape import shape_observables
+from femphase.config import Numerics
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import channel_grid
+from femphase.domains.grid.windows import Window, WindowPolicy
 from femphase.errors import BlowUpError, SceneError
-from femphase.channel import ChannelDomain
-from femphase.energy import FreeEnergy
-from femphase.fd import (
+from femphase.flows import linear_shear, python_flow
+from femphase.model.energy import FreeEnergy
+from femphase.model.parameters import ModelParameters
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
+from femphase.scene import scene_from_dict
+from femphase.timestepping.fd import (
     COURANT_NUMBER,
     explicit_stability_limit,
     five_point_laplacian,
     laplacian,
     upwind_advection,
 )
-from femphase.flows import linear_shear, python_flow
-from femphase.mesh import channel_grid
-from femphase.model import ModelParameters
-from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, Simulation
-from femphase.stepping import Numerics, Stepper
-from femphase.windows import Window, WindowPolicy
+from femphase.timestepping.stepper import Stepper
 
 PARAMS = ModelParameters()
 
@@ -46,7 +48,7 @@ def test_laplacian_equals_minus_lumped_mass_inverse_stiffness_on_windows():
     """Δ_h φ = −M_L⁻¹Kφ node by node for fields zero outside their windows: walls (mirror),
     the periodic seam (a wrapping window, a full-width window) and artificial window edges."""
     grid = channel_grid(6.0, 4.0, 0.5)  # 12 × 9 nodes
-    domain = ChannelDomain(grid)
+    domain = GridDomain(grid)
     ops = domain.operators
     windows = [
         Window(2, 4, 3, 5),  # interior: zero beyond every edge
@@ -126,7 +128,7 @@ def test_heun_with_upwind_advection_needs_the_courant_limit():
 
 def test_paper_dt_is_accepted_and_too_large_dt_raises_a_clear_error():
     grid = channel_grid(32.0, 32.0, 1.0)
-    domain = ChannelDomain(grid)
+    domain = GridDomain(grid)
     assert 0.3 < explicit_stability_limit(PARAMS, 1.0) < 0.35
     assert fd_stepper(domain, 0.1).scheme.dt_max == pytest.approx(explicit_stability_limit(PARAMS, 1.0))
     # numerics.scheme selects the reference as well as the stepper's argument does
@@ -136,7 +138,7 @@ def test_paper_dt_is_accepted_and_too_large_dt_raises_a_clear_error():
     # a fast flow: the Courant condition dt (|u| + |v|)/h ≤ 0.4 binds
     with pytest.raises(SceneError, match="advection"):
         fd_stepper(domain, 0.1, linear_shear(8.0, grid.width))
-    fine = ChannelDomain(channel_grid(16.0, 16.0, 0.25))
+    fine = GridDomain(channel_grid(16.0, 16.0, 0.25))
     with pytest.raises(SceneError, match="h = 0.25"):
         fd_stepper(fine, 0.1)
 

@@ -9,10 +9,11 @@ whole one. Both advections take the velocity at each step's midpoint, an O((ω d
 import numpy as np
 import pytest
 
-from femphase.meshed import write_domain
-from femphase.meshing import structured_channel
+from femphase.domains.mesh.domain import write_domain
+from femphase.domains.mesh.generation import structured_channel
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, Simulation
 
 RATE, PERIOD, LX, LY = 0.4, 40.0, 60.0, 40.0
 

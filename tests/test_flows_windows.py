@@ -2,15 +2,14 @@
 
 import numpy as np
 import pytest
+from helpers import small_system, stepper
 
 from femphase.analysis.shape import shape_observables
-from femphase.channel import ChannelDomain
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import channel_grid
+from femphase.domains.grid.windows import GridLayout, Window, WindowPolicy, transfer
 from femphase.errors import SceneError
 from femphase.flows import flow_from_spec, linear_shear, poiseuille, python_flow
-from femphase.mesh import channel_grid
-from femphase.windows import GridLayout, Window, WindowPolicy, transfer
-
-from helpers import small_system, stepper
 
 
 def test_flow_conventions():
@@ -23,7 +22,7 @@ def test_flow_conventions():
     u, v = shear.velocity(np.zeros(4), y, 0.0)
     assert np.allclose(v, 0.0) and np.allclose(u, shear.row_velocity(y, 0.0))
     # a scene's flow table measures y from the domain's lower wall and Ly between the walls
-    domain = ChannelDomain(channel_grid(24.0, 240.0, 4.0))
+    domain = GridDomain(channel_grid(24.0, 240.0, 4.0))
     from_spec = flow_from_spec({"type": "shear", "rate": 0.5}, domain)
     assert np.allclose(from_spec.row_velocity(y, 0.0), shear.row_velocity(y, 0.0))
     with pytest.raises(SceneError, match="flow.rate"):
@@ -86,9 +85,9 @@ def test_windows_grow_shrink_and_are_clipped_at_the_walls():
 def test_a_moved_layout_is_the_layout_built_from_scratch():
     """Advection moves windows every substep; the channel then derives the new layout from
     the last one (Layout.moved) instead of building it. Both must agree exactly."""
-    from femphase.windows import Layout
+    from femphase.domains.layout import Layout
 
-    domain = ChannelDomain(channel_grid(40, 30, 1.0))
+    domain = GridDomain(channel_grid(40, 30, 1.0))
     windows = [Window(0, 12, 35, 12), Window(8, 12, 3, 12), Window(18, 12, 20, 16), Window(5, 8, 0, 40)]
     first = domain.layout(windows)
     shifted = [Window(w.iy0, w.ny, (w.ix0 + k) % 40, w.nx) for w, k in zip(windows, (7, -3, 1, 0))]
@@ -137,7 +136,7 @@ def test_a_moved_layout_is_the_layout_built_from_scratch():
     assert reshaped.shapes != moved.shapes
     # with alternating diagonals a move by an odd number of nodes changes the key's parity:
     # not a move either
-    alternating = ChannelDomain(channel_grid(40, 30, 1.0), diagonals="alternating")
+    alternating = GridDomain(channel_grid(40, 30, 1.0), diagonals="alternating")
     start = alternating.layout(windows)
     odd = alternating.layout([Window(w.iy0, w.ny, (w.ix0 + 1) % 40, w.nx) for w in windows[:3]] + windows[3:])
     assert [k for k, *_ in odd.groups] != [k for k, *_ in start.groups]
@@ -151,7 +150,7 @@ def test_misfits_of_a_whole_layout_follow_the_rule_window_by_window():
     (their occupied boxes); the rule, checked here window by window from each field's occupied nodes: a window
     fits while every margin not at a wall lies in [margin, longest_margin], full-width
     windows are always re-examined, empty ones never."""
-    domain = ChannelDomain(channel_grid(40, 30, 1.0))
+    domain = GridDomain(channel_grid(40, 30, 1.0))
     lattice = (domain.grid.ny, domain.grid.nx)
     policy = WindowPolicy.for_spacing(1.0)
     windows = [Window(0, 16, 35, 16), Window(8, 16, 3, 16), Window(14, 16, 20, 16), Window(5, 8, 0, 40),

@@ -1,6 +1,6 @@
 """Every bad input to ``femphase run`` gets one message naming the key: exit code 2, no
 traceback, nothing in the run directory changed (issue 11), over the systematic inputs of
-:mod:`femphase.fuzzing`; and a valid layout without inclined bonds runs the "order" observable."""
+:mod:`femphase.testing.fuzzing`; and a valid layout without inclined bonds runs the "order" observable."""
 
 import math
 import time
@@ -10,8 +10,8 @@ import pytest
 
 from femphase.analysis.lattice import frame_order, lattice_angle
 from femphase.cli import main
-from femphase.fuzzing import BASE_SCENE, BadInput, bad_inputs, check_bad_input, make_run_directory, to_toml
-from femphase.io import read_csv
+from femphase.io.files import read_csv
+from femphase.testing.fuzzing import BASE_SCENE, BadInput, bad_inputs, check_bad_input, make_run_directory, to_toml
 
 
 @pytest.fixture(scope="module")
@@ -95,12 +95,12 @@ def test_the_checker_sees_failures(workdir, template, monkeypatch):
     """A valid input is not 'rejected', and an internal error is counted as one."""
     good = check_bad_input(BadInput("valid", BASE_SCENE, key="model.mu"), workdir, template=template)
     assert good.exit_code == 0 and not good.clean and not good.untouched
-    import femphase.scene
+    import femphase.cli.run
 
     def broken(*args, **kwargs):
         raise TypeError("a bug")
 
-    monkeypatch.setattr(femphase.scene, "scene_from_dict", broken)
+    monkeypatch.setattr(femphase.cli.run, "scene_from_dict", broken)
     check = check_bad_input(BadInput("bug", BASE_SCENE, key="scene"), workdir, template=template)
     assert check.exit_code == 1 and not check.clean
 

@@ -8,10 +8,20 @@ import numpy as np
 import pytest
 
 from femphase.errors import FemphaseError, SceneError
-from femphase.guards import (SLOWDOWN_LIMIT, AccuracyError, AccuracyGuard, AccuracyWarning, advective_spread,
-                             area_ratios, relaxation_time, step_measures)
+from femphase.run.directory import RunDirectory
+from femphase.run.guards import (
+    SLOWDOWN_LIMIT,
+    AccuracyError,
+    AccuracyGuard,
+    AccuracyWarning,
+    advective_spread,
+    area_ratios,
+    relaxation_time,
+    step_measures,
+)
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, RunDirectory, Simulation
 
 SLAB = {"domain": {"Lx": 70.0, "Ly": 24.0, "h": 1.0}, "particles": {"layout": "hexagonal", "N": 10}}
 PAIR = {"domain": {"Lx": 40.0, "Ly": 30.0}, "particles": {"layout": "list", "centres": [[10.0, 15.0], [30.0, 15.0]]}}

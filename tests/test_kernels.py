@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from femphase.kernels import occupied_boxes, others_squared
+from femphase.domains.grid.kernels import occupied_boxes, others_squared
 
 
 @pytest.mark.parametrize("dtype", [np.float32, np.float64])

@@ -1,8 +1,8 @@
 """Kill a real run at 20 points (SIGKILL at random moments and inside checkpoint, field,
 CSV and run.json writes; SIGTERM and SIGINT), resume after each, and check that the outputs
-are bit-identical to an uninterrupted run (femphase.faults)."""
+are bit-identical to an uninterrupted run (femphase.testing.faults)."""
 
-from femphase.faults import KILLS, SCENE, campaign
+from femphase.testing.faults import KILLS, SCENE, campaign
 
 #: Exit codes of a stopped run: SIGKILL; SIGINT/SIGTERM handled (130/143, documented in
 #: femphase.cli); SIGINT/SIGTERM arriving while Python still imports, before the handler

@@ -25,10 +25,11 @@ except ModuleNotFoundError:  # Python 3.10
 
 import femphase
 from femphase.cli import main
-from femphase.logs import StatusLog
-from femphase.provenance import DEPENDENCIES, PACKAGE_DIR, THREAD_VARIABLES, changed_since_import, git_commit
+from femphase.io.provenance import DEPENDENCIES, PACKAGE_DIR, THREAD_VARIABLES, changed_since_import, git_commit
+from femphase.run.directory import RunDirectory
+from femphase.run.simulation import Simulation, Tracker
+from femphase.run.trackers import StatusLog
 from femphase.scene import load_scene
-from femphase.simulation import RunDirectory, Simulation, Tracker
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENE = ROOT / "examples" / "single.toml"
@@ -150,7 +151,7 @@ def test_every_dependency_a_run_imports_is_recorded(tmp_path):
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, check=True)
     imported = set(json.loads(done.stdout.splitlines()[-1]))
     assert "numpy" in imported
-    assert (names & imported) <= set(DEPENDENCIES), "record the new dependency in femphase.provenance.DEPENDENCIES"
+    assert (names & imported) <= set(DEPENDENCIES), "record the new dependency in femphase.io.provenance.DEPENDENCIES"
 
 
 def test_run_log_has_a_header_status_lines_and_the_end_of_each_segment_and_resume_appends(tmp_path):
@@ -263,7 +264,7 @@ def test_status_log_from_python_logs_increasing_times(caplog):
 
 def test_status_lines_come_every_interval_of_wall_time_with_the_rate_and_eta(caplog, monkeypatch):
     clock = types.SimpleNamespace(now=0.0)
-    monkeypatch.setattr("femphase.logs.wallclock", types.SimpleNamespace(monotonic=lambda: clock.now))
+    monkeypatch.setattr("femphase.run.trackers.wallclock", types.SimpleNamespace(monotonic=lambda: clock.now))
 
     class Tick(Tracker):  # every step takes 0.25 s of (fake) wall time
         def after_step(self, state):

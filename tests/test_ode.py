@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 from scipy.signal import find_peaks
 
-from femphase.ode import (
+from femphase.cli.ode import register
+from femphase.model.minimal import (
     MinimalModelParameters,
     elongation_rate,
     lattice_angle,
     orientation,
     period,
-    register_cli,
     solve_minimal_model,
     t1_times,
     wrap_orientation,
@@ -154,7 +154,7 @@ def test_primary_peak_grows_and_secondary_shrinks_with_rate(solutions):
 
 def parse(argv):
     parser = argparse.ArgumentParser(prog="femphase")
-    register_cli(parser.add_subparsers())
+    register(parser.add_subparsers())
     return parser.parse_args(argv)
 
 

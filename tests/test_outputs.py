@@ -7,16 +7,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from femphase.analysis.observables import OBSERVABLES
 from femphase.analysis.shape import shape_observables, wall_contact, wall_dofs
-from femphase.io import read_csv
-from femphase.meshed import MeshDomain
-from femphase.meshing import delaunay_channel, edge_for_spacing
-from femphase.observables import OBSERVABLES
-from femphase.rundir import OUTPUTS
+from femphase.config import Numerics
+from femphase.domains.mesh.domain import MeshDomain
+from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+from femphase.io.files import read_csv
+from femphase.io.rundir import OUTPUTS
+from femphase.run.runner import run_scene
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, Simulation, run_scene
 from femphase.state import discs_state
-from femphase.stepping import Numerics
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "outputs.md"
 
@@ -40,7 +42,7 @@ def small_scene(**output):
 
 
 def builtin_observables():
-    return [name for name in OBSERVABLES.names() if OBSERVABLES.get(name).__module__ == "femphase.observables"]
+    return [name for name in OBSERVABLES.names() if OBSERVABLES.get(name).__module__ == "femphase.analysis.observables"]
 
 
 def test_every_column_an_observable_can_produce_is_documented():
@@ -147,14 +149,13 @@ def test_frame_fields_hold_the_largest_field_and_its_particle_at_every_node(mesh
     window's particle where phi_max > 0.5, else −1. Reference: the sort of all positions by
     (dof, φ) the frame writer used before, on overlapping windows with negative values and
     ties."""
-    from femphase.io import point_data
-
-    from femphase.channel import ChannelDomain
-    from femphase.mesh import channel_grid
+    from femphase.domains.grid.domain import GridDomain
+    from femphase.domains.grid.lattice import channel_grid
+    from femphase.io.fields import point_data
 
     domain = (MeshDomain.from_mesh(*delaunay_channel(40.0, edge_for_spacing(1.5), lambda x: 0 * x,
                                                      lambda x: 0 * x + 40.0, seed=3)) if mesh
-              else ChannelDomain(channel_grid(40.0, 40.0, 1.0)))
+              else GridDomain(channel_grid(40.0, 40.0, 1.0)))
     centres = np.array([[10.0, 10.0], [14.0, 10.0], [12.0, 13.0], [30.0, 30.0]])
     state = discs_state(domain, centres, np.full(4, 8.0), np.full(4, 4.0), 2.0, domain.window_policy(Numerics()))
     rng = np.random.default_rng(3)

@@ -8,8 +8,9 @@ full-size reproductions are verification/physics_*.py.
 import numpy as np
 
 from femphase.analysis.lattice import lattice_angle, t1_event_times
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, Simulation
 
 
 def _record(scene_data: dict) -> FrameRecorder:

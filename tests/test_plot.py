@@ -7,9 +7,10 @@ import numpy as np
 import pytest
 
 from femphase.cli import main
-from femphase.plot import FIGURES, load_run, plot_run
+from femphase.io.reader import open_run
+from femphase.plot.run import FIGURES, plot_run
+from femphase.run.runner import run_scene
 from femphase.scene import scene_from_dict
-from femphase.simulation import run_scene
 
 TINY = {
     "name": "tiny lattice",
@@ -57,7 +58,7 @@ def test_snapshot_from_fields_xdmf_without_checkpoint(tiny_run, tmp_path):
 def test_order_is_computed_when_the_run_did_not_write_it(tmp_path):
     data = {**TINY, "output": {"fields": False}}
     run_scene(scene_from_dict(data), tmp_path / "run", progress=False)
-    run = load_run(tmp_path / "run")
+    run = open_run(tmp_path / "run").complete()
     assert "Psi6" not in run.globals
     _written(plot_run(tmp_path / "run"))
 
@@ -66,14 +67,14 @@ def test_missing_directory_is_a_clear_error(tmp_path, capsys):
     assert main(["plot", str(tmp_path / "nowhere")]) == 2
     assert "does not exist" in capsys.readouterr().err
     with pytest.raises(FileNotFoundError, match="does not exist"):
-        load_run(tmp_path / "nowhere")
+        open_run(tmp_path / "nowhere").complete()
 
 
 def test_directory_that_is_not_a_run_is_a_clear_error(tmp_path, capsys):
     (tmp_path / "scene.toml").write_text('name = "x"\n')
     assert main(["plot", str(tmp_path)]) == 2
     assert "not a femphase run directory" in capsys.readouterr().err
-    assert "particles.csv" in str(pytest.raises(FileNotFoundError, load_run, tmp_path).value)
+    assert "particles.csv" in str(pytest.raises(FileNotFoundError, open_run, tmp_path).value)
 
 
 def test_bad_ode_rate_is_rejected(tiny_run, tmp_path, capsys):
@@ -84,7 +85,7 @@ def test_bad_ode_rate_is_rejected(tiny_run, tmp_path, capsys):
 def test_run_without_flow(tmp_path):
     data = {**TINY, "output": {"fields": False}, "phases": TINY["phases"][:1]}
     run_scene(scene_from_dict(data), tmp_path / "run", progress=False)
-    assert load_run(tmp_path / "run").shear_rate is None
+    assert open_run(tmp_path / "run").complete().shear_rate is None
     _written(plot_run(tmp_path / "run", tmp_path / "plain"))  # no ODE
     _written(plot_run(tmp_path / "run", tmp_path / "ode", ode_rate=0.2))  # the ODE from the first frame
 
@@ -108,8 +109,8 @@ MESH = {
 @pytest.fixture(scope="module")
 def mesh_run(tmp_path_factory) -> Path:
     """A run on a Delaunay channel between walls at y = −4 and y = 20, around an obstacle."""
-    from femphase.meshed import write_domain
-    from femphase.meshing import delaunay_channel, edge_for_spacing
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
 
     root = tmp_path_factory.mktemp("mesh")
     mesh, boundaries = delaunay_channel(36.0, edge_for_spacing(1.0), lambda x: 0 * x - 4.0, lambda x: 0 * x + 20.0,
@@ -131,7 +132,7 @@ def test_plot_of_a_mesh_run_writes_every_figure(mesh_run, capsys):
     assert len(printed) == len(FIGURES)
     for name in FIGURES:
         assert (mesh_run / "figures" / f"{name}.png").stat().st_size > 1000
-    run = load_run(mesh_run)
+    run = open_run(mesh_run).complete()
     assert run.kind == "mesh" and run.shear_rate is None  # a stokes flow has no rate: no ODE
     assert run.extent == pytest.approx((0.0, 36.0, -4.0, 20.0))
 
@@ -142,10 +143,10 @@ def test_mesh_snapshot_is_drawn_on_the_mesh_and_masks_the_obstacle(mesh_run):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from femphase.plot import draw_snapshot
+    from femphase.plot.run import draw_snapshot
 
     fig, ax = plt.subplots()
-    draw_snapshot(ax, load_run(mesh_run))
+    draw_snapshot(ax, open_run(mesh_run).complete())
     phi_sum = ax.images[0].get_array()
     assert ax.images[0].get_extent() == pytest.approx([0.0, 36.0, -4.0, 20.0])
     rows, cols = phi_sum.shape
@@ -168,4 +169,4 @@ def test_mesh_run_whose_mesh_file_is_gone_is_drawn_from_its_fields(mesh_run, tmp
     mesh_line = next(line for line in scene.splitlines() if line.startswith("mesh = "))
     (copy / "scene.toml").write_text(scene.replace(mesh_line, f'mesh = "{tmp_path / "gone.vtu"}"'))
     _written(plot_run(copy))
-    assert load_run(copy).extent == pytest.approx((0.0, 36.0, -4.0, 20.0))  # from fields.xdmf's nodes
+    assert open_run(copy).complete().extent == pytest.approx((0.0, 36.0, -4.0, 20.0))  # from fields.xdmf's nodes

@@ -2,24 +2,24 @@
 
 import numpy as np
 import pytest
+from helpers import small_system
 
-from femphase.advection import row_phases, shift_rows
-from femphase.channel import ChannelDomain, tensor_basis
+from femphase.config import Numerics
+from femphase.domains.grid.advection import row_phases, shift_rows
+from femphase.domains.grid.domain import GridDomain, tensor_basis
+from femphase.domains.grid.lattice import channel_grid
+from femphase.domains.grid.windows import Window
+from femphase.domains.mesh.domain import MeshDomain
+from femphase.domains.mesh.generation import structured_channel
 from femphase.errors import SceneError
 from femphase.flows import linear_shear
-from femphase.mesh import channel_grid
-from femphase.meshed import MeshDomain
-from femphase.meshing import structured_channel
-from femphase.model import ModelParameters
-from femphase.stepping import Numerics, Stepper
-from femphase.windows import Window
-
-from helpers import small_system
+from femphase.model.parameters import ModelParameters
+from femphase.timestepping.stepper import Stepper
 
 
 def test_the_tensor_solve_of_a_float32_right_hand_side_rounds_like_single_precision():
     grid = channel_grid(30, 19, 1.0)
-    domain, params = ChannelDomain(grid), ModelParameters()
+    domain, params = GridDomain(grid), ModelParameters()
     window = Window(2, 12, 25, 16)  # wraps around the periodic seam
     stepper = Stepper(domain, params, Numerics(scheme="euler"), 0.7)
     a, b = 1 / 0.7 + params.mobility * stepper.scheme.stabilisation, params.diffusivity

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from femphase.cli import main
-from femphase.io import read_csv
+from femphase.io.files import read_csv
 
 SCENE = """
 name = "tiny"

@@ -1,4 +1,4 @@
-"""The second-order scheme "sav2" (femphase.schemes.RelaxedSAV2).
+"""The second-order scheme "sav2" (femphase.timestepping.sav2.RelaxedSAV2).
 
 Order 2 in dt on the manufactured solution of verification/mms.py (at h = 0.25 the spatial
 error, ~0.003, is small against the temporal errors at dt = 1 and 0.5: 0.074 and 0.020),
@@ -10,23 +10,24 @@ import functools
 
 import numpy as np
 import pytest
+from helpers import energy_of, small_system
 
-from femphase.channel import ChannelDomain
-from femphase.energy import WindowedFields
+from femphase.config import Numerics
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import channel_grid
 from femphase.errors import SceneError
 from femphase.flows import linear_shear
-from femphase.io import load_checkpoint, save_checkpoint
-from femphase.mesh import channel_grid
-from femphase.model import ModelParameters
-from femphase.schemes import linearly_implicit_step
+from femphase.io.checkpoints import load_checkpoint, save_checkpoint
+from femphase.model.energy import WindowedFields
+from femphase.model.parameters import ModelParameters
 from femphase.state import State
-from femphase.stepping import Numerics, Stepper
-from helpers import energy_of, small_system
+from femphase.timestepping.euler import linearly_implicit_step
+from femphase.timestepping.stepper import Stepper
 from verification import mms
 
 
 def _mms_error(dt: float, scheme: str, h: float = 0.25) -> float:
-    domain = ChannelDomain(channel_grid(mms.LX, mms.LY, h))
+    domain = GridDomain(channel_grid(mms.LX, mms.LY, h))
     x, y = domain.coordinates
     state = State(domain, [domain.full_window()], [mms.exact(x, y, 0.0)], np.array([mms.PARAMS.radius]))
     stepper = Stepper(domain, mms.PARAMS, Numerics(windows=False, scheme=scheme), dt,

@@ -1,9 +1,9 @@
 """Scenes, their errors, and the command line: run, resume, blow-up."""
 
 import json
-import warnings
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -11,10 +11,13 @@ import pytest
 
 from femphase.cli import main
 from femphase.errors import SceneError
-from femphase.io import load_checkpoint, read_csv
+from femphase.io.checkpoints import load_checkpoint
+from femphase.io.files import read_csv
+from femphase.io.rundir import CHECKPOINT
 from femphase.placement import hexagonal_centres
+from femphase.run.runner import run_scene
+from femphase.run.simulation import Simulation, Tracker
 from femphase.scene import load_scene, scene_from_dict
-from femphase.simulation import CHECKPOINT, Simulation, Tracker, run_scene
 
 SMALL = {
     "name": "tiny",
@@ -29,7 +32,7 @@ SMALL = {
 
 
 def write_scene(path: Path, data: dict = SMALL) -> Path:
-    from femphase.io import to_toml
+    from femphase.tomlio import to_toml
 
     path.write_text(to_toml(data))
     return path
@@ -110,7 +113,7 @@ class StopAt(Tracker):
 def test_resume_continues_to_the_same_state_as_an_uninterrupted_run(tmp_path):
     scene = load_scene(write_scene(tmp_path / "scene.toml"))
     straight = run_scene(scene, tmp_path / "straight", progress=False)
-    from femphase.simulation import RunDirectory
+    from femphase.run.directory import RunDirectory
 
     interrupted_dir = tmp_path / "interrupted"
     with pytest.raises(KeyboardInterrupt):
@@ -154,7 +157,7 @@ def _sheared_nine(t1_interval: float = 10.0, merged_steps: int = 8):
 
 @pytest.mark.parametrize("t1_interval", [10.0, 2.0])
 def test_resume_continues_the_t1_count(tmp_path, t1_interval):
-    from femphase.simulation import RunDirectory
+    from femphase.run.directory import RunDirectory
 
     scene = _sheared_nine(t1_interval)
     run_scene(scene, tmp_path / "straight", progress=False)
@@ -187,7 +190,7 @@ class Centroids(Tracker):
 
 def test_the_t1_count_looks_between_frames_at_its_interval():
     from femphase.analysis.lattice import t1_event_times
-    from femphase.simulation import FrameRecorder
+    from femphase.run.trackers import FrameRecorder
 
     scene = _sheared_nine(t1_interval=5.0, merged_steps=1)  # a call per step: Centroids sees every step
     centroids, frames = Centroids(), FrameRecorder()
@@ -216,9 +219,9 @@ def test_h_equal_to_the_interface_width_warns_about_pinned_interfaces():
 
 
 def test_resume_of_a_mesh_run_continues_to_the_same_rows_as_an_uninterrupted_run(tmp_path):
-    from femphase.meshed import write_domain
-    from femphase.meshing import delaunay_channel, edge_for_spacing
-    from femphase.simulation import RunDirectory
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+    from femphase.run.directory import RunDirectory
 
     # a Delaunay channel, relaxed then driven by a Stokes flow, with the T1 counter running
     mesh, boundaries = delaunay_channel(36.0, edge_for_spacing(1.0), lambda x: 0 * x, lambda x: 0 * x + 24.0, seed=3)

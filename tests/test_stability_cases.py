@@ -2,13 +2,13 @@
 
 import numpy as np
 import pytest
+from helpers import energy_of, small_system, stepper
 
+from femphase.config import Numerics
 from femphase.errors import BlowUpError
 from femphase.flows import linear_shear
-from femphase.model import ModelParameters
-from femphase.stepping import Numerics, Stepper
-
-from helpers import energy_of, small_system, stepper
+from femphase.model.parameters import ModelParameters
+from femphase.timestepping.stepper import Stepper
 
 # three discs of the full radius almost on top of each other: far from equilibrium, with
 # large overlap (repulsion) forces

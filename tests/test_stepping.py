@@ -2,19 +2,20 @@
 
 import numpy as np
 import pytest
-
-from femphase.advection import shift_rows
-from femphase.analysis.shape import shape_observables
-from femphase.flows import linear_shear, python_flow
-from femphase.mesh import channel_grid, load_mesh
-from femphase.model import ModelParameters
-from femphase.errors import SceneError
-from femphase.solvers import AMGSolver, DirectSolver, TensorSolver
-from femphase.channel import ChannelDomain, tensor_solver
-from femphase.stepping import Numerics, Stepper
-from femphase.windows import Window
-
 from helpers import energy_of, small_system, stepper
+
+from femphase.analysis.shape import shape_observables
+from femphase.config import Numerics
+from femphase.domains.grid.advection import shift_rows
+from femphase.domains.grid.domain import GridDomain, tensor_solver
+from femphase.domains.grid.lattice import channel_grid
+from femphase.domains.grid.windows import Window
+from femphase.errors import SceneError
+from femphase.fem.meshfiles import load_mesh
+from femphase.fem.solvers import AMGSolver, DirectSolver, TensorSolver
+from femphase.flows import linear_shear, python_flow
+from femphase.model.parameters import ModelParameters
+from femphase.timestepping.stepper import Stepper
 
 
 def test_isolated_particle_relaxes_to_the_area_set_by_tension_and_constraint():
@@ -113,7 +114,7 @@ def test_semi_lagrangian_general_flow_matches_the_exact_row_shift():
 
 def test_amg_and_direct_solvers_agree():
     grid = channel_grid(30, 20, 1.0)
-    ops = ChannelDomain(grid).operators
+    ops = GridDomain(grid).operators
     matrix = (ops.mass + 0.12 * ops.stiffness).tocsr()
     rhs = np.random.default_rng(1).random((grid.n_nodes, 3))
     amg = AMGSolver(matrix, tol=1e-12)
@@ -138,7 +139,7 @@ def test_the_stepper_gives_the_same_result_with_either_solver():
                          ids=["interior", "wall-and-seam", "wall-full-width", "whole-channel"])
 def test_the_tensor_solver_solves_every_kind_of_window_exactly(window):
     grid = channel_grid(30, 19, 1.0)
-    domain = ChannelDomain(grid)
+    domain = GridDomain(grid)
     params = ModelParameters()
     step = Stepper(domain, params, Numerics(scheme="euler"), 0.7)
     stabilisation = step.scheme.stabilisation
@@ -157,7 +158,7 @@ def test_the_tensor_solver_solves_every_kind_of_window_exactly(window):
 
 def test_the_tensor_solver_refuses_alternating_diagonals_and_the_consistent_mass():
     grid = channel_grid(30, 20, 1.0)
-    alternating = ChannelDomain(grid, "alternating")
+    alternating = GridDomain(grid, "alternating")
     step = Stepper(alternating, ModelParameters(), Numerics(scheme="euler", diagonals="alternating"), 1.0)
     system = step.system(1.0, step.scheme.stabilisation)[0]
     window = Window(3, 10, 4, 10)
@@ -170,8 +171,8 @@ def test_the_tensor_solver_refuses_alternating_diagonals_and_the_consistent_mass
 
 def test_the_default_mesh_file_gives_the_generated_operators():
     grid = channel_grid(70, 240, 1.0)
-    from_file = ChannelDomain(grid, mesh=load_mesh("meshes/channel_70x240_h1.vtu")).operators
-    generated = ChannelDomain(grid).operators
+    from_file = GridDomain(grid, mesh=load_mesh("meshes/channel_70x240_h1.vtu")).operators
+    generated = GridDomain(grid).operators
     assert abs(from_file.stiffness - generated.stiffness).max() < 1e-12
     assert np.allclose(from_file.lumped_mass, generated.lumped_mass)
 

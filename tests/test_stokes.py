@@ -2,12 +2,8 @@ import numpy as np
 import pytest
 from skfem import MeshTri
 
-from femphase.periodic import fold_matrix, periodic_dof_map
-from femphase.stokes import (
-    channel_mesh,
-    poiseuille_profile,
-    solve_stokes,
-)
+from femphase.domains.mesh.stokes import channel_mesh, poiseuille_profile, solve_stokes
+from femphase.fem.periodic import fold_matrix, periodic_dof_map
 
 LX, LY = 7.0, 24.0
 

@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from femphase import stokes
 from femphase.cli import main
-from femphase.fuzzing import MESH_FILE, MESH_SCENE, mesh_files, to_toml
-from femphase.meshed import MeshDomain
-from femphase.stepping import Numerics
-from femphase.stokes import StokesCacheWarning, cache_dir, cache_path
+from femphase.config import Numerics
+from femphase.domains.mesh import stokes
+from femphase.domains.mesh.domain import MeshDomain
+from femphase.domains.mesh.stokes import StokesCacheWarning, cache_dir, cache_path, domain_stokes_flow
+from femphase.testing.fuzzing import MESH_FILE, MESH_SCENE, mesh_files, to_toml
 
 SPEC = {"type": "stokes", "max_velocity": 0.1}
 
@@ -42,7 +42,7 @@ def solved(folder: Path):
     """The flow of SPEC, with no warning allowed."""
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        return domain(folder).stokes_flow(SPEC)
+        return domain_stokes_flow(domain(folder), SPEC)
 
 
 def no_solving(monkeypatch):
@@ -102,7 +102,7 @@ def test_damaged_cache_is_rebuilt_with_a_warning(mesh_dir, cache, damage):
             arrays["velocity"] = arrays["velocity"][:-3]
         np.savez(path, **arrays)
     with pytest.warns(StokesCacheWarning, match=str(path.name)):
-        rebuilt = domain(mesh_dir).stokes_flow(SPEC)
+        rebuilt = domain_stokes_flow(domain(mesh_dir), SPEC)
     np.testing.assert_allclose(rebuilt.velocity, reference.velocity, rtol=1e-12, atol=1e-15)
     assert rebuilt.flux == pytest.approx(reference.flux)
     # the file was replaced by a good one: read back silently
@@ -120,7 +120,7 @@ def test_unwritable_cache_folder_only_warns(tmp_path, mesh_dir, monkeypatch, whe
         folder = Path("/proc/femphase-cache-test")
     monkeypatch.setenv("FEMPHASE_CACHE", str(folder))
     with pytest.warns(StokesCacheWarning, match="cannot write the Stokes cache"):
-        flow = domain(mesh_dir).stokes_flow(SPEC)
+        flow = domain_stokes_flow(domain(mesh_dir), SPEC)
     assert np.hypot(*flow.velocity_at_nodes()).max() == pytest.approx(0.1)
     assert not folder.exists()
 

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from femphase.cli import main
+from femphase.run.runner import run_scene
 from femphase.scene import load_scene
-from femphase.simulation import run_scene
 from femphase.sweep import WORKER_ENV, SweepError, load_sweep, run_sweep
 
 distributed = pytest.importorskip("distributed")

@@ -4,20 +4,20 @@ mesh against the structured channel, Stokes-driven transport, obstacles."""
 import meshio
 import numpy as np
 import pytest
+from helpers import small_system, stepper
 from skfem import MeshTri
 
 from femphase.analysis.shape import shape_observables
+from femphase.config import Numerics
+from femphase.domains.mesh.domain import MeshDomain, read_domain, write_domain
+from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing, structured_channel
 from femphase.errors import BlowUpError, SceneError
 from femphase.flows import flow_from_spec, poiseuille, python_flow
-from femphase.io import load_checkpoint, save_checkpoint
-from femphase.meshed import MeshDomain, read_domain, write_domain
-from femphase.meshing import delaunay_channel, edge_for_spacing, structured_channel
-from femphase.model import ModelParameters
+from femphase.io.checkpoints import load_checkpoint, save_checkpoint
+from femphase.model.parameters import ModelParameters
 from femphase.scene import scene_from_dict
 from femphase.state import discs_state
-from femphase.stepping import Numerics, Stepper, cached_bytes
-
-from helpers import small_system, stepper
+from femphase.timestepping.stepper import Stepper, cached_bytes
 
 PARAMS = ModelParameters()
 EDGE = edge_for_spacing(1.0)  # one node per unit area, like the structured grid at h = 1

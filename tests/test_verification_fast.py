@@ -10,9 +10,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from femphase.channel import ChannelDomain
-from femphase.mesh import channel_grid
-from femphase.stepping import Numerics, Stepper
+from femphase.config import Numerics
+from femphase.domains.grid.domain import GridDomain
+from femphase.domains.grid.lattice import channel_grid
+from femphase.timestepping.stepper import Stepper
 from verification import equilibrium, flat_interface, mms
 
 
@@ -51,7 +52,7 @@ def test_mms_error_norms_of_the_interpolant_have_the_interpolation_orders():
     accurate enough for this at the levels used)."""
     errors = []
     for h in (1.0, 0.5, 0.25):
-        domain = ChannelDomain(channel_grid(mms.LX, mms.LY, h))
+        domain = GridDomain(channel_grid(mms.LX, mms.LY, h))
         errors.append(mms.error_norms(domain, mms.exact(*domain.coordinates, 3.0), 3.0))
     l2, h1 = np.array(errors).T
     assert mms.observed_orders((1.0, 0.5, 0.25), l2) == pytest.approx([2.0, 2.0], abs=0.05)
@@ -70,7 +71,7 @@ def test_flat_interface_converges_at_second_order():
 
 # -- isolated particle ------------------------------------------------------------------------
 def test_superlevel_area_is_exact_for_linear_fields():
-    domain = ChannelDomain(channel_grid(8.0, 6.0, 1.0))
+    domain = GridDomain(channel_grid(8.0, 6.0, 1.0))
     _, y = domain.coordinates
     assert equilibrium.superlevel_area(domain, y / domain.width, 0.3) == pytest.approx(0.7 * 8.0 * 6.0, rel=1e-12)
     # with the level between two rows, triangles with one and with two corners above occur

@@ -9,8 +9,9 @@ measured agreement now is 1.2e-5 and 6.5e-5.
 
 import numpy as np
 
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
-from femphase.simulation import FrameRecorder, Simulation
 
 
 def _relax_pair(windows: bool):

@@ -52,11 +52,12 @@ from matplotlib.ticker import NullFormatter  # noqa: E402
 import numpy as np  # noqa: E402
 
 from femphase.analysis.shape import shape_observables  # noqa: E402
-from femphase.channel import ChannelDomain  # noqa: E402
-from femphase.mesh import channel_grid  # noqa: E402
-from femphase.model import ModelParameters  # noqa: E402
+from femphase.domains.grid.domain import GridDomain  # noqa: E402
+from femphase.domains.grid.lattice import channel_grid  # noqa: E402
+from femphase.model.parameters import ModelParameters  # noqa: E402
 from femphase.state import State, discs_state  # noqa: E402
-from femphase.stepping import Numerics, Stepper  # noqa: E402
+from femphase.config import Numerics  # noqa: E402
+from femphase.timestepping.stepper import Stepper
 from verification.mms import command_line, log_axes, observed_orders, save_results  # noqa: E402
 
 PARAMS = ModelParameters()
@@ -77,7 +78,7 @@ QUANTITIES = ("area", "mass", "radius", "radius_from_mass", "interior")
 EXPECTED_ORDER = 2.0
 
 
-def superlevel_area(domain: ChannelDomain, phi: np.ndarray, level: float = 0.5) -> float:
+def superlevel_area(domain: GridDomain, phi: np.ndarray, level: float = 0.5) -> float:
     """Area of {φ_h ≥ level} of the P1 field with nodal values phi (per dof, grid order),
     exactly."""
     low, middle, high = np.sort(phi[domain.dof_map[domain.mesh.t]], axis=0)
@@ -101,9 +102,9 @@ def interior_bulk(area: float) -> float:
 CENTRE = (0.5 * SIZE, 0.5 * SIZE)
 
 
-def relaxed_state(h: float, dt: float, windows: bool = True) -> tuple[ChannelDomain, State]:
+def relaxed_state(h: float, dt: float, windows: bool = True) -> tuple[GridDomain, State]:
     """The particle relaxed from a disc of radius R/2 on spacing h with step dt."""
-    domain = ChannelDomain(channel_grid(SIZE, SIZE, h))
+    domain = GridDomain(channel_grid(SIZE, SIZE, h))
     # the linearly implicit Euler step's fixed point is the discrete equilibrium, whatever dt
     numerics = Numerics(scheme="euler", windows=windows)
     state = discs_state(domain, np.array([CENTRE]), np.array([PARAMS.radius]), np.array([0.5 * PARAMS.radius]),
@@ -124,13 +125,13 @@ def relaxed_state(h: float, dt: float, windows: bool = True) -> tuple[ChannelDom
     return domain, state
 
 
-def integrals_of(domain: ChannelDomain, state: State) -> tuple[float, float]:
+def integrals_of(domain: GridDomain, state: State) -> tuple[float, float]:
     """(∫φ², ∫φ) of the state's one field, nodal quadrature."""
     phi = state.global_field(0)
     return float(phi**2 @ domain.operators.lumped_mass), float(phi @ domain.operators.lumped_mass)
 
 
-def measure(domain: ChannelDomain, state: State) -> dict:
+def measure(domain: GridDomain, state: State) -> dict:
     """The equilibrium quantities of the module docstring, and run diagnostics."""
     grid, phi = domain.grid, state.global_field(0)
     shape = shape_observables(state)

@@ -72,8 +72,9 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from femphase.analysis.periods import first_period  # noqa: E402
 from femphase.scene import scene_from_dict  # noqa: E402
-from femphase.simulation import FrameRecorder, Simulation  # noqa: E402
-from femphase.windows import pad_window  # noqa: E402
+from femphase.run.trackers import FrameRecorder  # noqa: E402
+from femphase.run.simulation import Simulation
+from femphase.domains.grid.windows import pad_window  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RADIUS = 8.0

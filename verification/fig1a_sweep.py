@@ -22,7 +22,8 @@ import json
 import shutil
 from pathlib import Path
 
-from femphase.aggregate import plot_sweep, read_summary, sample_curves
+from femphase.plot.sweep import plot_sweep, sample_curves
+from femphase.aggregate import read_summary
 
 RESULTS = Path(__file__).resolve().parent / "results"
 RATE = "phases.1.flow.rate"

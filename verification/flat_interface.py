@@ -43,12 +43,13 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from femphase.channel import ChannelDomain  # noqa: E402
-from femphase.energy import FreeEnergy, WindowedFields  # noqa: E402
-from femphase.mesh import channel_grid  # noqa: E402
-from femphase.model import ModelParameters, interface_profile  # noqa: E402
+from femphase.domains.grid.domain import GridDomain  # noqa: E402
+from femphase.model.energy import FreeEnergy, WindowedFields  # noqa: E402
+from femphase.domains.grid.lattice import channel_grid  # noqa: E402
+from femphase.model.parameters import ModelParameters, interface_profile  # noqa: E402
 from femphase.state import State  # noqa: E402
-from femphase.stepping import Numerics, Stepper  # noqa: E402
+from femphase.config import Numerics  # noqa: E402
+from femphase.timestepping.stepper import Stepper
 from verification.mms import command_line, log_axes, observed_orders, save_results  # noqa: E402
 
 PARAMS = replace(ModelParameters(), area_stiffness=0.0)
@@ -69,7 +70,7 @@ def tension() -> float:
 def equilibrium(h: float) -> tuple[np.ndarray, np.ndarray, dict]:
     """Relax the flat interface on spacing h: (y of the rows, the profile φ(y), diagnostics)."""
     grid = channel_grid(LX, LY, h)
-    domain = ChannelDomain(grid)
+    domain = GridDomain(grid)
     _, y = grid.coordinates()
     start = interface_profile(y - 0.5 * LY, 2.0 * PARAMS.interface_width)
     # one flat field in grid order (dof = iy * nx + ix)

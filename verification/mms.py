@@ -62,13 +62,14 @@ import numpy as np  # noqa: E402
 from skfem.quadrature import get_quadrature  # noqa: E402
 from skfem.refdom import RefTri  # noqa: E402
 
-from femphase.channel import ChannelDomain  # noqa: E402
+from femphase.domains.grid.domain import GridDomain  # noqa: E402
 from femphase.flows import linear_shear  # noqa: E402
-from femphase.io import write_json  # noqa: E402
-from femphase.mesh import channel_grid  # noqa: E402
-from femphase.model import ModelParameters, double_well_derivative  # noqa: E402
+from femphase.io.files import write_json  # noqa: E402
+from femphase.domains.grid.lattice import channel_grid  # noqa: E402
+from femphase.model.parameters import ModelParameters, double_well_derivative  # noqa: E402
 from femphase.state import State  # noqa: E402
-from femphase.stepping import Numerics, Stepper  # noqa: E402
+from femphase.config import Numerics  # noqa: E402
+from femphase.timestepping.stepper import Stepper
 
 RESULTS = Path(__file__).resolve().parent / "results"
 
@@ -139,10 +140,10 @@ def source(x: np.ndarray, y: np.ndarray, t: float) -> np.ndarray:
 
 
 # -- solving and measuring -------------------------------------------------------------------
-def simulate(h: float, dt: float, scheme: str = "euler") -> tuple[ChannelDomain, np.ndarray, float]:
+def simulate(h: float, dt: float, scheme: str = "euler") -> tuple[GridDomain, np.ndarray, float]:
     """The discrete solution at FINAL_TIME on spacing h with step dt: (domain, nodal values
     in grid order, the stabilisation S the stepper's Euler scheme chose; 0 for sav2)."""
-    domain = ChannelDomain(channel_grid(LX, LY, h))
+    domain = GridDomain(channel_grid(LX, LY, h))
     x, y = domain.coordinates  # of every dof, grid order
     state = State(domain, [domain.full_window()], [exact(x, y, 0.0)], np.array([PARAMS.radius]))
     # double precision: the finest errors measured here (~6e-4 in L2 at h = 0.125) must not
@@ -160,7 +161,7 @@ _WEIGHTS = _WEIGHTS / _WEIGHTS.sum()  # fractions of the element's area
 _BARYCENTRIC = np.stack([1.0 - _POINTS[0] - _POINTS[1], _POINTS[0], _POINTS[1]])
 
 
-def error_norms(domain: ChannelDomain, phi: np.ndarray, t: float) -> tuple[float, float]:
+def error_norms(domain: GridDomain, phi: np.ndarray, t: float) -> tuple[float, float]:
     """(‖φ_h − φ_e‖_L2, ‖∇φ_h − ∇φ_e‖_L2) of the P1 field with nodal values phi (per dof) at
     time t."""
     mesh, ops = domain.mesh, domain.operators

@@ -32,10 +32,14 @@ import numpy as np
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_name, "1")
 
-from femphase.io import load_checkpoint, read_checkpoint_metadata, write_json  # noqa: E402
-from femphase.rundir import resume_position  # noqa: E402
+from femphase.io.checkpoints import load_checkpoint, read_checkpoint_metadata  # noqa: E402
+from femphase.io.files import write_json
+from femphase.io.rundir import resume_position  # noqa: E402
 from femphase.scene import Scene, load_scene  # noqa: E402
-from femphase.simulation import CHECKPOINT, RunDirectory, Simulation, run_scene  # noqa: E402
+from femphase.io.rundir import CHECKPOINT  # noqa: E402
+from femphase.run.simulation import Simulation  # noqa: E402
+from femphase.run.directory import RunDirectory
+from femphase.run.runner import run_scene
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLES = REPO / "examples"
@@ -67,7 +71,7 @@ def is_complete(directory: Path, scene: Scene) -> bool:
 
 def _continue(scene: Scene, directory: Path, method: str) -> None:
     """Continue the run in ``directory`` from its checkpoint under ``scene`` with ``method``:
-    what ``femphase run --resume`` does (:func:`femphase.simulation.run_scene`), except that
+    what ``femphase run --resume`` does (:func:`femphase.run.runner.run_scene`), except that
     the method may differ from the checkpoint's, so that a finite-difference branch can start
     from a relaxation done with FEM."""
     checkpoint = directory / CHECKPOINT

@@ -63,9 +63,9 @@ def analyse(directory, rate: float) -> dict:
     """Order parameters over the last frames of one run (see the module docstring)."""
     from femphase.analysis.lattice import bond_order, frame_average, global_order, nematic_order
     from femphase.analysis.lattice import periodic_delaunay_pairs
-    from femphase.plot import load_run
+    from femphase.io.reader import open_run
 
-    run = load_run(directory)
+    run = open_run(directory).complete()
     shear = np.flatnonzero(run.time >= run.shear_start - 1e-9)
     last = shear[-LAST_FRAMES:]
     margin = 2 * run.radius
@@ -111,10 +111,12 @@ def summarise(results: list[dict]) -> dict:
 
 
 def figures(summary: dict, seeds: tuple[int, ...], h: float, durations: dict[float, float]) -> None:
-    from femphase.plot import _pyplot, draw_snapshot, load_run
-    from femphase.simulation import CHECKPOINT
+    from femphase.plot.figures import pyplot
+    from femphase.plot.run import draw_snapshot
+    from femphase.io.reader import open_run
+    from femphase.io.rundir import CHECKPOINT
 
-    plt = _pyplot()
+    plt = pyplot()
     rows = summary["rates"]
     rates = np.array([r["rate"] for r in rows])
     fig, ax = plt.subplots(figsize=(6, 4))
@@ -142,7 +144,7 @@ def figures(summary: dict, seeds: tuple[int, ...], h: float, durations: dict[flo
     directories = [d for d in directories if (d / CHECKPOINT).exists()]
     fig, axes = plt.subplots(1, len(directories), figsize=(2.0 * len(directories), 6.5), squeeze=False)
     for ax, directory, rate in zip(axes[0], directories, rates):
-        draw_snapshot(ax, load_run(directory))
+        draw_snapshot(ax, open_run(directory).complete())
         ax.set_title(f"γ̇ = {rate:g}", fontsize=8)
     fig.tight_layout()
     fig.savefig(RESULTS / "physics_order_snapshots.png", dpi=130)
@@ -198,7 +200,7 @@ def run(quick: bool = False, seeds: tuple[int, ...] | None = None, simulate_only
         },
     }
     if write:
-        from femphase.io import write_json
+        from femphase.io.files import write_json
 
         write_json(RESULTS / "physics_order.json", summary)
         figures(summary, seeds, h, durations)

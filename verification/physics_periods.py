@@ -157,9 +157,10 @@ def lane_kinematics(run, rate: float, t_from: float) -> dict:
 def analyse(directory, h: float, rate: float, dt: float) -> dict:
     """Periods of r̄(t), of each particle's r(t) and of φ(t) of one run (see the module doc),
     the steady oscillation's range, and the comparison with the minimal model."""
-    from femphase.plot import load_run, ode_comparison
+    from femphase.io.reader import open_run
+    from femphase.oscillations import ode_comparison
 
-    run = load_run(directory)
+    run = open_run(directory).complete()
     shear = run.time >= run.shear_start - 1e-9
     t = run.time[shear]
     t_geo = geometric_period(rate)
@@ -365,10 +366,12 @@ def figures(summary: dict, results: list[dict]) -> None:
     """physics_periods.png (T against γ̇), physics_periods_ode.png (r̄(t) against the ODE at
     the paper's rates, finest grid), physics_periods_cycles.png (limit cycles at 0.0778 and
     0.3857) and physics_periods_snapshot.png (γ̇ = 0.1487, h = 1, the end of the run)."""
-    from femphase.plot import _pyplot, draw_elongation, draw_limit_cycle, load_run, plot_snapshot
-    from femphase.simulation import CHECKPOINT
+    from femphase.plot.figures import pyplot
+    from femphase.plot.run import draw_elongation, draw_limit_cycle, plot_snapshot
+    from femphase.io.reader import open_run
+    from femphase.io.rundir import CHECKPOINT
 
-    plt = _pyplot()
+    plt = pyplot()
     periods = summary["periods"]
     fig, ax = plt.subplots(figsize=(5.5, 4.2))
     dense = np.geomspace(0.04, 0.6, 50)
@@ -403,7 +406,7 @@ def figures(summary: dict, results: list[dict]) -> None:
     if shown:
         fig, axes = plt.subplots(len(shown), 1, figsize=(9, 2.8 * len(shown)), squeeze=False)
         for ax, (h, r) in zip(axes[:, 0], shown):
-            run = load_run(RUNS / run_name(h, r["rate"]))
+            run = open_run(RUNS / run_name(h, r["rate"])).complete()
             t_from = run.time[-1] - 3 * r["geometric_period"]
             matched = r["ode"].get("matched", {}).get("k")
             draw_elongation(ax, run, r["rate"], matched or K_PAPER, t_from=t_from)
@@ -414,7 +417,7 @@ def figures(summary: dict, results: list[dict]) -> None:
     if cycles:
         fig, axes = plt.subplots(1, len(cycles), figsize=(4.6 * len(cycles), 4.6), squeeze=False)
         for ax, (h, r) in zip(axes[0], cycles):
-            run = load_run(RUNS / run_name(h, r["rate"]))
+            run = open_run(RUNS / run_name(h, r["rate"])).complete()
             matched = r["ode"].get("matched", {}).get("k")
             late = 2 * r["geometric_period"] / (run.time[-1] - run.time[0])
             draw_limit_cycle(ax, run, r["rate"], matched or K_PAPER, late_fraction=late)
@@ -423,7 +426,7 @@ def figures(summary: dict, results: list[dict]) -> None:
 
     snapshot = RUNS / run_name(1.0, 0.1487)
     if (snapshot / CHECKPOINT).exists():
-        plot_snapshot(load_run(snapshot), RESULTS / "physics_periods_snapshot.png")
+        plot_snapshot(open_run(snapshot).complete(), RESULTS / "physics_periods_snapshot.png")
 
 
 def _save_result(fig, name: str) -> None:
@@ -501,7 +504,7 @@ def run(quick: bool = False, spacings: tuple[float, ...] | None = None, simulate
                               lambda: {**analyse(directory, h, rate, dt), "method": method}, key))
     summary = summarise(results)
     if (not quick) if write is None else write:
-        from femphase.io import write_json
+        from femphase.io.files import write_json
 
         write_json(RESULTS / "periods.json", summary["periods"])
         write_json(RESULTS / "physics_periods.json", {**summary, "runs": results})

@@ -70,9 +70,9 @@ def settling(time: np.ndarray, r: np.ndarray) -> dict:
 
 
 def analyse(directory, h: float, dt: float) -> dict:
-    from femphase.plot import load_run
+    from femphase.io.reader import open_run
 
-    run = load_run(directory)
+    run = open_run(directory).complete()
     shear = run.time >= run.shear_start - 1e-9
     t, r, theta = run.time[shear], run.elongation[shear, 0], run.orientation[shear, 0]
     return {
@@ -88,12 +88,13 @@ def analyse(directory, h: float, dt: float) -> dict:
 
 
 def figure(results: list[dict]) -> None:
-    from femphase.plot import _pyplot, load_run
+    from femphase.plot.figures import pyplot
+    from femphase.io.reader import open_run
 
-    plt = _pyplot()
+    plt = pyplot()
     fig, axes = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
     for result in results:
-        run = load_run(result["directory"])
+        run = open_run(result["directory"]).complete()
         label = f"h = {result['h']:g}, dt = {result['dt']:g}"
         axes[0].plot(run.time, run.elongation[:, 0], label=label)
         axes[1].plot(run.time, np.degrees(run.orientation[:, 0]), label=label)
@@ -145,7 +146,7 @@ def run(quick: bool = False, write: bool | None = None) -> dict:
                      "frame_interval": FRAME_INTERVAL, "runs_h_dt": [list(x) for x in plan]},
     }
     if (not quick) if write is None else write:
-        from femphase.io import write_json
+        from femphase.io.files import write_json
 
         write_json(RESULTS / "physics_single.json", {**summary, "runs": [
             {k: v for k, v in r.items() if k != "directory"} for r in results]})

@@ -42,15 +42,16 @@ import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from femphase.analysis.shape import shape_observables  # noqa: E402
-from femphase.channel import ChannelDomain  # noqa: E402
+from femphase.domains.grid.domain import GridDomain  # noqa: E402
 from femphase.flows import flow_from_spec, poiseuille  # noqa: E402
-from femphase.mesh import channel_grid  # noqa: E402
-from femphase.meshed import MeshDomain  # noqa: E402
-from femphase.model import ModelParameters  # noqa: E402
-from femphase.observables import Order  # noqa: E402
+from femphase.domains.grid.lattice import channel_grid  # noqa: E402
+from femphase.domains.mesh.domain import MeshDomain  # noqa: E402
+from femphase.model.parameters import ModelParameters  # noqa: E402
+from femphase.analysis.observables import Order  # noqa: E402
 from femphase.placement import random_centres  # noqa: E402
 from femphase.state import discs_state  # noqa: E402
-from femphase.stepping import Numerics, Stepper  # noqa: E402
+from femphase.config import Numerics  # noqa: E402
+from femphase.timestepping.stepper import Stepper
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "verification" / "results"
@@ -86,7 +87,7 @@ class GridRun(Run):
     """The structured channel at spacing h, in the Poiseuille flow u = 4U y(Ly − y)/Ly²."""
 
     def __init__(self, h: float, centres: np.ndarray) -> None:
-        super().__init__(ChannelDomain(channel_grid(LX, LY, h)), centres)
+        super().__init__(GridDomain(channel_grid(LX, LY, h)), centres)
 
     def flow(self, velocity: float):
         return poiseuille(velocity, LY)

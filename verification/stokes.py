@@ -30,12 +30,7 @@ import numpy as np  # noqa: E402
 
 # the script lives outside the package; make `femphase` importable from a checkout
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-from femphase.stokes import (  # noqa: E402
-    StokesFlow,
-    channel_mesh,
-    poiseuille_profile,
-    solve_stokes,
-)
+from femphase.domains.mesh.stokes import StokesFlow, channel_mesh, poiseuille_profile, solve_stokes
 
 LX, LY = 70.0, 240.0
 VISCOSITY = 1.0

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from femphase.aggregate import last_phase_frames, read_run_tables, run_data
+from femphase.aggregate import last_phase_frames
+from femphase.io.reader import open_run
 from femphase.analysis.lattice import t1_event_times
 
 STRIDES = (1, 2, 5, 10)
@@ -26,7 +27,7 @@ STRIDES = (1, 2, 5, 10)
 def t1_rates(directory: Path, strides: tuple[int, ...] = STRIDES) -> list[tuple[float, float]]:
     """(frame spacing, T1 events per particle per 1000 time units) for each stride, over the
     last phase (from its last frame before the phase starts)."""
-    run = run_data(directory, read_run_tables(directory))
+    run = open_run(directory).complete()
     phases = json.loads((directory / "run.json").read_text())["settings"]["phases"]
     start = max(int(last_phase_frames(run.time, phases)[0]) - 1, 0)
     out = []

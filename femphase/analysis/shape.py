@@ -5,9 +5,9 @@ Conventions:
 * shape tensor R_i = −∫ ∇φ_i ∇φ_iᵀ (the paper's sign). Its eigenvector with the largest
   eigenvalue (the least negative) lies along the particle's elongation. On the structured
   channel it is computed from nodal central differences with the nodal quadrature
-  (:meth:`femphase.channel.ChannelDomain.shape_moments`): that rule has the square symmetry of the lattice, so a
+  (:meth:`femphase.domains.grid.domain.GridDomain.shape_moments`): that rule has the square symmetry of the lattice, so a
   centred disc has exactly zero elongation. The exact integral of the P1 gradients
-  (:func:`shape_tensors`, any mesh) inherits the bias of the triangulation's diagonals: a
+  (:func:`femphase.fem.operators.shape_tensors`, any mesh) inherits the bias of the triangulation's diagonals: a
   disc of R = 8 at h = 1 shows r ≈ 0.026 along the diagonal. Both converge as O(h²);
 * elongation r = λ1/λ2 − 1 ≥ 0 with |λ1| ≥ |λ2| the eigenvalues of R (an aspect ratio
   minus one; 0 for a disc);
@@ -36,24 +36,23 @@ with φ = 0.06) and of order one for a particle flattened on the wall. Exclude t
 particles (``wall_contact == 0``) from shape statistics, or read them with that meaning.
 
 Integrals are exact for P1 fields (gradients are constant per element); the potential-type
-integrals use the nodal (lumped) quadrature of :mod:`femphase.energy`.
+integrals use the nodal (lumped) quadrature of :mod:`femphase.model.energy`.
 """
 
 from __future__ import annotations
 
 import weakref
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
-import scipy.sparse as sp
 
-from ..discretisation import P1Operators
+from femphase.domains.base import Domain
+from femphase.domains.layout import Layout
+from femphase.state import State
 
-if TYPE_CHECKING:
-    from ..domain import Domain
-    from ..state import State
-    from ..windows import Layout
+__all__ = ["DEFAULT_THRESHOLD", "ShapeObservables", "elongation_and_orientation", "shape_observables", "wall_contact",
+           "wall_dofs"]
+
 
 #: The window threshold (``numerics.threshold``'s default): φ above it belongs to a particle.
 DEFAULT_THRESHOLD = 0.01
@@ -75,7 +74,7 @@ class ShapeObservables:
 _WALL_DOFS: "weakref.WeakKeyDictionary[Domain, np.ndarray]" = weakref.WeakKeyDictionary()
 
 
-def wall_dofs(domain: "Domain") -> np.ndarray:
+def wall_dofs(domain: Domain) -> np.ndarray:
     """(n_dofs,) bool: the dofs on a wall. A domain with named wall facets (a meshed
     channel's ``wall_facets``: every boundary facet off the periodic pair, curved walls and
     obstacles included) gives the dofs of their nodes; otherwise (the structured channel) the
@@ -99,7 +98,7 @@ def wall_dofs(domain: "Domain") -> np.ndarray:
     return mask
 
 
-def wall_contact(domain: "Domain", layout: "Layout", phi: np.ndarray,
+def wall_contact(domain: Domain, layout: Layout, phi: np.ndarray,
                  threshold: float = DEFAULT_THRESHOLD) -> np.ndarray:
     """(N,) int, particle order: 1 when φ_i > ``threshold`` on at least one wall dof of its
     window (:func:`wall_dofs`), else 0."""
@@ -108,20 +107,6 @@ def wall_contact(domain: "Domain", layout: "Layout", phi: np.ndarray,
     if hits.size:
         out[layout.order] = np.maximum.reduceat(hits, layout.offsets[:-1])
     return out
-
-
-def shape_tensors(fields: sp.spmatrix | np.ndarray, ops: P1Operators) -> np.ndarray:
-    """R_i = −∫∇φ_i∇φ_iᵀ for fields (n_nodes, N) → (N, 2, 2)."""
-    gx = ops.gradient[0] @ fields
-    gy = ops.gradient[1] @ fields
-    area = ops.element_area
-
-    def integral(a, b):
-        product = a.multiply(b) if sp.issparse(a) else a * b
-        return -np.asarray(area @ product).ravel()
-
-    xx, yy, xy = integral(gx, gx), integral(gy, gy), integral(gx, gy)
-    return np.stack([np.stack([xx, xy], -1), np.stack([xy, yy], -1)], -2)
 
 
 def elongation_and_orientation(tensors: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -136,9 +121,9 @@ def elongation_and_orientation(tensors: np.ndarray) -> tuple[np.ndarray, np.ndar
     return elongation, orientation
 
 
-def shape_observables(state: "State", threshold: float = DEFAULT_THRESHOLD) -> ShapeObservables:
+def shape_observables(state: State, threshold: float = DEFAULT_THRESHOLD) -> ShapeObservables:
     """All per-particle shape observables of a state (the domain's rule for the moments:
-    :meth:`femphase.domain.Domain.shape_moments`); ``threshold`` is the window threshold of
+    :meth:`femphase.domains.base.Domain.shape_moments`); ``threshold`` is the window threshold of
     the wall-contact flag."""
     layout, phi = state.flat()
     area, centre, tensors = state.domain.shape_moments(layout, phi)

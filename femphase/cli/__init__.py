@@ -1,0 +1,107 @@
+"""The ``femphase`` command line.
+
+    femphase run SCENE.toml -o DIR [--set key=value ...] [--resume | --overwrite] [--method fem|fd]
+                 [--status-interval SECONDS] [-q]
+    femphase sweep SWEEP.toml -o DIR [--workers N | --scheduler ADDRESS]
+    femphase aggregate DIR
+    femphase plot DIR [-o OUT] [--ode-rate R] [--ode-k K]
+    femphase compare DIR_A DIR_B [-o OUT] [--fields]
+    femphase ode --rate R -o OUT
+
+One module per command (:mod:`femphase.cli.run`, ``sweep``, ``aggregate``, ``plot``,
+``compare``, ``ode``), each with ``register(subparsers)`` and ``run(args)``; argparse lives
+here only.
+
+Exit codes: 0 done; 2 bad input (a scene key or value, a command-line value, a run directory
+that cannot be used: one message naming the key, the value and what is valid); 3 the run
+blew up (the last good checkpoint is kept); 130 interrupted by SIGINT (Ctrl-C), 143 by
+SIGTERM (``timeout``, Slurm, ``docker stop``): the run stops after the current step, keeps a
+checkpoint of it, marks run.json "interrupted" and can be continued with ``--resume``;
+1 an internal error (a bug: rerun with ``--traceback`` and report it); 4 (``femphase sweep``)
+some runs failed or were interrupted (sweep.json says which and why; rerun to continue).
+Nothing already computed is removed by any error.
+
+Console (stderr): on a terminal a progress bar; without one (a batch job) the status lines
+of :class:`femphase.run.trackers.StatusLog` instead; with ``-q`` neither. Warnings and errors always.
+The run directory's run.log has the status lines, warnings and errors in every case.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import sys
+import traceback
+import warnings
+
+from femphase import __version__
+from femphase.cli import aggregate, compare, ode, plot, run, sweep
+from femphase.cli.console import console_handler
+from femphase.errors import BlowUpError, FemphaseError, Interrupted
+from femphase.run.trackers import LOGGER
+
+__all__ = ["COMMANDS", "build_parser", "main"]
+
+#: The subcommands, in the order ``femphase --help`` lists them.
+COMMANDS = (run, ode, compare, plot, sweep, aggregate)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="femphase", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--version", action="version", version=f"femphase {__version__}")
+    parser.add_argument("--traceback", action="store_true", help="show the Python traceback of an error (for bug reports)")
+    commands = parser.add_subparsers(dest="command", required=True)
+    for command in COMMANDS:
+        command.register(commands)
+    return parser
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    # through the logger: the console shows it, and a running run's run.log keeps it
+    logging.getLogger("femphase").warning("%s", message)
+
+
+def main(argv: list[str] | None = None) -> int:
+    # BLAS threads oversubscribe small machines for no gain on these sparse problems
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    warnings.showwarning = _show_warning
+    args = build_parser().parse_args(argv)
+    if argv is not None:
+        args.argv = list(argv)
+    # status lines on the console only where no progress bar shows them (tqdm draws only on
+    # a terminal), and not with -q
+    status_lines = not getattr(args, "quiet", True) and not sys.stderr.isatty()
+    console, level = console_handler(logging.INFO if status_lines else logging.WARNING), LOGGER.level
+    LOGGER.addHandler(console)
+    LOGGER.setLevel(logging.INFO)
+    try:
+        return args.func(args)
+    except BaseException as exc:  # every error ends in one message and a documented code
+        if args.traceback:
+            traceback.print_exc()
+        code, message = _report(exc)
+        if code is None:
+            raise
+        print(f"femphase: {message}", file=sys.stderr)
+        return code
+    finally:  # main may be called again in this process (tests): no second handler
+        LOGGER.removeHandler(console)
+        LOGGER.setLevel(level)
+
+
+def _report(exc: BaseException) -> tuple[int | None, str]:
+    """(exit code, message) for an error; code None: let it propagate (SystemExit)."""
+    if isinstance(exc, SystemExit):
+        return None, ""
+    if isinstance(exc, Interrupted):
+        return exc.exit_code, f"{exc}; the checkpoint of that step is kept (continue with --resume)"
+    if isinstance(exc, KeyboardInterrupt):
+        return 130, "interrupted; the last checkpoint is kept (continue with --resume)"
+    if isinstance(exc, BlowUpError):
+        return 3, f"error: {exc}. The last good checkpoint is kept."
+    if isinstance(exc, FemphaseError):
+        return 2, f"error: {exc}"
+    return 1, (f"internal error ({type(exc).__name__}: {exc}); this is a bug: rerun with --traceback and "
+               "report the output")

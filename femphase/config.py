@@ -1,0 +1,139 @@
+"""Discretisation choices: the records and option names every layer reads.
+
+This module is the bottom of femphase's layers (docs/architecture.md): it imports nothing of
+femphase but its errors, so the domains, the time schemes and the scene can all depend on
+:class:`Numerics` without depending on each other. Registries of names (time schemes, flows,
+domains) live with what they register; the option tuples here are the fixed choices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from femphase.errors import SceneError
+
+__all__ = ["DIAGONAL_PATTERNS", "FD_ADVECTION", "MASS_TYPES", "PRECISIONS", "SOLVER_METHODS", "Numerics"]
+
+#: Triangulations of the structured channel: every square cut along the same diagonal
+#: ("right": lower left to upper right; "left") or the two alternating.
+DIAGONAL_PATTERNS = ("right", "left", "alternating")
+#: ``numerics.solver``: see :class:`Numerics`.
+SOLVER_METHODS = ("auto", "direct", "amg", "tensor")
+#: ``numerics.mass``: the mass matrix in the time derivative.
+MASS_TYPES = ("lumped", "consistent")
+#: ``numerics.fd_advection``: the finite-difference reference's advection differences.
+FD_ADVECTION = ("upwind3", "upwind1")
+#: ``numerics.precision``.
+PRECISIONS = ("mixed", "double")
+
+
+@dataclass(frozen=True)
+class Numerics:
+    """Discretisation choices (scene table ``[numerics]``).
+
+    scheme          the time scheme, a name in :data:`femphase.timestepping.SCHEMES`
+                    (checked when a scene or a stepper uses it): "adaptive" (default):
+                    error-controlled second-order substeps inside each step of the phase, whose
+                    dt is then the largest substep and the spacing of frames and checkpoints;
+                    "sav2": second order at fixed dt; "euler": first order (linearly implicit
+                    Euler with Lie splitting); "fd-heun": the
+                    finite-difference reference, structured channel only
+    mass            "lumped" (default) or "consistent" mass matrix in the time derivative
+    stabilisation   "auto" (the smallest energy-stable S for each dt) or a number ≥ 0
+    solver          "auto", "direct" (cached LU), "amg" (pyamg-preconditioned CG) or "tensor"
+                    (exact tensor-product solve; structured channel, one diagonal direction,
+                    lumped mass). "auto": tensor where it applies, else LU up to
+                    DIRECT_MAX_DOFS, else AMG
+    tolerance       relative residual of the AMG-Krylov solves
+    tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
+                    dimensionless). The default, 0.1, keeps the lattice's period within 0.3 %
+                    and r(t) within 2 % of a time-converged run (0.15 % and 1.1 %;
+                    benchmarks/README.md, "Time schemes")
+    repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
+                    off the explicit midpoint step (Strang) and integrates it as the pointwise
+                    decay it is, in exponential form (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`);
+                    False: the explicit midpoint step of all terms
+    area_implicit   "sav2" and "adaptive" only: True treats the area term's stiff rank-one mode
+                    (each particle's area relaxing back at J0·8μ/(πR²) ≈ 0.4 per time unit)
+                    linearly implicitly in the predictor (one more solve per substep;
+                    :meth:`femphase.timestepping.sav2.RelaxedSAV2.rank_one_predictor`); False: explicit
+    windows         False: every field on the whole domain (full-mesh mode)
+    threshold       φ above which a node belongs to a particle (window fitting)
+    margin          lattice units kept between a particle and its window's edge
+    diagonals       "right", "left" or "alternating" (structured channel's triangulation)
+    fd_advection    the finite-difference reference's advection differences ("fd-heun"
+                    only): "upwind3" (default, third order) or "upwind1" (first order)
+    blowup_margin   a step fails when φ leaves [−blowup_margin, 1 + blowup_margin]. Discs
+                    started at R/2 overshoot physically to φ ≈ 1.4 while the area constraint
+                    inflates them (2.1 with μ × 10), so the default, 2, flags only runaways
+    merged_steps    most steps of the phase's dt one stepper call takes between frames, T1
+                    looks and phase ends (the default 8; 1: every step its own call). The
+                    adaptive scheme runs a call's steps as one run of substeps, synchronised
+                    at its end only (:class:`femphase.timestepping.adaptive.AdaptiveSAV2`): 0.94× the CPU per
+                    time unit on the lattice with calls of 2 steps, 0.87× with 8 (same run;
+                    docs/decisions/, merged steps); results then depend on where calls
+                    end, at the level of the splitting error. Other schemes step one by one;
+                    trackers' ``after_step`` runs after every call
+    precision       "mixed" (default): under flow on the structured channel, each stepper
+                    call computes in single precision (float32) on a working copy of the
+                    fields: forces, tensor solves, row-shift FFTs, error estimates; the state
+                    between calls (at frames, T1 looks, every merged_steps steps), checkpoints,
+                    observables and energies are double. Rounding ~1e-6 relative, against the
+                    default scheme's time error of ~1e-2 (docs/decisions/, single precision
+                    inside flow steps, gives the CPU saved and the errors, unchanged). Phases without flow
+                    compute in double (their steps must not raise F, checked to 1e-12), and
+                    so do meshes and the finite-difference reference. "double": everything in
+                    double, for convergence studies whose errors reach ~1e-5
+                    (verification/mms.py sets it)
+    strict          False (default): a run that leaves the accuracy envelope measured in
+                    benchmarks/stability.py warns (:class:`femphase.run.guards.AccuracyWarning`,
+                    naming the scene key to change); True: it stops with
+                    :class:`femphase.run.guards.AccuracyError` at that step (docs/outputs.md)
+    """
+
+    scheme: str = "adaptive"
+    mass: str = "lumped"
+    stabilisation: float | str = "auto"
+    solver: str = "auto"
+    tolerance: float = 1e-10
+    tolerance_t: float = 0.1
+    repulsion_split: bool = True
+    area_implicit: bool = False
+    windows: bool = True
+    threshold: float = 0.01
+    margin: float = 4.0
+    diagonals: str = "right"
+    blowup_margin: float = 2.0
+    fd_advection: str = "upwind3"
+    merged_steps: int = 8
+    precision: str = "mixed"
+    strict: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.scheme, str):
+            raise SceneError("numerics.scheme", self.scheme, "the name of a time scheme (a string)")
+        for key, value, valid in (("mass", self.mass, MASS_TYPES), ("solver", self.solver, SOLVER_METHODS),
+                                  ("fd_advection", self.fd_advection, FD_ADVECTION),
+                                  ("diagonals", self.diagonals, DIAGONAL_PATTERNS),
+                                  ("precision", self.precision, PRECISIONS)):
+            if value not in valid:
+                raise SceneError(f"numerics.{key}", value, f"one of {valid}")
+        if self.stabilisation != "auto" and not (
+            isinstance(self.stabilisation, (int, float)) and not isinstance(self.stabilisation, bool)
+            and self.stabilisation >= 0
+        ):
+            raise SceneError("numerics.stabilisation", self.stabilisation, '"auto" or a number ≥ 0')
+        for key in ("windows", "strict", "repulsion_split", "area_implicit"):
+            if not isinstance(getattr(self, key), bool):
+                raise SceneError(f"numerics.{key}", getattr(self, key), "true or false")
+        if not (isinstance(self.merged_steps, int) and not isinstance(self.merged_steps, bool)
+                and self.merged_steps >= 1):
+            raise SceneError("numerics.merged_steps", self.merged_steps, "a whole number ≥ 1")
+        for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
+                               ("tolerance_t", 0.0, 1.0), ("blowup_margin", 0.0, np.inf)):
+            value = getattr(self, key)
+            ok = isinstance(value, (int, float)) and not isinstance(value, bool) and low < value < high
+            if not ok:
+                raise SceneError(f"numerics.{key}", value, f"a number in ({low:g}, {high:g})")

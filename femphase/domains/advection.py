@@ -1,0 +1,50 @@
+"""Advection v·∇φ over one time step, split from the relaxation (Lie splitting).
+
+Each domain picks its advection (:meth:`femphase.domains.base.Domain.advection`): the
+structured channel's row shift and semi-Lagrangian step (:mod:`femphase.domains.grid.advection`),
+the meshes' Galerkin–Padé step (:mod:`femphase.domains.mesh.advection`). All three take
+the flow at the step's midpoint t + dt/2 when it depends on time (second order in dt for the
+displacement; exact for steady flows).
+
+This module holds what they share: :class:`StepAdvection`, the nodal velocity, and the
+regathering of fields after a move regroups the windows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from femphase.domains.base import Domain
+from femphase.domains.layout import Layout
+from femphase.flows import Flow
+
+__all__ = ["StepAdvection", "nodal_velocity", "regather"]
+
+
+def regather(phi: np.ndarray, old: Layout, new: Layout) -> np.ndarray:
+    """φ in ``old``'s order rearranged into ``new``'s (windows regrouped by a move)."""
+    if np.array_equal(old.order, new.order):
+        return phi
+    return new.gather(old.scatter(phi))
+
+
+class StepAdvection:
+    """Advection over steps of fixed dt in ``flow`` on ``domain`` (the base of the three)."""
+
+    def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
+        self.domain, self.flow, self.dt = domain, flow, dt
+
+    def velocity(self, time: float) -> np.ndarray:
+        """(2, n_dofs) nodal velocity at the step starting at ``time`` (its midpoint)."""
+        return nodal_velocity(self.domain, self.flow, time + 0.5 * self.dt)
+
+
+def nodal_velocity(domain: Domain, flow: Flow, time: float = 0.0) -> np.ndarray:
+    """(2, n_dofs): the flow's velocity at every dof."""
+    if flow.stokes is not None:
+        out = np.empty((2, domain.n_dofs))
+        out[:, domain.dof_map] = flow.stokes.velocity_at_nodes()  # periodic partners carry equal values
+        return out
+    x, y = domain.coordinates
+    u, v = flow.velocity(x, y, time)
+    return np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)]).astype(float)

@@ -1,0 +1,528 @@
+"""Meshed channels: any 2D triangulation, periodic in x, with named boundaries.
+
+A channel is read from any file meshio reads (gmsh ``.msh``, ``.vtu``, ``.xdmf``, …):
+
+* triangle cells are the domain (first-order triangles only: the phase fields are P1);
+* line cells are boundary facets, each with an integer tag in the cell data
+  (``gmsh:physical`` as gmsh writes it, or ``boundary``, ``medit:ref``, ``cell_tags``);
+* tags are named by the file's ``field_data`` ``{name: [tag, 1]}`` when the format keeps it
+  (gmsh's physical names), else by a mapping the caller passes, else by
+  :data:`BOUNDARY_TAGS` (what ``meshes/make_*.py`` write into ``.vtu`` files, whose format
+  drops ``field_data``);
+* a file without line cells is a plain channel: its facets at the smallest and largest x are
+  the periodic pair ``left``/``right``, every other boundary facet is a wall.
+
+Two named boundaries, by default ``left`` and ``right``, are the periodic pair: both must be
+straight sides x = const, and ``right`` must be ``left`` moved by the period along x (the
+period is measured from the mesh). :func:`femphase.fem.periodic.periodic_dof_map` matches their
+nodes by position and names any node without a partner. Every other boundary (``bottom``,
+``top``, ``obstacle``, … and untagged boundary facets) is a wall: the phase fields carry the
+natural (homogeneous Neumann) condition there, the Stokes flow no-slip.
+
+Dofs of the periodic P1 space number the mesh's nodes with each right-side node identified
+with its left-side partner; a dof's coordinates are its left-side node's, so x lies in
+[x0, x0 + period). Lengths are in the mesh's unit (lattice units for femphase scenes).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass, replace
+from functools import cached_property
+from pathlib import Path
+from typing import Callable, Sequence
+
+import meshio
+import numpy as np
+import scipy.sparse as sp
+from scipy.spatial import cKDTree
+from skfem import MeshTri
+
+from femphase.config import Numerics
+from femphase.domains.base import DOMAINS, Domain
+from femphase.domains.layout import Layout
+from femphase.domains.mesh.advection import GalerkinPade
+from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent, local_x
+from femphase.errors import SceneError
+from femphase.fem.meshfiles import read_meshio
+from femphase.fem.operators import (
+    P1Operators,
+    assemble_operators,
+    element_gradients,
+    shape_tensors,
+)
+from femphase.fem.periodic import fold_matrix, periodic_dof_map
+from femphase.flows import Flow
+
+__all__ = ["BOUNDARY_TAGS", "MESH_KEYS", "PERIODIC_PAIR", "TAG_KEYS", "MeshDomain", "PeriodicPairError",
+           "channel_sides", "facet_indices", "locate", "mesh_checksum", "read_domain", "write_domain"]
+
+
+#: Tag numbers of the boundary names when a file cannot store names (``.vtu``, ``.xdmf``).
+BOUNDARY_TAGS = {"left": 1, "right": 2, "bottom": 3, "top": 4, "obstacle": 5, "wall": 6}
+#: The default periodic pair: ``right`` is ``left`` moved by the period in +x.
+PERIODIC_PAIR = ("left", "right")
+#: Cell-data keys that may hold the line cells' integer tags, in order of preference.
+TAG_KEYS = ("gmsh:physical", "boundary", "medit:ref", "cell_tags")
+
+
+#: Keys of a ``[domain]`` table of kind "mesh".
+MESH_KEYS = ("kind", "mesh", "h", "periodic", "boundaries", "Lx", "Ly")
+
+
+class PeriodicPairError(ValueError):
+    """The periodic pair names a boundary the mesh does not have (scene key domain.periodic)."""
+
+
+@DOMAINS.register("mesh")
+@dataclass(frozen=True, eq=False)
+class MeshDomain(Domain):
+    """Any triangle mesh meshio reads, periodic in x (keys: `mesh`, the file, relative to the
+    scene; `periodic`, the periodic pair of boundary names, default ["left", "right"];
+    `boundaries`, names of the file's integer tags; `h`, the nominal spacing, default the
+    median edge; `Lx`, `Ly`, if given, must match the mesh).
+
+    A channel on a triangular mesh, periodic in x, with its P1 operators.
+
+    mesh        the non-periodic mesh as read (what output files are written on)
+    boundaries  name → indices into ``mesh.facets`` of the boundary facets with that name
+    periodic    the names of the periodic pair (min side, max side)
+    period      the length of the periodic cell in x
+    dof_map     (n_nodes,) the periodic dof of every mesh node (``dof_map`` of
+                every :class:`femphase.domains.base.Domain`, so output code serves both)
+    operators   P1 mass, stiffness, lumped mass and element gradients on the dofs
+    source      the mesh file it was read from ("" if built in memory: no Stokes cache then)
+    nominal_spacing  the scene's ``h`` if it gave one (else :attr:`spacing` is the median edge)
+    """
+
+    mesh: MeshTri
+    boundaries: dict
+    periodic: tuple
+    period: float
+    dof_map: np.ndarray
+    operators: P1Operators
+    source: str = ""
+    nominal_spacing: float | None = None
+    kind = "mesh"
+
+    @classmethod
+    def from_mesh(
+        cls,
+        mesh: MeshTri,
+        boundaries: dict[str, np.ndarray] | None = None,
+        periodic: tuple[str, str] = PERIODIC_PAIR,
+        tolerance: float | None = None,
+    ) -> "MeshDomain":
+        """Identify the periodic pair of ``mesh`` and assemble its operators.
+
+        ``boundaries`` maps names to facet indices; without it, :func:`channel_sides` names
+        the facets. ``tolerance`` (length) is the matching tolerance of the periodic nodes,
+        by default 1e-8 of the period. Raises ValueError naming what does not match.
+        """
+        _check_triangles(mesh)
+        boundaries = channel_sides(mesh) if boundaries is None else dict(boundaries)
+        low, high = periodic
+        for name in periodic:
+            if name in boundaries and len(boundaries[name]) == 0:
+                raise ValueError(f"the periodic boundary {name!r} has no facets (a side x = const)")
+            if name not in boundaries:
+                raise PeriodicPairError(
+                    f"the periodic boundary {name!r} is not in the mesh; its boundaries are "
+                    f"{sorted(boundaries)} (name the pair with periodic=(min side, max side))"
+                )
+        low_nodes = np.unique(mesh.facets[:, boundaries[low]])
+        high_nodes = np.unique(mesh.facets[:, boundaries[high]])
+        x = mesh.p[0]
+        period = float(np.mean(x[high_nodes]) - np.mean(x[low_nodes]))
+        if not period > 0:
+            raise ValueError(
+                f"the periodic boundary {high!r} (mean x {np.mean(x[high_nodes]):.6g}) must lie "
+                f"at larger x than {low!r} (mean x {np.mean(x[low_nodes]):.6g})"
+            )
+        tol = 1e-8 * period if tolerance is None else tolerance
+        for name, nodes in ((low, low_nodes), (high, high_nodes)):
+            if np.ptp(x[nodes]) > tol:
+                raise ValueError(
+                    f"the periodic boundary {name!r} is not a straight side x = const: its "
+                    f"nodes span x from {x[nodes].min():.6g} to {x[nodes].max():.6g}"
+                )
+        side = np.concatenate([low_nodes, np.setdiff1d(high_nodes, low_nodes)])
+        try:
+            local = periodic_dof_map(mesh.p[:, side], period, axis=0, tol=tol)
+        except ValueError as exc:
+            raise ValueError(f"boundaries {low!r} and {high!r} are no periodic pair: {exc}") from None
+        partner = np.arange(mesh.p.shape[1])
+        partner[side] = side[local]
+        _, dof_map = fold_matrix(partner)
+        operators = assemble_operators(mesh, dof_map, int(dof_map.max()) + 1)
+        return cls(mesh, boundaries, tuple(periodic), period, dof_map, operators)
+
+    @classmethod
+    def from_table(cls, table: dict, base_dir: Path, numerics: Numerics) -> "MeshDomain":
+        for key, value in table.items():
+            if key not in MESH_KEYS:
+                raise SceneError(f"domain.{key}", value, f"not a key of a mesh domain; valid: {', '.join(MESH_KEYS)}")
+        if not table.get("mesh") or not isinstance(table["mesh"], str):
+            raise SceneError("domain.mesh", table.get("mesh"), "the mesh file of a mesh domain (a path relative "
+                             "to the scene)")
+        periodic = table.get("periodic", list(PERIODIC_PAIR))
+        if (not isinstance(periodic, (list, tuple)) or len(periodic) != 2
+                or not all(isinstance(name, str) and name for name in periodic) or periodic[0] == periodic[1]):
+            raise SceneError("domain.periodic", periodic, "two different boundary names [min side, max side]")
+        names = table.get("boundaries")
+        if names is not None and not (
+            isinstance(names, dict) and names
+            and all(isinstance(tag, int) and not isinstance(tag, bool) for tag in names.values())
+        ):
+            raise SceneError("domain.boundaries", names, "a table {name = integer tag, …} of the file's line tags")
+        for key in ("h", "Lx", "Ly"):
+            value = table.get(key)
+            if value is not None and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                                          and np.isfinite(value) and value > 0):
+                raise SceneError(f"domain.{key}", value, "a finite number > 0" + (" (the nominal spacing)" if key == "h"
+                                                                                   else " (or leave it out)"))
+        h = table.get("h")
+        path = (base_dir / table["mesh"]).resolve()
+        domain = read_domain(path, periodic=tuple(periodic), names=names)
+        domain = replace(domain, source=str(path), nominal_spacing=None if h is None else float(h))
+        for key, value in (("Lx", domain.period), ("Ly", domain.width)):
+            if key in table and not np.isclose(table[key], value, rtol=1e-6):
+                raise SceneError(f"domain.{key}", table[key], f"the mesh's value {value:g} (or leave it out)")
+        return domain
+
+    def describe(self) -> dict:
+        return {"kind": self.kind, "n_dofs": self.n_dofs, "n_elements": int(self.mesh.t.shape[1]),
+                "period": self.period, "mesh_checksum": mesh_checksum(self.mesh)}
+
+    # -- geometry of the dofs --------------------------------------------------------------
+    @cached_property
+    def x0(self) -> float:
+        """The x of the min periodic side; dof x lies in [x0, x0 + period)."""
+        return float(self.mesh.p[0].min())
+
+    @cached_property
+    def coordinates(self) -> np.ndarray:
+        """(2, n_dofs): x and y of every dof (x of its min-side node)."""
+        out = np.empty((2, self.n_dofs))
+        # the max-side copies are written first so their min-side partners overwrite them
+        order = np.argsort(self.mesh.p[0])[::-1]
+        out[:, self.dof_map[order]] = self.mesh.p[:, order]
+        return out
+
+    @cached_property
+    def y_range(self) -> tuple[float, float]:
+        """Lowest and highest y of the mesh (the walls' extremes)."""
+        return float(self.mesh.p[1].min()), float(self.mesh.p[1].max())
+
+    @cached_property
+    def spacing(self) -> float:
+        """The scene's nominal spacing ``h``, else the median edge length: the spacing of
+        window margins and tolerances."""
+        if self.nominal_spacing is not None:
+            return self.nominal_spacing
+        ends = self.mesh.p[:, self.mesh.facets]
+        return float(np.median(np.hypot(*(ends[:, 1] - ends[:, 0]))))
+
+    @cached_property
+    def median_edge(self) -> float:
+        """The median edge length (the window policy's spacing)."""
+        ends = self.mesh.p[:, self.mesh.facets]
+        return float(np.median(np.hypot(*(ends[:, 1] - ends[:, 0]))))
+
+    @cached_property
+    def wall_facets(self) -> np.ndarray:
+        """Every boundary facet that is not on the periodic pair."""
+        periodic = np.concatenate([self.boundaries[name] for name in self.periodic])
+        return np.setdiff1d(self.mesh.boundary_facets(), periodic)
+
+    def nodal(self, values: np.ndarray) -> np.ndarray:
+        """Values given per dof (..., n_dofs) on every mesh node (..., n_nodes)."""
+        return np.asarray(values)[..., self.dof_map]
+
+    def inside(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Whether points (x wrapped into the period) lie in the meshed domain."""
+        x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
+        x = self.x0 + np.mod(x - self.x0, self.period)
+        return locate(self.mesh, np.vstack([x.ravel(), y.ravel()])).reshape(x.shape) >= 0
+
+    def wall_points(self) -> np.ndarray:
+        return self.mesh.p[:, np.unique(self.mesh.facets[:, self.wall_facets])]
+
+    # -- windows: the dofs inside boxes -----------------------------------------------------
+    @cached_property
+    def _cache(self) -> dict:
+        return {"dofs": {}, "layout": None}
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        low, high = self.y_range
+        return (self.x0, self.period, low, high)
+
+    def window_policy(self, numerics: Numerics) -> BoxPolicy:
+        return BoxPolicy.for_spacing(self.median_edge, threshold=numerics.threshold, margin=numerics.margin,
+                                     enabled=numerics.windows)
+
+    def full_window(self) -> Box:
+        low, high = self.y_range
+        return Box(self.x0, self.period, low, high)
+
+    def disc_window(self, centre, reach: float, policy: BoxPolicy) -> Box:
+        cx, cy = centre
+        return policy.cover((cx - reach, cx + reach), (cy - reach, cy + reach), self.extent)
+
+    def window_dofs(self, window: Box) -> np.ndarray:
+        """The dofs inside the box, sorted (cached: boxes last many steps)."""
+        dofs = self._cache["dofs"]
+        if window not in dofs:
+            if len(dofs) > 4096:
+                dofs.clear()
+            x, y = self.coordinates
+            dofs[window] = np.flatnonzero(window.contains(x, y, self.period))
+        return dofs[window]
+
+    def layout(self, windows: Sequence[Box]) -> Layout:
+        last = self._cache["layout"]
+        if last is None or last.windows != tuple(windows):
+            last = self._cache["layout"] = Layout(
+                windows, lambda box: box, lambda boxes: np.stack([self.window_dofs(b) for b in boxes]),
+                lambda box: (self.window_dofs(box).size,), self.operators.lumped_mass)
+        return last
+
+    def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
+              motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
+        """Boxes refitted to the field and to the coming step's motion (see BoxPolicy)."""
+        boxes, fields = list(layout.windows), layout.scatter(phi)
+        steps = np.zeros((len(boxes), 2)) if motion is None else motion()
+        occupied = phi > policy.threshold
+        x, y = np.take(self.coordinates, layout.node_index, axis=1)
+        lx = local_x(x, np.array([b.x0 for b in boxes])[layout.owner], self.period)
+        extents = np.empty((len(boxes), 4))
+        extents[layout.order] = np.stack([
+            layout.reduce(np.minimum, np.where(occupied, lx, np.inf)),
+            layout.reduce(np.maximum, np.where(occupied, lx, -np.inf)),
+            layout.reduce(np.minimum, np.where(occupied, y, np.inf)),
+            layout.reduce(np.maximum, np.where(occupied, y, -np.inf)),
+        ], axis=1)
+        extents[~np.isfinite(extents[:, 0])] = np.nan
+        slot = np.empty(len(boxes), dtype=int)
+        slot[layout.order] = np.arange(len(boxes))
+        scratch = np.zeros(self.n_dofs)
+        for i in np.flatnonzero(policy.misfits(extents, boxes, self.extent, steps)):
+            box = boxes[i]
+            if box.width >= self.period:
+                part = slice(layout.offsets[slot[i]], layout.offsets[slot[i] + 1])
+                x_range = circular_extent(x[part][occupied[part]], self.period)
+            else:
+                x_range = (box.x0 + extents[i, 0], box.x0 + extents[i, 1])
+            fitted = policy.cover(x_range, tuple(extents[i, 2:]), self.extent, tuple(steps[i]))
+            if fitted == box:
+                continue
+            old, new = self.window_dofs(box), self.window_dofs(fitted)
+            scratch[old] = fields[i]
+            fields[i] = scratch[new]
+            scratch[old] = 0.0
+            boxes[i] = fitted
+        if tuple(boxes) == layout.windows:
+            return layout, phi
+        refitted = self.layout(boxes)
+        return refitted, refitted.gather(fields)
+
+    def windows_to_array(self, windows: Sequence[Box]) -> np.ndarray:
+        return np.array([[b.x0, b.width, b.y0, b.y1] for b in windows], dtype=float).reshape(-1, 4)
+
+    def windows_from_array(self, array: np.ndarray) -> list[Box]:
+        return [Box(*map(float, row)) for row in array]
+
+    # -- fast paths and flows ---------------------------------------------------------------
+    def advection(self, flow: Flow, dt: float, numerics: Numerics) -> GalerkinPade:
+        return GalerkinPade(self, flow, dt, numerics)
+
+    def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Area with the nodal quadrature; shape tensor the exact integral of the P1 element
+        gradients (on an irregular mesh its O(h²) bias varies with position)."""
+        fields = sp.csc_matrix((phi, (layout.node_index, layout.owner)), shape=(self.n_dofs, len(layout.windows)))
+        area = np.empty(len(layout.windows))
+        area[layout.order] = layout.reduce(np.add, layout.mass * phi**2)
+        return area, self.centroids(layout, phi), shape_tensors(fields, self.operators)
+
+
+def locate(mesh: MeshTri, points: np.ndarray, candidates: int = 12) -> np.ndarray:
+    """The triangle containing each point (2, n), or −1 outside the mesh.
+
+    Checks the barycentric coordinates in the ``candidates`` triangles with the nearest
+    centroids, enough for triangles of bounded aspect ratio.
+    """
+    corners = mesh.p[:, mesh.t]  # (2, 3, n_elements)
+    tree = cKDTree(corners.mean(axis=1).T)
+    _, near = tree.query(points.T, k=min(candidates, mesh.t.shape[1]))
+    a, b, c = (corners[:, k][:, near] for k in range(3))  # (2, n, candidates)
+    e1, e2, d = b - a, c - a, points[:, :, None] - a
+    det = e1[0] * e2[1] - e1[1] * e2[0]
+    s = (d[0] * e2[1] - d[1] * e2[0]) / det
+    t = (e1[0] * d[1] - e1[1] * d[0]) / det
+    eps = 1e-12
+    inside = (s >= -eps) & (t >= -eps) & (s + t <= 1 + eps)
+    found = inside.any(axis=1)
+    return np.where(found, near[np.arange(len(near)), inside.argmax(axis=1)], -1)
+
+
+def _check_triangles(mesh: MeshTri) -> None:
+    _, areas = element_gradients(mesh)
+    small = areas <= 1e-12 * np.median(areas)
+    if small.any():
+        k = int(np.flatnonzero(small)[0])
+        corners = ", ".join(f"({a:.6g}, {b:.6g})" for a, b in mesh.p[:, mesh.t[:, k]].T)
+        raise ValueError(f"{int(small.sum())} degenerate triangles (zero area), e.g. {corners}")
+
+
+def channel_sides(mesh: MeshTri, tolerance: float | None = None) -> dict[str, np.ndarray]:
+    """Names for an untagged channel: boundary facets at the smallest x are ``left``, at
+    the largest x ``right``, all others ``wall``."""
+    facets = mesh.boundary_facets()
+    x = mesh.p[0, mesh.facets[:, facets]]
+    tol = 1e-8 * np.ptp(mesh.p[0]) if tolerance is None else tolerance
+    left = np.all(np.abs(x - mesh.p[0].min()) <= tol, axis=0)
+    right = np.all(np.abs(x - mesh.p[0].max()) <= tol, axis=0)
+    return {"left": facets[left], "right": facets[right], "wall": facets[~(left | right)]}
+
+
+def facet_indices(mesh: MeshTri, lines: np.ndarray) -> np.ndarray:
+    """Indices into ``mesh.facets`` of node pairs ``lines`` (2, n); raises when a pair is
+    no edge of the mesh."""
+    n = mesh.p.shape[1]
+    keys = np.sort(mesh.facets, axis=0)
+    keys = keys[0] * n + keys[1]
+    wanted = np.sort(lines, axis=0)
+    wanted = wanted[0] * n + wanted[1]
+    order = np.argsort(keys)
+    position = np.searchsorted(keys, wanted, sorter=order).clip(0, keys.size - 1)
+    found = keys[order[position]] == wanted
+    if not found.all():
+        a, b = np.sort(lines, axis=0)[:, ~found][:, 0]
+        raise ValueError(
+            f"{int((~found).sum())} line cells are no edges of the triangles, e.g. the line "
+            f"from ({mesh.p[0, a]:.6g}, {mesh.p[1, a]:.6g}) to ({mesh.p[0, b]:.6g}, {mesh.p[1, b]:.6g})"
+        )
+    return order[position]
+
+
+def read_domain(
+    path: str | Path,
+    *,
+    periodic: tuple[str, str] = PERIODIC_PAIR,
+    names: dict[str, int] | None = None,
+    tolerance: float | None = None,
+) -> MeshDomain:
+    """Read a meshed channel (see the module docstring for the file convention).
+
+    ``names`` maps boundary names to the file's integer tags when the file cannot hold
+    names itself; it overrides the file's names and :data:`BOUNDARY_TAGS`.
+    Raises :class:`~femphase.errors.SceneError` (key ``domain.mesh``) when the file cannot
+    be used, naming the reason.
+    """
+    data = read_meshio(path)
+    try:
+        mesh, lines, tags = _mesh_and_lines(data)
+        boundaries = None
+        if lines.shape[1]:
+            table = names or _file_names(data) or BOUNDARY_TAGS
+            boundaries = _named_facets(mesh, lines, tags, table)
+        return MeshDomain.from_mesh(mesh, boundaries, periodic, tolerance)
+    except SceneError:
+        raise
+    except PeriodicPairError as exc:
+        raise SceneError("domain.periodic", list(periodic), f"the names of two boundaries of {path} ({exc})") from None
+    except Exception as exc:  # a damaged file fails anywhere: name the file and the reason
+        reason = str(exc) if isinstance(exc, ValueError) else f"{type(exc).__name__}: {exc}"
+        raise SceneError("domain.mesh", str(path), f"a periodic channel mesh ({reason})") from None
+
+
+def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]:
+    """The triangles as a MeshTri (unused points dropped) and the tagged line cells."""
+    kinds = {block.type for block in data.cells}
+    if "triangle" not in kinds:
+        raise ValueError(f"no linear triangle cells (the file has {sorted(kinds)})")
+    if data.points.ndim != 2 or data.points.shape[1] < 2 or not np.isfinite(data.points).all():
+        raise ValueError("the points are not finite (x, y) coordinates")
+    if data.points.shape[1] > 2 and np.ptp(data.points[:, 2]) > 0:
+        raise ValueError("the points are not in a plane z = const")
+    triangles = np.vstack([b.data for b in data.cells if b.type == "triangle"])
+    if triangles.size and (triangles.min() < 0 or triangles.max() >= len(data.points)):
+        raise ValueError("triangles refer to points that are not in the file")
+    used, renumbered = np.unique(triangles, return_inverse=True)
+    new_index = np.full(len(data.points), -1)
+    new_index[used] = np.arange(used.size)
+    mesh = MeshTri(np.ascontiguousarray(data.points[used, :2].T, dtype=float),
+                   np.ascontiguousarray(renumbered.reshape(triangles.shape).T, dtype=np.int64))
+    key = next((k for k in TAG_KEYS if k in data.cell_data), None)
+    line_blocks = [i for i, b in enumerate(data.cells) if b.type == "line"]
+    if not line_blocks:
+        return mesh, np.zeros((2, 0), dtype=int), np.zeros(0, dtype=int)
+    if key is None:
+        raise ValueError(
+            f"line cells without integer tags (cell data {sorted(data.cell_data)}; expected "
+            f"one of {list(TAG_KEYS)})"
+        )
+    lines = np.vstack([data.cells[i].data for i in line_blocks])
+    tags = np.concatenate([np.asarray(data.cell_data[key][i]).ravel() for i in line_blocks])
+    lines = new_index[lines.T]
+    if (lines < 0).any():
+        raise ValueError("line cells use points that belong to no triangle")
+    return mesh, lines, tags.astype(int)
+
+
+def _file_names(data: meshio.Mesh) -> dict[str, int]:
+    """gmsh's physical names of dimension 1: {name: [tag, dim]} in field_data."""
+    return {name: int(v[0]) for name, v in data.field_data.items()
+            if np.size(v) >= 2 and int(np.ravel(v)[1]) == 1}
+
+
+def _named_facets(mesh: MeshTri, lines: np.ndarray, tags: np.ndarray,
+                  table: dict[str, int]) -> dict[str, np.ndarray]:
+    facets = facet_indices(mesh, lines)
+    by_tag = {tag: name for name, tag in table.items()}
+    unknown = sorted(int(t) for t in set(np.unique(tags)) - set(by_tag))
+    if unknown:
+        raise ValueError(f"line tags {unknown} have no name (names: {table})")
+    boundaries = {by_tag[t]: np.unique(facets[tags == t]) for t in np.unique(tags)}
+    interior = np.setdiff1d(facets, mesh.boundary_facets())
+    if interior.size:
+        raise ValueError(f"{interior.size} tagged line cells lie inside the domain, not on its boundary")
+    untagged = np.setdiff1d(mesh.boundary_facets(), facets)
+    if untagged.size:  # documented: untagged boundary is wall
+        boundaries["wall"] = np.union1d(boundaries.get("wall", np.zeros(0, int)), untagged)
+    return boundaries
+
+
+def write_domain(path: str | Path, mesh: MeshTri, boundaries: dict[str, np.ndarray]) -> None:
+    """Write ``mesh`` with its named boundary facets as tagged line cells.
+
+    Tags follow :data:`BOUNDARY_TAGS` (so formats without names read back correctly);
+    ``.msh`` files are written as gmsh 2.2 with the names as physical names.
+    """
+    path = Path(path)
+    unknown = set(boundaries) - set(BOUNDARY_TAGS)
+    if unknown:
+        raise ValueError(f"boundary names {sorted(unknown)} are not in {sorted(BOUNDARY_TAGS)}")
+    names = sorted(boundaries, key=BOUNDARY_TAGS.get)
+    lines = np.hstack([mesh.facets[:, boundaries[n]] for n in names]).T
+    tags = np.concatenate([np.full(len(boundaries[n]), BOUNDARY_TAGS[n]) for n in names])
+    points = np.vstack([mesh.p, np.zeros(mesh.p.shape[1])]).T
+    cells = [("triangle", mesh.t.T), ("line", lines)]
+    tag_data = [np.zeros(mesh.t.shape[1], dtype=int), tags]
+    field_data = {n: np.array([BOUNDARY_TAGS[n], 1]) for n in names}
+    if path.suffix == ".msh":
+        cell_data = {"gmsh:physical": tag_data, "gmsh:geometrical": tag_data}
+        meshio.write(path, meshio.Mesh(points, cells, cell_data=cell_data, field_data=field_data),
+                     file_format="gmsh22", binary=False)
+    else:
+        meshio.write(path, meshio.Mesh(points, cells, cell_data={"boundary": tag_data},
+                                       field_data=field_data))
+
+
+def mesh_checksum(mesh: MeshTri) -> str:
+    """A short digest of a mesh's nodes and triangles (checkpoints record it)."""
+    digest = hashlib.sha256()
+    for array in (mesh.p, mesh.t):
+        digest.update(np.ascontiguousarray(array).tobytes())
+    return digest.hexdigest()[:16]

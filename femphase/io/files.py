@@ -1,0 +1,75 @@
+"""Writing files that survive a kill, and reading the run directory's tables.
+
+:func:`atomic_write` replaces a file through a temporary name and ``os.replace``, so a
+reader sees the old or the new file, never a part; :func:`write_json` writes JSON so;
+:func:`read_csv` reads ``particles.csv`` and ``global.csv`` (columns in ``docs/outputs.md``);
+:func:`failpoint` is the fault injection of the kill tests. What a run directory holds, and
+its guarantees, is in :mod:`femphase.io.rundir`.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["atomic_write", "failpoint", "jsonable", "read_csv", "write_json"]
+
+
+_FAILPOINT_PASSES: dict[str, int] = {}
+
+
+def failpoint(name: str) -> None:
+    """Fault injection for the kill tests (:mod:`femphase.testing.faults`): with the environment
+    variable FEMPHASE_FAILPOINT = "name:n", the n-th time the run passes the point ``name``
+    the process kills itself with SIGKILL, as a scheduler or the OOM killer would. Points:
+    "csv" (half of a frame's rows written), "fields" (a field frame written, not yet
+    renamed), "checkpoint" (written, not yet renamed), and every atomically replaced file by
+    its name ("fields.xdmf", "run.json", "scene.toml") between writing and renaming."""
+    spec = os.environ.get("FEMPHASE_FAILPOINT")
+    if not spec or spec.partition(":")[0] != name:
+        return
+    _FAILPOINT_PASSES[name] = _FAILPOINT_PASSES.get(name, 0) + 1
+    if _FAILPOINT_PASSES[name] == int(spec.partition(":")[2] or 1):
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
+def atomic_write(path: Path, data: bytes | str) -> None:
+    """Replace ``path`` by ``data`` atomically (a temporary file beside it, then a rename):
+    a kill at any instant leaves either the old or the new file."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    with open(tmp, "wb") as handle:
+        handle.write(data.encode() if isinstance(data, str) else data)
+    failpoint(path.name)
+    os.replace(tmp, path)
+
+
+def write_json(path: Path, data: dict) -> None:
+    """``data`` as indented JSON, replaced atomically (numpy values become numbers/lists)."""
+    atomic_write(path, json.dumps(data, indent=2, default=jsonable) + "\n")
+
+
+def jsonable(value):
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    return str(value)
+
+
+def read_csv(path: Path) -> dict[str, np.ndarray]:
+    """A run directory's CSV as columns of floats (pandas reads the same files directly).
+
+    A last line without its newline is a row still being appended (a frame's rows are
+    written in two flushes, :meth:`femphase.io.rundir.Outputs.append_rows`) and is left out, so
+    the CSVs of a run under way (a sweep being aggregated) can be read."""
+    text = Path(path).read_text()
+    reader = csv.reader(text[: text.rfind("\n") + 1].splitlines())
+    header = next(reader)
+    rows = np.array([[float(x) for x in row] for row in reader]).reshape(-1, len(header))
+    return {name: rows[:, k] for k, name in enumerate(header)}

@@ -1,0 +1,279 @@
+"""Reading a run directory back: the one reader that figures, comparisons and sweep
+aggregates use.
+
+:func:`open_run` reads what ``femphase run`` wrote (:mod:`femphase.io.rundir`): the resolved
+``scene.toml``, ``run.json``, and ``particles.csv`` and ``global.csv`` on one axis of frame
+times (the union of both files' times, :func:`merge_times`), as a :class:`RunData`.
+Per-particle columns are (F, N) arrays, global columns (F,) arrays, NaN where a file lacks a
+frame or a row (a run under way, or killed between writing the two files);
+:meth:`RunData.complete` keeps the frames every particle has. :meth:`RunData.fields` opens the
+field frames of ``fields.xdmf``. Columns and units: ``docs/outputs.md``. Times in time units,
+lengths in lattice units, angles in radians.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+from dataclasses import dataclass, replace
+from functools import cached_property
+from pathlib import Path
+
+import meshio
+import numpy as np
+
+from femphase import tomlio
+from femphase.analysis.lattice import t1_event_times
+from femphase.domains.base import Domain
+from femphase.errors import ResolutionWarning
+from femphase.io.files import read_csv
+from femphase.scene import Scene, scene_from_dict
+
+__all__ = ["TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "merge_times", "open_run"]
+
+#: Frame times closer than this (time units) are the same frame: runs with different time
+#: steps reach the same frame time up to round-off.
+TIME_TOLERANCE = 1e-6
+
+
+def match_times(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Indices (ia, ib) of the frame times a and b share (within TIME_TOLERANCE); b sorted."""
+    if a.size == 0 or b.size == 0:
+        return np.empty(0, dtype=int), np.empty(0, dtype=int)
+    position = np.searchsorted(b, a)
+    below, above = np.clip(position - 1, 0, b.size - 1), np.clip(position, 0, b.size - 1)
+    nearest = np.where(np.abs(b[below] - a) <= np.abs(b[above] - a), below, above)
+    keep = np.abs(b[nearest] - a) <= TIME_TOLERANCE
+    return np.flatnonzero(keep), nearest[keep]
+
+
+def merge_times(*times: np.ndarray) -> np.ndarray:
+    """The sorted union of frame times, times within :data:`TIME_TOLERANCE` taken as one (the
+    first)."""
+    merged = np.sort(np.concatenate([np.asarray(t, dtype=float).ravel() for t in times] + [np.empty(0)]))
+    if merged.size == 0:
+        return merged
+    return merged[np.concatenate([[True], np.diff(merged) > TIME_TOLERANCE])]
+
+
+def frame_index(times: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """Index into ``frames`` (sorted, from :func:`merge_times` of ``times``) of each time."""
+    rows, index = match_times(np.asarray(times, dtype=float), frames)
+    if rows.size != len(times):  # merge_times covers every time: a miss is a bug here
+        raise AssertionError("frame times not covered by their union")
+    return index
+
+
+class FieldFrames:
+    """The field frames of a run's ``fields.xdmf``, on the nodes of the mesh it was written
+    on (the domain's non-periodic mesh): ``points`` (n, 2), ``triangles`` (n_triangles, 3),
+    ``times`` (frames,). A context manager; :meth:`read` gives one frame's node arrays
+    (``phi_sum``, ``label``, and ``phi_<i>`` with ``output.per_particle_fields``)."""
+
+    def __init__(self, path: Path) -> None:
+        self._reader = meshio.xdmf.TimeSeriesReader(str(Path(path).resolve()))
+        points, cells = self._reader.read_points_cells()
+        self.points = points[:, :2]
+        self.triangles = np.vstack([c.data for c in cells if c.type == "triangle"])
+        self.times = np.array([float(e.find("Time").get("Value")) for e in self._reader.collection])
+
+    def read(self, k: int) -> tuple[float, dict[str, np.ndarray]]:
+        """(time, {name: node values}) of frame ``k`` (negative counts from the end)."""
+        time, data, _ = self._reader.read_data(k % len(self.times))
+        return float(time), {name: np.asarray(values).ravel() for name, values in data.items()}
+
+    def close(self) -> None:
+        self._reader.__exit__(None, None, None)
+
+    def __enter__(self) -> "FieldFrames":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+@dataclass
+class RunData:
+    """A run directory read back (see the module docstring).
+
+    directory  the run directory
+    scene      the resolved scene (scene.toml as a dict; {} when it is not there yet)
+    info       run.json ({} when it is not there yet)
+    time       (F,) frame times
+    particles  particles.csv column → (F, N), NaN where the file lacks the row
+    globals    global.csv column → (F,), NaN where the file lacks the frame
+    """
+
+    directory: Path
+    scene: dict
+    info: dict
+    time: np.ndarray
+    particles: dict[str, np.ndarray]
+    globals: dict[str, np.ndarray]
+
+    # -- the tables ---------------------------------------------------------------------
+    @property
+    def n_particles(self) -> int:
+        return next(iter(self.particles.values())).shape[1] if self.particles else 0
+
+    @property
+    def x(self) -> np.ndarray:
+        return self.particles["x"]
+
+    @property
+    def y(self) -> np.ndarray:
+        return self.particles["y"]
+
+    @property
+    def elongation(self) -> np.ndarray:
+        return self.particles["elongation"]
+
+    @property
+    def orientation(self) -> np.ndarray:
+        return self.particles["orientation"]
+
+    def complete(self) -> "RunData":
+        """The run on the frames for which particles.csv lists every particle."""
+        keep = np.isfinite(self.particles["x"]).all(axis=1) if "x" in self.particles else np.zeros(0, bool)
+        return replace(self, time=self.time[keep], particles={k: v[keep] for k, v in self.particles.items()},
+                       globals={k: v[keep] for k, v in self.globals.items()})
+
+    # -- the scene ----------------------------------------------------------------------
+    @property
+    def flow_phase(self) -> int | None:
+        """Index of the first phase with a flow, None if there is none."""
+        for index, phase in enumerate(self.scene.get("phases", [])):
+            if phase.get("flow", {}).get("type", "none") != "none":
+                return index
+        return None
+
+    @property
+    def shear_start(self) -> float:
+        """Time at which the first phase with a flow starts (the run's end if none)."""
+        phases = self.scene.get("phases", [])
+        index = self.flow_phase
+        if index is None:
+            return float(self.time[-1])
+        return float(sum(p["duration"] for p in phases[:index]))
+
+    @property
+    def shear_rate(self) -> float | None:
+        """γ̇ of the first phase with a flow (its "rate"), None without flow."""
+        index = self.flow_phase
+        return None if index is None else self.scene["phases"][index]["flow"].get("rate")
+
+    @property
+    def radius(self) -> float:
+        return float(self.scene.get("model", {}).get("radius", 8.0))
+
+    @property
+    def length(self) -> float:
+        return float(self.scene["domain"]["Lx"])
+
+    @property
+    def width(self) -> float:
+        return float(self.scene["domain"]["Ly"])
+
+    @property
+    def kind(self) -> str:
+        return str(self.scene["domain"].get("kind", "grid"))
+
+    @cached_property
+    def loaded_scene(self) -> Scene:
+        """The run's :class:`~femphase.scene.Scene`, built from scene.toml (a meshed run's mesh
+        file must still exist)."""
+        with warnings.catch_warnings():  # the run itself warned about its resolution
+            warnings.simplefilter("ignore", ResolutionWarning)
+            return scene_from_dict(self.scene, self.directory)
+
+    @property
+    def domain(self) -> Domain:
+        """The run's Domain (:attr:`loaded_scene`'s)."""
+        return self.loaded_scene.domain
+
+    @cached_property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(x_min, x_max, y_min, y_max) of the channel: [0, Lx] × [0, Ly] on the grid; a
+        meshed channel's x0 and wall range from its domain (from fields.xdmf's nodes when the
+        mesh file is gone)."""
+        if self.kind == "grid":
+            return 0.0, self.length, 0.0, self.width
+        try:
+            domain = self.domain
+            low, high = domain.y_range
+            return domain.x0, domain.x0 + domain.period, low, high
+        except (OSError, ValueError):  # SceneError is a ValueError
+            if not (self.directory / "fields.xdmf").exists():
+                raise
+            with self.fields() as frames:
+                points = frames.points
+            return (float(points[:, 0].min()), float(points[:, 0].max()),
+                    float(points[:, 1].min()), float(points[:, 1].max()))
+
+    # -- analyses of the frames -----------------------------------------------------------
+    def bulk_particles(self) -> np.ndarray:
+        """Mask of the particles farther than 2R from both walls at shear onset (all of them
+        if none is): the rows at the walls are stretched across the wall layer and oscillate
+        differently."""
+        frame = min(np.searchsorted(self.time, self.shear_start - 1e-9), len(self.time) - 1)
+        y = self.y[frame]
+        margin = 2 * self.radius
+        _, _, low, high = self.extent
+        bulk = (y > low + margin) & (y < high - margin)
+        return bulk if bulk.any() else np.ones_like(bulk)
+
+    @cached_property
+    def t1_times(self) -> np.ndarray:
+        """Times of the T1 events after shear onset (empty for fewer than 3 particles)."""
+        if self.n_particles < 3:
+            return np.empty(0)
+        frames = self.time >= self.shear_start - 1e-9
+        centroids = np.stack([self.x[frames], self.y[frames]], axis=-1)
+        return t1_event_times(list(centroids), self.time[frames], self.length)
+
+    # -- field frames ---------------------------------------------------------------------
+    def fields(self) -> FieldFrames:
+        """The field frames of fields.xdmf (ValueError when the run wrote none)."""
+        path = self.directory / "fields.xdmf"
+        if not path.is_file():
+            raise ValueError(f"run '{self.directory}' has no fields.xdmf (it was run with output.fields = false)")
+        return FieldFrames(path)
+
+
+def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
+    """Read a run directory written by ``femphase run``.
+
+    ``pending=False`` (a finished or running run): FileNotFoundError when the directory does
+    not exist or lacks scene.toml or particles.csv. ``pending=True`` (a sweep's run that may
+    not have started): whatever is there, no frames when nothing is."""
+    directory = Path(directory)
+    if not pending:
+        if not directory.is_dir():
+            raise FileNotFoundError(f"run directory {str(directory)!r} does not exist; expected the output "
+                                    "directory of `femphase run SCENE -o DIR`")
+        for name in ("scene.toml", "particles.csv"):
+            if not (directory / name).is_file():
+                raise FileNotFoundError(f"{str(directory)!r} is not a femphase run directory: it has no {name} "
+                                        "(expected the output directory of `femphase run SCENE -o DIR`)")
+    scene_path, info_path = directory / "scene.toml", directory / "run.json"
+    scene = tomlio.loads(scene_path.read_text()) if scene_path.is_file() else {}
+    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
+    tables = {name: read_csv(directory / name) if (directory / name).is_file() else {}
+              for name in ("particles.csv", "global.csv")}
+    rows, frame_rows = tables["particles.csv"], tables["global.csv"]
+    time = merge_times(rows.get("time", np.empty(0)), frame_rows.get("time", np.empty(0)))
+    globals_ = {}
+    if frame_rows:
+        at = frame_index(frame_rows["time"], time)
+        for name, values in frame_rows.items():
+            if name != "time":
+                globals_[name] = np.full(time.size, np.nan)
+                globals_[name][at] = values
+    particles = {}
+    if rows and rows["id"].size:
+        at, ids = frame_index(rows["time"], time), rows["id"].astype(int)
+        for name, values in rows.items():
+            if name not in ("time", "id"):
+                particles[name] = np.full((time.size, ids.max() + 1), np.nan)
+                particles[name][at, ids] = values
+    return RunData(directory, scene, info, time, particles, globals_)

@@ -1,0 +1,394 @@
+"""Run directories that never lose data: atomic frame-by-frame output, refusals, resumes.
+
+DIR/
+  scene.toml         the resolved scene of the latest segment (every default filled in)
+  particles.csv      one row per particle per frame (columns: docs/outputs.md)
+  global.csv         one row per frame
+  fields.xdmf        the field frames, opens in ParaView; rewritten (atomically) every frame
+  fields/mesh.h5     the non-periodic mesh the fields live on
+  fields/frame_NNNNNN.h5   one file per frame: phi_sum, phi_max, label (+ phi_000 … with
+                     output.per_particle_fields), written to a temporary name and renamed
+  checkpoint.h5      the last checkpoint (:func:`femphase.io.checkpoints.save_checkpoint`), with the
+                     scene that wrote it and the size of every output at that moment
+  run.json           status ("running", "completed", "failed", "interrupted"), progress,
+                     start and end times, and the history of segments (one per start or
+                     resume, each with its command line, wall time and provenance:
+                     versions, host, threads); replaced atomically at every frame
+  run.log            the log (:class:`RunLog`): a header line per segment, status lines,
+                     warnings, how each segment ended; appended, never cut
+
+Guarantees. Every file is either appended (the CSVs, flushed at every frame) or replaced
+atomically (write to a temporary name, then ``os.replace``), so a kill at any instant leaves
+every file either as it was or as it will be; the checkpoint records the byte length of each
+CSV and the number of field frames when it was written. ``--resume`` cuts every output back
+to that record and continues from the checkpoint, so after any sequence of kills, interrupts
+and resumes the outputs equal those of an uninterrupted run (bit for bit: the stepping is
+deterministic). A frame's outputs are written before its checkpoint, so at most the frames
+after the last checkpoint are lost. run.json and run.log record wall times and hosts, so
+they differ between runs; they are not among the outputs a resume reproduces.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+import logging
+import os
+import time as wallclock
+from pathlib import Path
+from typing import Iterable
+from xml.sax.saxutils import escape
+
+import numpy as np
+
+from femphase.errors import SceneError
+from femphase.io.files import atomic_write, failpoint, jsonable
+from femphase.io.provenance import now
+
+__all__ = ["CHECKPOINT", "FIELDS_DIR", "FROZEN_TABLES", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog", "Status",
+           "prepare_directory", "resume_position"]
+
+CHECKPOINT = "checkpoint.h5"
+RUN_LOG = "run.log"
+#: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
+OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json", RUN_LOG)
+FIELDS_DIR = "fields"
+#: The package logger (as :data:`femphase.run.trackers.LOGGER`; that module imports the simulation,
+#: which imports this one).
+_LOGGER = logging.getLogger("femphase")
+
+
+def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None:
+    """Create the run directory, or check that an existing one may be used; nothing is
+    written or removed before every check has passed.
+
+    A directory holding femphase outputs is refused unless ``resume`` (continue it) or
+    ``overwrite`` (delete femphase's files in it, and only those)."""
+    if not str(directory).strip():
+        raise SceneError("-o", str(directory), "a directory path (it is empty)")
+    directory = Path(directory)
+    if directory.exists() and not directory.is_dir():
+        raise SceneError("-o", str(directory), "a directory (this path is a file)")
+    existing = [name for name in OUTPUTS if (directory / name).exists()]
+    if resume:
+        if not (directory / CHECKPOINT).is_file():
+            raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}")
+    elif existing and not overwrite:
+        raise SceneError("-o", str(directory), "a new or empty run directory: it holds a run "
+                         f"({', '.join(existing)}); continue it with --resume or replace it with --overwrite")
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        probe = directory / f".femphase-write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise SceneError("-o", str(directory), f"a directory femphase can write to ({exc.strerror or exc})") from None
+    if overwrite and not resume:
+        for name in existing:
+            target = directory / name
+            if target.is_dir():
+                for child in target.iterdir():
+                    child.unlink()
+                target.rmdir()
+            else:
+                target.unlink()
+
+
+class Outputs:
+    """The appendable outputs of a run directory: the two CSVs and the field frames."""
+
+    def __init__(self, directory: Path, particle_columns: list[str], global_columns: list[str],
+                 fields: bool = True) -> None:
+        """``fields``: the run writes field frames (fields.xdmf and fields/)."""
+        self.directory = Path(directory)
+        self.fields = fields
+        self.columns = {"particles.csv": ["time", "id"] + list(particle_columns),
+                        "global.csv": ["time", "step"] + list(global_columns)}
+        self.field_times: list[float] = []
+        self._handles: dict[str, object] = {}
+        self._frame_datasets: dict[int, list[str]] = {}  # of frames written by earlier segments
+
+    # -- opening ------------------------------------------------------------------------
+    def start_new(self, mesh) -> None:
+        for name, columns in self.columns.items():
+            atomic_write(self.directory / name, ",".join(columns) + "\n")
+        if self.fields:
+            self._write_mesh(mesh)
+            self._write_xdmf(mesh)
+        self._open()
+
+    def start_from(self, record: dict, mesh) -> None:
+        """Cut every output back to ``record`` (what a checkpoint saw) and reopen them."""
+        sizes = {}
+        for name, columns in self.columns.items():  # every check before any cut
+            path = self.directory / name
+            sizes[path] = size = int(record["bytes"][name])
+            header = (",".join(columns) + "\n").encode()
+            if not path.is_file() or path.stat().st_size < size:
+                raise SceneError("--resume", str(path), f"a file of at least {size} bytes, as when the checkpoint "
+                                 "was written (the run directory was changed since)")
+            with open(path, "rb") as handle:
+                if handle.read(len(header)) != header:
+                    raise SceneError("--resume", str(path), f"a CSV with the columns {columns} (the scene's "
+                                     "output.observables must not change on resume)")
+        for path, size in sizes.items():
+            os.truncate(path, size)
+        self.field_times = [float(t) for t in record["field_times"]]
+        fields = self.directory / FIELDS_DIR
+        if fields.is_dir():
+            for child in fields.glob("frame_*.h5"):
+                if int(child.stem.split("_")[1]) >= len(self.field_times):
+                    child.unlink()
+        if self.fields or self.field_times:
+            if not (fields / "mesh.h5").is_file():
+                self._write_mesh(mesh)
+            self._write_xdmf(mesh)
+        self._open()
+
+    def _open(self) -> None:
+        self._handles = {name: open(self.directory / name, "a", newline="") for name in self.columns}
+
+    def record(self) -> dict:
+        """The size of every output now (stored in checkpoints)."""
+        return {"bytes": {name: handle.tell() for name, handle in self._handles.items()},
+                "field_times": list(self.field_times)}
+
+    # -- appending ----------------------------------------------------------------------
+    def append_rows(self, name: str, rows: Iterable[Iterable]) -> None:
+        handle = self._handles[name]
+        text = "".join(",".join(_cell(v) for v in row) + "\n" for row in rows)
+        half = len(text) // 2
+        handle.write(text[:half])
+        handle.flush()
+        failpoint("csv")  # a kill here leaves half a frame's rows: resume must cut them
+        handle.write(text[half:])
+        handle.flush()
+
+    def append_fields(self, time: float, data: dict[str, np.ndarray], mesh) -> None:
+        import h5py
+
+        index = len(self.field_times)
+        path = self.directory / FIELDS_DIR / f"frame_{index:06d}.h5"
+        tmp = path.with_name(f".{path.name}.tmp")
+        with h5py.File(tmp, "w") as handle:
+            handle.attrs["time"] = time
+            for name, values in data.items():
+                handle[name] = values
+        failpoint("fields")
+        os.replace(tmp, path)
+        self.field_times.append(float(time))
+        self._write_xdmf(mesh, sorted(data))  # sorted, as h5py lists a file's datasets
+
+    def close(self) -> None:
+        for handle in self._handles.values():
+            handle.close()
+        self._handles = {}
+
+    # -- the field files ----------------------------------------------------------------
+    def _write_mesh(self, mesh) -> None:
+        import h5py
+
+        folder = self.directory / FIELDS_DIR
+        folder.mkdir(exist_ok=True)
+        tmp = folder / ".mesh.h5.tmp"
+        with h5py.File(tmp, "w") as handle:
+            handle["points"] = np.vstack([mesh.p, np.zeros(mesh.p.shape[1])]).T
+            handle["triangles"] = mesh.t.T.astype(np.int64)
+        os.replace(tmp, folder / "mesh.h5")
+
+    def _write_xdmf(self, mesh, names: list[str] | None = None) -> None:
+        """fields.xdmf: the mesh, then one grid per frame referring to its frame file."""
+        n_points, n_cells = mesh.p.shape[1], mesh.t.shape[1]
+        grids = []
+        for index, time in enumerate(self.field_times):
+            frame = f"{FIELDS_DIR}/frame_{index:06d}.h5"
+            attributes = "".join(
+                f'<Attribute Name="{escape(name)}" AttributeType="Scalar" Center="Node">'
+                f'<DataItem DataType="Float" Dimensions="{n_points}" Format="HDF" Precision="8">'
+                f"{frame}:/{escape(name)}</DataItem></Attribute>"
+                for name in self._frame_names(index, names))
+            grids.append(
+                '<Grid><xi:include xpointer="xpointer(//Grid[@Name=&quot;mesh&quot;]/*[self::Topology or '
+                f'self::Geometry])" /><Time Value="{time!r}" />{attributes}</Grid>')
+        xdmf = (
+            '<Xdmf xmlns:xi="http://www.w3.org/2003/XInclude" Version="3.0"><Domain>'
+            '<Grid Name="TimeSeries_femphase" GridType="Collection" CollectionType="Temporal">'
+            + "".join(grids) + "</Grid>"
+            '<Grid Name="mesh" GridType="Uniform"><Geometry GeometryType="XYZ">'
+            f'<DataItem DataType="Float" Dimensions="{n_points} 3" Format="HDF" Precision="8">'
+            f"{FIELDS_DIR}/mesh.h5:/points</DataItem></Geometry>"
+            f'<Topology TopologyType="Triangle" NumberOfElements="{n_cells}">'
+            f'<DataItem DataType="Int" Dimensions="{n_cells} 3" Format="HDF" Precision="8">'
+            f"{FIELDS_DIR}/mesh.h5:/triangles</DataItem></Topology></Grid></Domain></Xdmf>\n")
+        atomic_write(self.directory / "fields.xdmf", xdmf)
+
+    def _frame_names(self, index: int, names: list[str] | None) -> list[str]:
+        """The datasets of frame ``index`` (read from its file for frames of earlier segments)."""
+        if names is not None and index == len(self.field_times) - 1:
+            return names
+        if index not in self._frame_datasets:
+            import h5py
+
+            with h5py.File(self.directory / FIELDS_DIR / f"frame_{index:06d}.h5", "r") as handle:
+                self._frame_datasets[index] = list(handle)
+        return self._frame_datasets[index]
+
+
+def _cell(value) -> str:
+    if isinstance(value, (bool, np.bool_)):
+        return str(int(value))
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    return repr(float(value))
+
+
+#: Scene tables a resumed run must keep (any change would make the state meaningless).
+FROZEN_TABLES = ("model", "domain", "particles")
+
+
+def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, list[str]]:
+    """Where a run saved at ``time`` by a scene ``saved`` (its resolved dict) continues under
+    ``scene``: (phase, steps done in it, the changes as "key: old → new").
+
+    Compatible changes: numerics (but the diagonals), output cadence and fields, the dt,
+    duration and frame interval of the phase under way (the time already spent in it must be
+    a whole number of new steps and within the new duration), anything of later phases,
+    longer or additional phases (extending a finished run). Refused, with a SceneError naming
+    the key: the model, domain and particles, numerics.diagonals, output.observables, and the
+    duration or flow of phases already done or the flow of the phase under way."""
+    changes = []
+    for table in FROZEN_TABLES:
+        old, new = saved.get(table, {}), scene.get(table, {})
+        for key in sorted(set(old) | set(new)):
+            if old.get(key) != new.get(key):
+                raise SceneError(f"{table}.{key}", new.get(key), f"{old.get(key)!r} as in the checkpoint: a resumed run "
+                                 f"cannot change its {table} (start a new run directory instead)")
+    for table, frozen in (("numerics", ("diagonals",)), ("output", ("observables",))):
+        old, new = saved.get(table, {}), scene.get(table, {})
+        for key in sorted(set(old) | set(new)):
+            if old.get(key) == new.get(key):
+                continue
+            if key in frozen:
+                raise SceneError(f"{table}.{key}", new.get(key), f"{old.get(key)!r} as in the checkpoint: it cannot "
+                                 "change on resume")
+            changes.append(f"{table}.{key}: {old.get(key)!r} → {new.get(key)!r}")
+    old_phases, new_phases = saved.get("phases", []), scene["phases"]
+    tolerance = 1e-9 * max(1.0, abs(time))
+    start = 0.0
+    for k, old in enumerate(old_phases):
+        end = start + old["duration"]
+        if start > time - tolerance and not (k == 0 and time <= tolerance):
+            break
+        if k >= len(new_phases):
+            raise SceneError("phases", len(new_phases), f"at least {k + 1} phases: phase {k} was under way or done "
+                             f"at t = {time:g}")
+        new = new_phases[k]
+        if new.get("flow") != old.get("flow") and time > start + tolerance:
+            raise SceneError(f"phases.{k}.flow", new.get("flow"), f"{old.get('flow')!r} as in the checkpoint: "
+                             f"phase {k} already ran with that flow until t = {min(end, time):g}")
+        if end < time - tolerance and abs(new["duration"] - old["duration"]) > tolerance:
+            raise SceneError(f"phases.{k}.duration", new["duration"], f"{old['duration']:g} as in the checkpoint: "
+                             f"phase {k} ended at t = {end:g}, before the checkpoint (t = {time:g})")
+        start = end
+    for k, (old, new) in enumerate(zip(old_phases, new_phases)):
+        for key in ("duration", "dt", "frame_interval", "flow"):
+            if old.get(key) != new.get(key):
+                changes.append(f"phases.{k}.{key}: {old.get(key)!r} → {new.get(key)!r}")
+    if len(new_phases) != len(old_phases):
+        changes.append(f"phases: {len(old_phases)} → {len(new_phases)}")
+    start = 0.0
+    for k, phase in enumerate(new_phases):
+        end = start + phase["duration"]
+        if time < end - tolerance:
+            steps = (time - start) / phase["dt"]
+            if abs(steps - round(steps)) > 1e-6 * max(1.0, steps):
+                raise SceneError(f"phases.{k}.dt", phase["dt"], f"a step that divides the {time - start:g} time units "
+                                 f"phase {k} has already run (t = {time:g})")
+            return k, round(steps), changes
+        start = end
+    return len(new_phases), 0, changes
+
+
+class Status:
+    """run.json: the run's status, times and history of segments, replaced atomically.
+
+    ``base``: the fields of this segment's run (version, method, scene); ``previous``: the
+    run.json of a resumed run, whose segments and start time are kept. Times are ISO 8601
+    with the UTC offset (:func:`femphase.io.provenance.now`), wall and CPU times in seconds (CPU:
+    the process's, all its threads, so that a run's cost can be read off on a loaded machine
+    where wall time is not)."""
+
+    def __init__(self, directory: Path, base: dict, previous: dict | None) -> None:
+        self.path = Path(directory) / "run.json"
+        previous = previous or {}
+        self.data = dict(base)
+        self.data["segments"] = list(previous.get("segments", []))
+        # one reading for the run's and its segment's start: two could straddle a second
+        # (a run's first segment then seemed to start after the run)
+        self.opened = now()
+        self.data["started"] = previous.get("started") or self.opened
+        self.data["ended"] = None
+        self.started, self.cpu_started = wallclock.perf_counter(), wallclock.process_time()
+
+    @staticmethod
+    def read(directory: Path) -> dict | None:
+        path = Path(directory) / "run.json"
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError):
+            return None
+
+    def begin_segment(self, segment: dict) -> None:
+        self.data["segments"].append({**segment, "started": self.opened, "ended": None, "status": "running"})
+
+    def update(self, **values) -> None:
+        """Set top-level fields (``status`` among them: a status other than "running" ends
+        the segment, with its end time) and write run.json."""
+        self.data.update(values)
+        segment = self.data["segments"][-1]
+        segment["wall_time_s"] = wallclock.perf_counter() - self.started
+        segment["cpu_time_s"] = wallclock.process_time() - self.cpu_started
+        segment["time"], segment["step"] = self.data.get("time"), self.data.get("steps")
+        if values.get("status", "running") != "running":
+            segment["status"] = values["status"]
+            segment["ended"] = self.data["ended"] = now()
+        for key in ("wall_time_s", "cpu_time_s"):  # runs from before CPU times were recorded lack them
+            self.data[key] = sum(s.get(key, 0.0) for s in self.data["segments"])
+        atomic_write(self.path, json.dumps(self.data, indent=2, default=jsonable) + "\n")
+
+
+class RunLog:
+    """run.log: the records of the ``femphase`` logger (INFO and above) while a run writes
+    its directory, appended (a resumed run continues the file; nothing cuts it, so a kill
+    may leave a partial last line). Each segment starts with a header line ``=== segment K
+    …`` and ends with a line saying how it ended (ERROR for a failure, with the step and
+    time). Lines: ISO 8601 time with UTC offset, level, message.
+
+    While open, the femphase logger's level is lowered to INFO if it was above (logging's
+    default is WARNING), so that status lines reach the file; :meth:`close` restores it."""
+
+    def __init__(self, directory: Path, header: str) -> None:
+        self.handler = logging.FileHandler(Path(directory) / RUN_LOG, mode="a", encoding="utf-8")
+        self.handler.setLevel(logging.INFO)
+        self.handler.setFormatter(_RunLogFormatter("%(asctime)s %(levelname)s %(message)s"))
+        self.write(logging.INFO, header)
+        self.level = _LOGGER.level
+        if _LOGGER.getEffectiveLevel() > logging.INFO:
+            _LOGGER.setLevel(logging.INFO)
+        _LOGGER.addHandler(self.handler)
+
+    def write(self, level: int, message: str) -> None:
+        """A line in run.log only (the header and the end: the console has its own)."""
+        self.handler.handle(_LOGGER.makeRecord(_LOGGER.name, level, __file__, 0, message, (), None))
+
+    def close(self, level: int, message: str) -> None:
+        """Write the segment's last line and detach from the logger."""
+        _LOGGER.removeHandler(self.handler)
+        _LOGGER.setLevel(self.level)
+        self.write(level, message)
+        self.handler.close()
+
+
+class _RunLogFormatter(logging.Formatter):
+    def formatTime(self, record: logging.LogRecord, datefmt: str | None = None) -> str:
+        return datetime.datetime.fromtimestamp(record.created).astimezone().isoformat(timespec="milliseconds")

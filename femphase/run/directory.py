@@ -1,0 +1,115 @@
+"""The tracker that writes a run directory (:mod:`femphase.io.rundir`): every frame's rows
+and field frame, then its checkpoint; run.json's status; the femphase log into run.log."""
+
+from __future__ import annotations
+
+import logging
+import shlex
+from pathlib import Path
+
+import numpy as np
+
+from femphase import __version__
+from femphase.analysis.observables import OBSERVABLES
+from femphase.errors import Interrupted
+from femphase.io.checkpoints import save_checkpoint
+from femphase.io.fields import point_data
+from femphase.io.files import atomic_write
+from femphase.io.provenance import provenance
+from femphase.io.rundir import CHECKPOINT, Outputs, RunLog, Status, prepare_directory
+from femphase.run.simulation import Frame, Simulation, Tracker
+from femphase.state import State
+from femphase.tomlio import to_toml
+
+__all__ = ["RunDirectory"]
+
+
+class RunDirectory(Tracker):
+    """Writes a run directory (:mod:`femphase.io.rundir`): appends every frame's rows and field
+    frame, then its checkpoint; keeps run.json's status current; appends the femphase
+    logger's records to run.log while it runs (:class:`femphase.io.rundir.RunLog`).
+
+    ``resume_from``: the checkpoint's record of the outputs (a resumed run cuts them back to
+    it); ``changes``: what the resumed scene changed; ``argv``: the command line (without
+    the program) and ``sets``: its ``--set`` assignments (run.json's segment records all
+    three); ``overwrite``: replace a run already in the directory (else it is refused,
+    :func:`femphase.io.rundir.prepare_directory`)."""
+
+    def __init__(self, directory: str | Path, resume_from: dict | None = None, changes: list[str] | None = None,
+                 argv: list[str] | None = None, overwrite: bool = False, sets: list[str] | None = None) -> None:
+        self.directory = Path(directory)
+        self.resume_from, self.changes, self.argv, self.overwrite = resume_from, list(changes or []), argv, overwrite
+        self.sets = list(sets or [])
+        self.needs = frozenset(OBSERVABLES.names())
+
+    def start(self, simulation: Simulation, state: State) -> None:
+        scene = simulation.scene
+        self.simulation = simulation
+        prepare_directory(self.directory, resume=self.resume_from is not None, overwrite=self.overwrite)
+        particle_columns, global_columns = simulation.columns()
+        self.outputs = Outputs(self.directory, particle_columns, global_columns, scene.output.fields)
+        self.particle_columns, self.global_columns = particle_columns, global_columns
+        mesh = simulation.domain.mesh
+        if self.resume_from is None:
+            self.outputs.start_new(mesh)
+        else:
+            self.outputs.start_from(self.resume_from, mesh)  # checks every file before it cuts any
+        atomic_write(self.directory / "scene.toml", to_toml(scene.to_dict()))
+        self.status = Status(self.directory, {
+            "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
+            "settings": scene.to_dict(),
+        }, Status.read(self.directory) if self.resume_from is not None else None)
+        origin = provenance()
+        self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
+                                   "from_step": state.step, "changes": self.changes, "argv": self.argv,
+                                   "set": self.sets, "provenance": origin})
+        self.first_step = state.step
+        self.status.update(status="running", message="", time=state.time, steps=state.step)
+        # last: a refusal above must leave run.log untouched, and nothing below can fail
+        self.log = RunLog(self.directory, (
+            f"=== segment {len(self.status.data['segments'])}: "
+            f"{'resumed' if self.resume_from is not None else 'started'} at t = {state.time:g} (step {state.step});"
+            f" femphase {origin['femphase_version']} (git {origin['git_commit'] or 'unknown'}), Python {origin['python']},"
+            f" host {origin['host']}, pid {origin['pid']}"
+            + (f"; argv: {shlex.join(self.argv)}" if self.argv is not None else "")
+            + (f"; WARNING: source changed since this process imported it: "
+               f"{', '.join(origin['source_changed_since_import'])} (it runs the code it imported, not git's)"
+               if origin["source_changed_since_import"] else "") + " ==="))
+
+    def frame(self, frame: Frame) -> None:
+        state = frame.state
+        columns = np.column_stack([np.full(state.n_particles, state.time), np.arange(state.n_particles)]
+                                  + [np.asarray(frame.particle[c], dtype=float) for c in self.particle_columns])
+        self.outputs.append_rows("particles.csv", ([row[0], int(row[1]), *row[2:]] for row in columns.tolist()))
+        self.outputs.append_rows("global.csv", [[state.time, state.step] + [frame.globals[c] for c in self.global_columns]])
+        output = self.simulation.scene.output
+        if output.fields:
+            self.outputs.append_fields(state.time, point_data(state, output.per_particle_fields), self.simulation.domain.mesh)
+        if output.checkpoint:
+            self._checkpoint(state)
+        self.status.update(time=state.time, steps=state.step)
+
+    def _checkpoint(self, state: State) -> None:
+        save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {
+            "scene": self.simulation.scene.to_dict(), "outputs": self.outputs.record(),
+            "method": self.simulation.method, "time": state.time,
+        })
+
+    def finish(self, state: State, error: Exception | None) -> None:
+        if error is None:
+            status, message, level = "completed", "", logging.INFO
+        elif isinstance(error, (Interrupted, KeyboardInterrupt)):
+            status, message, level = "interrupted", str(error) or "interrupted (KeyboardInterrupt)", logging.WARNING
+        else:
+            status, message, level = "failed", str(error) or type(error).__name__, logging.ERROR
+        try:
+            if isinstance(error, Interrupted) and self.simulation.scene.output.checkpoint:
+                self._checkpoint(state)  # a consistent state between two steps: keep it
+            self.outputs.close()
+            self.status.update(status=status, message=message, time=state.time, steps=state.step,
+                               steps_this_segment=state.step - self.first_step)
+        finally:  # the logger must not keep writing into this directory
+            segment = self.status.data["segments"][-1]
+            self.log.close(level, f"=== segment {len(self.status.data['segments'])} {status} after step {state.step} "
+                                  f"(t = {state.time:g}), {segment['wall_time_s']:.1f} s wall time"
+                                  + (f": {message}" if message else "") + " ===")

@@ -1,0 +1,90 @@
+"""Running a scene into a run directory, what ``femphase run`` does (:func:`run_scene`):
+the checks before anything is written, the resume from a checkpoint, the trackers, and
+stopping cleanly on SIGINT/SIGTERM."""
+
+from __future__ import annotations
+
+import signal
+import threading
+from contextlib import contextmanager
+from pathlib import Path
+
+from femphase.errors import SceneError
+from femphase.io.checkpoints import load_checkpoint, read_checkpoint_metadata
+from femphase.io.rundir import CHECKPOINT, prepare_directory, resume_position
+from femphase.run.directory import RunDirectory
+from femphase.run.guards import AccuracyGuard
+from femphase.run.simulation import METHODS, Simulation, Tracker
+from femphase.run.trackers import ProgressBar, StatusLog
+from femphase.scene import Scene, check_numerics
+from femphase.state import State
+
+__all__ = ["run_scene", "stop_on_signals"]
+
+
+@contextmanager
+def stop_on_signals():
+    """While active, SIGINT and SIGTERM (what Ctrl-C, ``timeout``, Slurm and ``docker stop``
+    send) ask the run to stop after the current step: yields the ``stop`` callable of
+    :meth:`femphase.run.simulation.Simulation.run`. A second signal interrupts at once. Outside the main thread
+    signals cannot be caught, and ``stop`` never fires."""
+    received: list[int] = []
+
+    def handler(number, frame):
+        if received:
+            raise KeyboardInterrupt
+        received.append(number)
+
+    def stop() -> int | None:
+        return received[0] if received else None
+
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    previous = {number: signal.signal(number, handler) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for number, old in previous.items():
+            signal.signal(number, old)
+
+
+def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, overwrite: bool = False,
+              method: str = "fem", progress: bool | None = None, argv: list[str] | None = None,
+              sets: list[str] | None = None, status_interval: float | None = 30.0) -> State:
+    """Run a scene into a run directory (what ``femphase run`` does), on any domain.
+
+    A directory that already holds a run is refused unless ``resume`` (continue from its
+    checkpoint; the scene may change only compatibly, :func:`femphase.io.rundir.resume_position`)
+    or ``overwrite``. Nothing in the directory is touched before every check has passed.
+    ``progress``: the tqdm bar (None: only on a terminal); ``argv`` and ``sets``: the command
+    line and its ``--set`` assignments, for run.json; ``status_interval``: seconds of wall
+    time between status lines in the log (:class:`femphase.run.trackers.StatusLog`; None: none)."""
+    directory = Path(directory)
+    simulation = Simulation(scene, method)
+    check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
+    prepare_directory(directory, resume=resume, overwrite=overwrite)
+    record, changes = None, []
+    if resume:
+        checkpoint = directory / CHECKPOINT
+        metadata = read_checkpoint_metadata(checkpoint)
+        if not {"scene", "outputs", "time"} <= set(metadata):
+            raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
+        if metadata.get("method", "fem") != method:
+            raise SceneError("--method", method, f"{metadata.get('method')!r}, the method the run was started with")
+        # the scene first: its message names the key that changed
+        phase, phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), metadata["time"])
+        state, observers = load_checkpoint(checkpoint, simulation.domain)
+        state.phase, state.phase_step = phase, phase_step
+        simulation.restore_observers(observers)
+        record = metadata["outputs"]
+    else:
+        state = scene.initial_state()
+    trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite, sets)]
+    if progress is not False:
+        trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))
+    if status_interval is not None:
+        trackers.append(StatusLog(status_interval))  # after RunDirectory: its first line goes to run.log
+    trackers.append(AccuracyGuard())  # last: a frame is written before a strict stop
+    with stop_on_signals() as stop:
+        return simulation.run(state, trackers, initial_frame=not resume, stop=stop)

@@ -1,0 +1,204 @@
+"""A simulation is a state, a stepper per phase and trackers (py-pde style).
+
+``Simulation(scene).run(state, trackers)`` steps through the scene's phases. At every frame
+(each phase's frame_interval, plus the initial state) it computes only the observables its
+trackers ask for and hands them over; trackers show progress, write run directories or keep
+frames in memory, and are composed by the caller.
+"""
+
+from __future__ import annotations
+
+import signal
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from femphase.analysis.observables import OBSERVABLES, Observable, resolve
+from femphase.analysis.shape import ShapeObservables
+from femphase.config import Numerics
+from femphase.errors import Interrupted, SceneError
+from femphase.model.energy import FreeEnergy
+from femphase.scene import Phase, Scene
+from femphase.state import State
+from femphase.timestepping import Stepper
+
+__all__ = ["METHODS", "Frame", "Simulation", "Tracker"]
+
+#: ``method`` → the time scheme it forces (None: the scene's ``numerics.scheme``).
+METHODS = {"fem": None, "fd": "fd-heun"}
+
+
+@dataclass
+class Frame:
+    """What trackers receive at a frame: the state, its phase and the observables' values,
+    per particle (column → array of length N; particles.csv) and global (column → number;
+    global.csv). The two may share a name ("area": ∫φ² per particle, the area energy)."""
+
+    state: State
+    phase: Phase
+    particle: dict = field(default_factory=dict)
+    globals: dict = field(default_factory=dict)
+
+    @property
+    def shape(self) -> ShapeObservables:
+        v = self.particle
+        return ShapeObservables(v["x"], v["y"], v["area"], v["elongation"], v["orientation"])
+
+
+class Tracker:
+    """Base tracker: override what you need. ``needs`` names the observables it uses."""
+
+    needs: frozenset = frozenset()
+
+    def start(self, simulation: "Simulation", state: State) -> None: ...
+
+    def after_step(self, state: State) -> None: ...
+
+    def frame(self, frame: Frame) -> None: ...
+
+    def finish(self, state: State, error: Exception | None) -> None: ...
+
+
+class Simulation:
+    """Runs a scene's phases on its domain: ``method="fem"`` with the scene's time scheme,
+    ``method="fd"`` with the finite-difference reference ("fd-heun")."""
+
+    def __init__(self, scene: Scene, method: str = "fem", energy: FreeEnergy | None = None) -> None:
+        if method not in METHODS:
+            raise SceneError("--method", method, f"one of {tuple(METHODS)}")
+        self.scene, self.method = scene, method
+        self.domain = scene.domain
+        self.energy = energy or FreeEnergy.paper(scene.model)
+        self.observables: dict[str, Observable] = {}
+
+    @property
+    def numerics(self) -> Numerics:
+        return self.scene.numerics
+
+    def observer_state(self) -> dict[str, np.ndarray]:
+        """The observables' running state, for a checkpoint."""
+        out: dict[str, np.ndarray] = {}
+        for observable in self.observables.values():
+            out.update(observable.snapshot())
+        return out
+
+    def restore_observers(self, snapshot: dict[str, np.ndarray]) -> None:
+        """Continue the observables' running state from a checkpoint (a resumed run)."""
+        for name in self.scene.output.observables:
+            self.observable(name).restore(snapshot)
+
+    def observable(self, name: str) -> Observable:
+        if name not in self.observables:
+            self.observables[name] = OBSERVABLES.get(name)(self)
+        return self.observables[name]
+
+    def columns(self) -> tuple[list[str], list[str]]:
+        """(particle columns, global columns) of the scene's observables, in output order."""
+        particle, global_ = [], []
+        for name in resolve(self.scene.output.observables):
+            particle += self.observable(name).particle_columns
+            global_ += self.observable(name).global_columns
+        return particle, global_
+
+    def stepper(self, phase: Phase, radii: np.ndarray) -> Stepper:
+        return Stepper(self.domain, self.scene.model, self.scene.numerics, phase.dt, self.scene.flow(phase),
+                       radii, energy=self.energy, scheme=METHODS[self.method])
+
+    def total_steps(self) -> int:
+        return sum(p.n_steps for p in self.scene.phases)
+
+    def steps_done(self, state: State) -> int:
+        return sum(p.n_steps for p in self.scene.phases[: state.phase]) + state.phase_step
+
+    def run(self, state: State, trackers: list[Tracker] = (), *, initial_frame: bool | None = None,
+            stop: Callable[[], int | None] | None = None) -> State:
+        """Step ``state`` (in place) through the remaining phases; returns it.
+
+        ``initial_frame``: emit a frame of the state before the first step (default: when
+        it is at step 0; a resumed run has it already). ``stop()`` is asked after every call
+        of the stepper (a consistent state): after every step, or, for a scheme that merges
+        steps (the adaptive default), every few (:meth:`_steps_per_call`). A signal number
+        from it stops the run with :class:`~femphase.errors.Interrupted`. Trackers'
+        ``after_step`` runs after every call too."""
+        trackers = list(trackers)
+        needs = frozenset().union(*(t.needs for t in trackers)) if trackers else frozenset()
+        t1_counter = self._t1_counter(needs)
+        error = None
+        for tracker in trackers:
+            tracker.start(self, state)
+        try:
+            if (state.step == 0 if initial_frame is None else initial_frame):
+                self._frame(state, self.scene.phases[min(state.phase, len(self.scene.phases) - 1)], trackers, needs)
+            while state.phase < len(self.scene.phases):
+                phase = self.scene.phases[state.phase]
+                stepper = self.stepper(phase, state.radii)
+                if state.phase_step == 0:
+                    stepper.scheme.start_phase(state)
+                while state.phase_step < phase.n_steps:
+                    steps = (self._steps_per_call(state, phase, t1_counter is not None)
+                             if stepper.scheme.merges_steps else 1)
+                    stepper.step(state, steps)
+                    state.phase_step += steps
+                    if t1_counter is not None and self._t1_look_due(state.time, phase.dt):
+                        t1_counter.look(state)
+                    for tracker in trackers:
+                        tracker.after_step(state)
+                    finished = state.phase_step == phase.n_steps
+                    if finished:
+                        # the frame's checkpoint must resume in the next phase
+                        state.phase, state.phase_step = state.phase + 1, 0
+                    if finished or state.phase_step % phase.steps_per_frame == 0:
+                        self._frame(state, phase, trackers, needs)
+                    number = stop() if stop is not None else None
+                    if number is not None:
+                        raise Interrupted(signal.Signals(number).name, 128 + number, state.step, state.time)
+                    if finished:
+                        break
+        except BaseException as exc:  # interrupted runs are recorded as failed too
+            error = exc
+            raise
+        finally:
+            for tracker in trackers:
+                tracker.finish(state, error)
+        return state
+
+    def _steps_per_call(self, state: State, phase: Phase, t1_looks: bool) -> int:
+        """Steps of the next stepper call: up to the next frame, T1 look (``t1_looks``) or phase
+        end, and to the next multiple of ``numerics.merged_steps`` steps of the phase,
+        whichever comes first. Each is fixed by the phase's step count or the clock, so a run resumed
+        from any call's end takes the same calls as one that was never stopped (a scheme that
+        merges steps gives results that depend on where calls end)."""
+        done = state.phase_step
+        steps = min(phase.n_steps - done, phase.steps_per_frame - done % phase.steps_per_frame,
+                    self.scene.numerics.merged_steps - done % self.scene.numerics.merged_steps)
+        if t1_looks:
+            time = state.time
+            for taken in range(1, steps):
+                time += phase.dt
+                if self._t1_look_due(time, phase.dt):
+                    return taken
+        return steps
+
+    def _t1_counter(self, needs: frozenset) -> Observable | None:
+        """The "order" observable, whose T1 counter looks between frames, if the scene and
+        a tracker want it (else None)."""
+        wanted = "order" in needs and "order" in self.scene.output.observables
+        return self.observable("order") if wanted else None
+
+    def _t1_look_due(self, time: float, dt: float) -> bool:
+        """Whether the step that ended at ``time`` reached a multiple of output.t1_interval
+        (by the clock alone, so that a resumed run looks at the same steps)."""
+        interval = self.scene.output.t1_interval
+        return np.floor(time / interval + 1e-9) > np.floor((time - dt) / interval + 1e-9)
+
+    def _frame(self, state: State, phase: Phase, trackers: list[Tracker], needs: frozenset) -> None:
+        frame = Frame(state, phase)
+        # only what a tracker uses and the scene asked for
+        for name in resolve([name for name in self.scene.output.observables if name in needs]):
+            observable = self.observable(name)
+            values = observable(state, frame.particle)
+            frame.particle.update({c: values[c] for c in observable.particle_columns})
+            frame.globals.update({c: values[c] for c in observable.global_columns})
+        for tracker in trackers:
+            tracker.frame(frame)

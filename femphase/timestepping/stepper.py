@@ -1,0 +1,224 @@
+"""The stepper: advances a State by steps of fixed dt on any Domain, with any time scheme.
+
+One step:
+
+1. refit the windows that no longer fit their fields (:meth:`femphase.domains.base.Domain.refit`);
+2. the time scheme (:mod:`femphase.timestepping.base`, chosen by ``numerics.scheme``)
+   advances the gathered fields, using what the stepper offers: the advection of the domain in the flow
+   (:attr:`Stepper.advection`), the explicit part g of δF/δφ
+   (:meth:`Stepper.explicit_derivative`), window-by-window solves of
+   (c G + J0 S M_L + J0 D K) φ = rhs (:meth:`Stepper.solve`), and the source term;
+3. a check that φ is finite and near [0, 1] (else :class:`~femphase.errors.BlowUpError`
+   naming the step, with the state untouched).
+
+Every window solves the principal submatrix of the full-domain system on its dofs (see
+:mod:`femphase.domains.layout`); solvers are built once per window key and system, and all
+windows of a key are solved in one multi-right-hand-side call; the solvers kept are bounded in
+memory (:attr:`Stepper.SOLVER_CACHE_BYTES`, least recently used dropped first).
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from typing import Callable
+
+import numpy as np
+import scipy.sparse as sp
+
+from femphase.config import Numerics
+from femphase.domains.base import Domain, window_block
+from femphase.domains.layout import Layout
+from femphase.errors import SceneError
+from femphase.flows import Flow, no_flow
+from femphase.model.energy import FreeEnergy, WindowedFields
+from femphase.model.parameters import ModelParameters
+from femphase.state import State
+from femphase.timestepping.base import SCHEMES, check_fields
+
+__all__ = ["Stepper", "cached_bytes"]
+
+
+def cached_bytes(solver, mass_block: sp.csr_matrix | None) -> int:
+    """Bytes a solver cache entry holds: the solver's ``nbytes`` and, with the consistent
+    mass, the window's mass block (its three CSR arrays)."""
+    if mass_block is None:
+        return int(solver.nbytes)
+    return int(solver.nbytes + mass_block.data.nbytes + mass_block.indices.nbytes + mass_block.indptr.nbytes)
+
+
+class Stepper:
+    """Advances a :class:`State` on ``domain`` by steps of fixed dt under one flow.
+
+    ``energy`` defaults to the paper's three terms with ``params``; ``source`` s(x, y, t) is
+    added to the right-hand side of the equation of motion (manufactured solutions);
+    ``scheme`` overrides ``numerics.scheme``.
+    """
+
+    def __init__(
+        self,
+        domain: Domain,
+        params: ModelParameters,
+        numerics: Numerics,
+        dt: float,
+        flow: Flow | None = None,
+        radii: np.ndarray | None = None,
+        source: Callable[[np.ndarray, np.ndarray, float], np.ndarray] | None = None,
+        energy: FreeEnergy | None = None,
+        scheme: str | None = None,
+    ) -> None:
+        if not (isinstance(dt, (int, float)) and dt > 0 and np.isfinite(dt)):
+            raise SceneError("phases.dt", dt, "a time step > 0")
+        self.domain, self.params, self.numerics, self.dt = domain, params, numerics, float(dt)
+        self.flow = flow or no_flow()
+        self.source = source
+        self.energy = energy or FreeEnergy.paper(params)
+        self.radii = None if radii is None else np.asarray(radii, dtype=float)
+        self.policy = domain.window_policy(numerics)
+        self.advection = None if self.flow.is_still else domain.advection(self.flow, self.dt, numerics)
+        self._systems: dict = {}
+        self._solvers: OrderedDict = OrderedDict()  # least recently used first
+        self._cached_bytes = 0
+        self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
+        #: whether steps compute in single precision (numerics.precision, under flow only)
+        self.single_precision = (numerics.precision == "mixed" and not self.flow.is_still
+                                 and domain.single_precision_steps and self.scheme.mixed_precision)
+
+    @property
+    def mobility(self) -> float:
+        return self.params.mobility
+
+    @property
+    def smallest_radius(self) -> float:
+        return float(np.min(self.radii)) if self.radii is not None and len(self.radii) else self.params.radius
+
+    @property
+    def lumped(self) -> bool:
+        """Whether the time derivative's mass is lumped (else consistent)."""
+        return self.numerics.mass != "consistent"
+
+    @property
+    def pairs(self) -> bool:
+        """Whether particles can overlap (more than one): the repulsion's curvature counts."""
+        return self.radii is None or len(self.radii) > 1
+
+    # -- what time schemes use ------------------------------------------------------------
+    def explicit_derivative(self, phi: np.ndarray, layout: Layout, radii: np.ndarray) -> np.ndarray:
+        """g = the explicitly treated part of δF/δφ at every position (layout order)."""
+        return self.energy.explicit_derivative(WindowedFields(phi, layout, radii))
+
+    def source_term(self, layout: Layout, time: float) -> np.ndarray | None:
+        """s(x, y, t) at every position, or None without a source."""
+        if self.source is None:
+            return None
+        x, y = np.take(self.domain.coordinates, layout.node_index, axis=1)
+        return self.source(x, y, time)
+
+    def system(self, shift: float, stabilisation: float) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
+        """(shift·G + J0 S M_L + J0 D K, G if the time mass is consistent else None)."""
+        key = (shift, stabilisation)
+        if key not in self._systems:
+            ops = self.domain.operators
+            consistent = not self.lumped
+            time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
+            matrix = (shift * time_mass + self.mobility * stabilisation * sp.diags(ops.lumped_mass)
+                      + self.mobility * self.energy.diffusivity * ops.stiffness).tocsr()
+            self._systems[key] = (matrix, sp.csr_matrix(time_mass) if consistent else None)
+        return self._systems[key]
+
+    def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
+              stabilisation: float) -> np.ndarray:
+        """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
+        window (all vectors in layout order)."""
+        lumped = self.lumped
+        if lumped:  # M_L (nodal_rhs + shift·previous), in place
+            rhs = previous * shift
+            rhs += nodal_rhs
+            rhs *= layout.mass_like(rhs)
+        else:
+            rhs = layout.mass * nodal_rhs
+        out = np.empty_like(previous)
+        for group, (key, members, start, stop, size) in enumerate(layout.groups):
+            solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
+            # (size, members) views in Fortran order, as SuperLU wants them: no copies
+            current = previous[start:stop].reshape(members.size, size).T
+            group_rhs = rhs[start:stop].reshape(members.size, size).T
+            if not lumped:
+                group_rhs = group_rhs + shift * (mass_block @ current)
+            out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, current)
+        return out
+
+    #: Bytes of solvers kept (their ``nbytes`` and their consistent mass blocks',
+    #: :func:`cached_bytes`; the least recently used are dropped first).
+    #: Windows come and go and the adaptive scheme changes its step size; on a mesh every
+    #: box is its own system, whose LU costs ~2 MB resident per ~1000 dofs: keeping 4096
+    #: solvers took examples/obstacle_mesh.toml to 13 GB by step 5700.
+    #: The structured channel's tensor solvers are ~10 kB each.
+    SOLVER_CACHE_BYTES = 256 * 2**20
+
+    def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
+        cache_key = (key, shift, stabilisation)
+        solvers = self._solvers
+        if cache_key in solvers:
+            solvers.move_to_end(cache_key)
+        else:
+            lumped = self.lumped
+            a = shift + self.mobility * stabilisation
+            solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
+                                                                     self.domain.window_dofs(window)),
+                                        a, self.mobility * self.energy.diffusivity, lumped, self.numerics.solver,
+                                        self.numerics.tolerance)
+            mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
+                                                          self.domain.window_dofs(window))
+            solvers[cache_key] = (solver, mass_block)
+            self._cached_bytes += cached_bytes(solver, mass_block)
+            while self._cached_bytes > self.SOLVER_CACHE_BYTES and len(solvers) > 1:
+                _, dropped = solvers.popitem(last=False)
+                self._cached_bytes -= cached_bytes(*dropped)
+        return solvers[cache_key]
+
+    # -- one step -------------------------------------------------------------------------
+    def step(self, state: State, steps: int = 1) -> None:
+        """Advance ``state`` by ``steps`` steps of dt in place; raises BlowUpError naming the
+        step that failed, with ``state`` as it was after the last step that did not (as it
+        was before the call where the scheme merges steps).
+
+        A scheme that :attr:`~femphase.timestepping.base.TimeScheme.merges_steps` takes them as one
+        run, synchronised at the end only (the adaptive scheme's half-steps, window refits
+        and set-up shared across step boundaries): fewer calls, less work, and results that
+        depend on where calls end at the level of the splitting error. Others step one by
+        one."""
+        if not (isinstance(steps, (int, np.integer)) and steps >= 1):
+            raise ValueError(f"steps must be a whole number >= 1, not {steps!r}")
+        per_call = steps if self.scheme.merges_steps else 1
+        for _ in range(steps // per_call):
+            layout, phi = state.flat()
+            if self.single_precision:  # the call's working copy; the state stays double
+                phi = phi.astype(np.float32)
+            layout, phi = self.refit(layout, phi, state.time)
+            phi, layout = (self.scheme.advance(phi, layout, state, per_call) if self.scheme.merges_steps
+                           else self.scheme.advance(phi, layout, state))
+            end = state.time
+            for _ in range(per_call):  # the same clock as step by step, to the last bit
+                end += self.dt
+            check_fields(phi, self.numerics.blowup_margin, state.step + per_call, end)
+            state.windows, state.fields = list(layout.windows), layout.scatter(phi.astype(np.float64, copy=False))
+            state.time, state.step = end, state.step + per_call
+
+    def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None) -> tuple[Layout, np.ndarray]:
+        """(layout, φ) after refitting the windows that no longer fit their fields; with
+        ``time``, windows leave room for the motion of a step from then (meshes)."""
+        motion = None if time is None else (lambda: self._motion(layout, phi, time))
+        return self.domain.refit(layout, phi, self.policy, motion)
+
+    def _motion(self, layout: Layout, phi: np.ndarray, time: float) -> np.ndarray:
+        """(N, 2): each particle's displacement over the coming step, its φ²-weighted mean
+        velocity × dt (particle order)."""
+        out = np.zeros((len(layout.windows), 2))
+        if self.advection is None:
+            return out
+        weight = layout.mass * phi**2
+        total = np.maximum(layout.reduce(np.add, weight), 1e-300)
+        velocity = np.take(self.advection.velocity(time), layout.node_index, axis=1)
+        for axis in range(2):
+            out[layout.order, axis] = self.dt * layout.reduce(np.add, weight * velocity[axis]) / total
+        return out
