@@ -62,6 +62,12 @@ from femphase.oscillations import measured_period, order_series
 if TYPE_CHECKING:
     import xarray as xr
 
+__all__ = ["AVERAGED_FRACTION", "DATASET", "GLOBAL_COLUMNS", "GLOBAL_RENAMES", "MODES", "PARTICLE_COLUMNS",
+           "RUN_INPUTS", "SAMPLE_SUFFIX", "STATUSES", "SUMMARY", "SUMMARY_COLUMNS", "SWEEP_INDEX", "TEXT_COLUMNS",
+           "Aggregate", "aggregate", "averaging_window", "build_dataset", "Column", "is_current", "last_phase_frames",
+           "read_summary", "read_sweep", "summarise_run", "summary_csv", "Sweep", "SweepRun", "t1_rate",
+           "write_aggregate"]
+
 
 SWEEP_INDEX = "sweep.json"
 DATASET = "sweep.nc"

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+__all__ = ["BlowUpError", "FemphaseError", "InputError", "Interrupted", "ResolutionWarning", "SceneError"]
+
 
 class FemphaseError(Exception):
     """Base class: the CLI prints the message alone and exits with status 2."""

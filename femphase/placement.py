@@ -12,6 +12,8 @@ import numpy as np
 
 from femphase.errors import SceneError
 
+__all__ = ["clear_of_discs", "hexagonal_centres", "random_centres", "random_centres_inside"]
+
 
 def hexagonal_centres(n: int, length: float, width: float, per_row: int | None = None) -> np.ndarray:
     """A hexagonal lattice with rows along x filling the channel: per_row × rows = n.

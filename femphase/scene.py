@@ -20,6 +20,7 @@ from femphase import tomlio
 from femphase.analysis.observables import OBSERVABLES
 from femphase.config import Numerics
 from femphase.domains import DOMAINS, Domain, domain_from_table
+from femphase.domains.mesh.stokes import stokes_drive
 from femphase.errors import ResolutionWarning, SceneError
 from femphase.flows import FLOWS, Flow, flow_from_spec
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
@@ -27,6 +28,10 @@ from femphase.placement import hexagonal_centres
 from femphase.registry import Registry
 from femphase.state import State, discs_state
 from femphase.timestepping import SCHEMES, Stepper
+
+__all__ = ["LAYOUTS", "MAX_AREA_FRACTION", "MAX_PARTICLES", "MAX_PHASE_STEPS", "check_flow", "check_numerics",
+           "initial_centres", "load_scene", "Output", "Particles", "Phase", "read_scene_data", "registries", "Scene",
+           "scene_from_dict", "set_value"]
 
 
 def registries() -> tuple[Registry, ...]:
@@ -387,8 +392,6 @@ def check_flow(spec: dict, domain: Domain) -> None:
     """Validate a phase's flow table without solving anything (a stokes flow is solved
     when its phase starts)."""
     if isinstance(spec, dict) and spec.get("type") == "stokes" and "stokes" in FLOWS:
-        from femphase.domains.mesh.stokes import stokes_drive
-
         stokes_drive(spec)
         if domain.kind != "mesh":
             raise SceneError("flow.type", "stokes", 'a flow without "stokes": a stokes flow needs a meshed domain')

@@ -95,6 +95,9 @@ from femphase.run.runner import run_scene
 from femphase.scene import Scene, read_scene_data, scene_from_dict, set_value
 from femphase.tomlio import toml_value
 
+__all__ = ["EXIT_INCOMPLETE", "MODES", "SLOW_MALLOC", "TABLES", "WORKER_ENV", "load_sweep", "Run", "run_status",
+           "run_sweep", "Sweep", "SweepError"]
+
 FORMAT, VERSION = "femphase-sweep", 1
 MODES = ("product", "zip")
 TABLES = {"sweep": ("scene", "mode"), "set": None, "axes": None}
@@ -529,7 +532,7 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
         atomic_write(directory / "sweep-set.json", json.dumps(list(sweep.assignments)) + "\n")
         atomic_write(directory / "base-scene.toml", sweep.scene.read_text(encoding="utf-8"))
         statuses = {run.id: run_status(directory / "runs" / run.id, run.total_steps) for run in sweep.runs}
-        for run_id, entry in recorded.items():  # the last session's error, until the run is retried
+        for run_id, entry in recorded.items():  # the error recorded when it last ran, kept until it is retried
             if statuses[run_id][0] != "done" and entry.get("error") and not statuses[run_id][1]:
                 statuses[run_id] = (statuses[run_id][0], entry["error"])
         todo = [run for run in sweep.runs if statuses[run.id][0] != "done"]
@@ -546,7 +549,7 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
     """Submit ``todo`` (relaxations first), update the index as each run finishes."""
     from dask.distributed import as_completed
 
-    token = uuid.uuid4().hex[:8]  # task keys unique to this session
+    token = uuid.uuid4().hex[:8]  # task keys unique to this call
     base_dir = str(sweep.base_dir)
     relaxations = {}
     for run in todo:

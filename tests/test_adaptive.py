@@ -186,7 +186,7 @@ def test_substeps_stay_where_the_explicit_area_mode_is_damped(substep_sizes):
 
 
 def test_a_checkpoint_from_before_the_thirds_resumes_at_its_substep(substep_sizes):
-    # checkpoints written before session 10 hold the substep as "adaptive_level" k (dt/2^k)
+    # checkpoints that store the substep as "adaptive_level" k (dt/2^k, sizes of powers of two only)
     from helpers import small_system
 
     from femphase.config import Numerics

@@ -1,5 +1,5 @@
 """Every bad input to ``femphase run`` gets one message naming the key: exit code 2, no
-traceback, nothing in the run directory changed (issue 11), over the systematic inputs of
+traceback, nothing in the run directory changed, over the systematic inputs of
 :mod:`femphase.testing.fuzzing`; and a valid layout without inclined bonds runs the "order" observable."""
 
 import math

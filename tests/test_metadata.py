@@ -1,4 +1,4 @@
-"""Run metadata and logging (issue 13, part 3): run.json's provenance and times, run.log's
+"""Run metadata and logging: run.json's provenance and times, run.log's
 segment headers, status lines and errors, the console of ``femphase run``."""
 
 import datetime

@@ -1,4 +1,4 @@
-"""Run directories: refusals, compatible and incompatible resumes, bad paths (issue 11).
+"""Run directories: refusals, compatible and incompatible resumes, bad paths.
 
 Every refusal is checked to leave the directory byte for byte as it was."""
 

@@ -290,10 +290,9 @@ def test_a_blow_up_leaves_the_state_unchanged():
 @pytest.mark.parametrize("numerics", [Numerics(), Numerics(scheme="euler", mass="consistent")],
                          ids=["default", "consistent mass"])
 def test_the_solvers_kept_stay_within_their_memory_budget_and_dropping_them_changes_nothing(monkeypatch, numerics):
-    # a mesh box is its own system, and the boxes follow the particles under flow: before
-    # session 9 up to 4096 LUs were kept (13 GB on examples/obstacle_mesh.toml by step 5700);
-    # with the consistent mass every entry also keeps its box's mass block (counted since
-    # session 11)
+    # a mesh box is its own system, and the boxes follow the particles under flow: 4096 LUs
+    # kept took examples/obstacle_mesh.toml to 13 GB by step 5700; with the consistent mass
+    # every entry also keeps its box's mass block, which the budget counts
     domain = straight(40.0, 40.0)
 
     def sheared(budget: int):

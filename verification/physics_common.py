@@ -48,7 +48,7 @@ RESULTS = REPO / "verification" / "results"
 
 
 #: The scheme and steps the stored results were computed with: the first-order scheme at
-#: dt = 1 (the defaults before issue 12; the examples now run the adaptive scheme at dt = 10).
+#: dt = 1 (the examples run the adaptive scheme at dt = 10).
 #: A caller's own assignments come after these and win.
 FIRST_ORDER = ['numerics.scheme="euler"', "phases.0.dt=1.0", "phases.1.dt=1.0"]
 

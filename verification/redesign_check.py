@@ -3,8 +3,8 @@
     python -m verification.redesign_check [--dir /tmp/verification_rerun] [--jobs 2]
                                           [--only NAME ...] [--compare-only]
 
-After a change of the core (the one-core redesign of issue 10: one Domain/Stepper stack for
-the grid and meshes, windows refitted at the start of each step instead of the end), every
+After a change of the core (e.g. one Domain/Stepper stack for the grid and meshes, windows
+refitted at the start of each step instead of the end), every
 number in verification/ must stay within its stated tolerance. This script reruns, into
 ``--dir`` (never into results/: the stored full-protocol values are what it compares with),
 
@@ -483,7 +483,7 @@ def main(argv: list[str] | None = None) -> int:
         seconds = {}
     checks = sorted({r["check"] for r in rows}, key=[r["check"] for r in rows].index)
     out = {
-        "description": "Affordable verification checks rerun after the one-core redesign (issue 10), each number "
+        "description": "Affordable verification checks rerun after a change of the core, each number "
                        "against the stored full-protocol result in verification/results/",
         "command": "python -m verification.redesign_check --jobs 2" + (" --only " + " ".join(args.only) if args.only else ""),
         "rerun_dir": str(args.dir),

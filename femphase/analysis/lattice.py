@@ -42,6 +42,10 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.spatial import Delaunay, QhullError
 
+__all__ = ["DEFAULT_AXIS_TOLERANCE", "DEFAULT_LENGTH_CONTRAST", "bond_order", "bond_vectors", "frame_average",
+           "frame_order", "global_order", "lattice_angle", "nematic_order", "particle_lattice_angles",
+           "periodic_delaunay_pairs", "t1_event_times", "t1_events", "T1Counter"]
+
 #: Bonds within this angle (radians) of the lanes' axis x are in-lane neighbours, and bonds
 #: within it of the normal y join particles stacked on top of each other; neither carries the
 #: lattice angle (see :func:`particle_lattice_angles`).  π/8 is halfway between the axis and

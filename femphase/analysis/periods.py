@@ -17,6 +17,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.signal import find_peaks
 
+__all__ = ["first_period", "limit_cycle", "oscillation_period", "PeriodEstimate"]
+
 #: An autocorrelation peak is "major" when at least this fraction of the highest one: the
 #: peaks at multiples of the period are all about equally high, while those at the lag between
 #: a primary and a secondary peak of the signal are well below.

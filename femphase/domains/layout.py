@@ -22,6 +22,8 @@ from typing import Callable, Hashable, Sequence
 
 import numpy as np
 
+__all__ = ["Layout"]
+
 
 class Layout:
     """All windows of a state, ordered so that windows sharing a key are contiguous.

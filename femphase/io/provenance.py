@@ -19,6 +19,9 @@ from pathlib import Path
 
 from femphase import IMPORT_TIME, __version__
 
+__all__ = ["DEPENDENCIES", "PACKAGE_DIR", "THREAD_VARIABLES", "changed_since_import", "dependency_versions",
+           "git_commit", "now", "provenance", "threads"]
+
 #: The distributions a run imports (pyproject.toml's dependencies that ``femphase run``
 #: loads; matplotlib only plots). tqdm is imported only when a progress bar is shown, numba
 #: only for the structured channel's windows, and tomli only before Python 3.11 (tomllib

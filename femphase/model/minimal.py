@@ -29,6 +29,10 @@ from pathlib import Path
 import numpy as np
 from scipy.integrate import solve_ivp
 
+__all__ = ["DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "RESET_ORIENTATION", "angular_frequency",
+           "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution", "orientation",
+           "period", "solve_minimal_model", "t1_times", "wrap_orientation", "write_solution"]
+
 #: Near-circular start, like the phase-field runs that start from discs; r = 0 itself is
 #: excluded by the K/r term. The transient decays within a few time units (relaxation rate
 #: 3εr² + K/r² ~ 1), far shorter than the period π/ω ~ 10³, so it does not shape the cycle.

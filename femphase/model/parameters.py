@@ -28,6 +28,8 @@ import numpy as np
 
 from femphase.errors import SceneError
 
+__all__ = ["PAPER_SYMBOLS", "double_well", "double_well_derivative", "interface_profile", "ModelParameters"]
+
 #: Paper symbol → parameter name; scenes accept either spelling.
 PAPER_SYMBOLS = {
     "lambda": "interface_width",

@@ -27,6 +27,8 @@ from pathlib import Path
 
 import numpy as np
 
+__all__ = ["KILLS", "SCENE", "campaign", "identical_outputs", "kill_and_resume", "run_uninterrupted"]
+
 #: How the harness stops a run, in turn.
 KILLS = ("SIGKILL", "failpoint:csv", "SIGTERM", "failpoint:fields", "SIGINT", "failpoint:checkpoint",
          "SIGKILL", "failpoint:fields.xdmf", "failpoint:run.json")

@@ -43,7 +43,16 @@ import warnings
 from pathlib import Path
 from typing import NamedTuple
 
+from femphase.cli import main
+from femphase.config import DIAGONAL_PATTERNS, FD_ADVECTION, MASS_TYPES, SOLVER_METHODS
+from femphase.domains.mesh.stokes import channel_mesh
+from femphase.fem.meshfiles import save_mesh
+from femphase.flows import SHEAR_SCALES
+from femphase.scene import LAYOUTS
 from femphase.tomlio import toml_value
+
+__all__ = ["BASE_SCENE", "MESH_FILE", "MESH_SCENE", "TARGETS", "bad_inputs", "BadInput", "Check", "check_bad_input",
+           "make_run_directory", "mesh_files", "run_fuzz", "snapshot", "to_toml"]
 
 #: A small valid scene on the structured channel: validated in milliseconds, and run (for
 #: the run directory that ``--resume`` inputs need) in about a second.
@@ -196,14 +205,6 @@ def _choice_errors(valid: tuple[str, ...]) -> list:
 
 #: Scene keys of :data:`BASE_SCENE` (dotted path, wrong values, the key a message names).
 def _grid_keys() -> list[tuple[str, list]]:
-    from femphase.config import (
-        DIAGONAL_PATTERNS,
-        FD_ADVECTION,
-        MASS_TYPES,
-        SOLVER_METHODS,
-    )
-    from femphase.flows import SHEAR_SCALES
-    from femphase.scene import LAYOUTS
 
     keys = [(f"model.{k}", _BAD_POSITIVE) for k in ("lambda", "interface_width", "J0", "mobility", "R")]
     keys += [(f"model.{k}", _BAD_NONNEGATIVE) for k in ("gamma", "tension", "kappa", "repulsion", "mu",
@@ -385,8 +386,6 @@ def mesh_files() -> dict[str, bytes]:
     import meshio
     import numpy as np
 
-    from femphase.domains.mesh.stokes import channel_mesh
-    from femphase.fem.meshfiles import save_mesh
 
     files = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -611,7 +610,6 @@ def snapshot(path: Path) -> dict | None:
 def make_run_directory(path: str | Path) -> Path:
     """A finished run of :data:`BASE_SCENE` in ``path`` (the run directory that ``--resume``
     inputs are given); about a second."""
-    from femphase.cli import main
 
     path = Path(path)
     scene = path.parent / f"{path.name}.scene.toml"
@@ -667,7 +665,6 @@ def check_bad_input(item: BadInput, workdir: str | Path, *, target: str | None =
     directory as ``-o``); ``resume``: add ``--resume``. ``template``: a finished run
     directory of :data:`BASE_SCENE` to copy for the targets that need one (default: made
     once in ``workdir``, :func:`make_run_directory`)."""
-    from femphase.cli import main
 
     workdir = Path(workdir)
     workdir.mkdir(parents=True, exist_ok=True)

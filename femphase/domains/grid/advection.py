@@ -148,8 +148,7 @@ def row_runs(layout: Layout) -> list[tuple[int, int, slice, np.ndarray, np.ndarr
     """The layout's windows in runs of consecutive groups of one width (the channel's window
     keys start with nx): (first position, end position, the run's slots (layout order),
     their particles (k,), their windows' heights (k,), nx). A row shift transforms a run's
-    rows in one call: on the random packing 4 runs instead of 14 groups
-    (benchmarks/README.md, "Session 15")."""
+    rows in one call: on the random packing 4 runs instead of 14 groups."""
     runs = []  # [first position, end position, first slot, members, heights, nx]
     slot = 0
     for (_, members, start, stop, _), (ny, nx) in zip(layout.groups, layout.shapes):

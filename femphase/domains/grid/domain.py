@@ -208,7 +208,7 @@ class GridDomain(Domain):
         layout order, if known), their corners given (:attr:`GridLayout.corners`, all the
         substeps' sums over windows need). Its dofs and lumped masses are computed on first
         use: a substep moves the layout twice (the advection, then the refit's recentred
-        windows) and, since the sums run from the corners (session 15), needs the dofs of
+        windows) and, the sums running from the corners, needs the dofs of
         neither (at γ̇ = 1 on the random packing, 0.2–0.3 ms a move); frames and T1 looks
         still use them. The dofs of all positions come at once from the windows' corners
         and :attr:`Layout.cells`; their rows' part, and the masses where they depend on the

@@ -14,6 +14,8 @@ from typing import Sequence
 
 import numpy as np
 
+__all__ = ["Box", "BoxPolicy", "circular_extent", "local_x"]
+
 
 @dataclass(frozen=True, order=True)
 class Box:

@@ -31,6 +31,8 @@ from skfem import MeshTri
 from femphase.domains.grid.lattice import channel_grid, structured_channel_mesh
 from femphase.domains.mesh.domain import channel_sides, facet_indices
 
+__all__ = ["delaunay_channel", "edge_for_spacing", "mesh_quality", "structured_channel"]
+
 Wall = Callable[[np.ndarray], np.ndarray]
 
 
