@@ -25,13 +25,9 @@ import numpy as np
 from femphase.analysis.lattice import frame_order
 from femphase.analysis.periods import oscillation_period
 from femphase.io.reader import RunData
-from femphase.model.minimal import MinimalModelParameters, solve_minimal_model
+from femphase.model.minimal import K_PAPER, MinimalModelParameters, solve_minimal_model
 
 __all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_solution", "order_series"]
-
-#: The paper's ω = kγ̇ (its fitted k).
-K_PAPER = 0.01
-
 
 def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
     """The minimal model at `rate` with ω = kγ̇, and the simulation time of its t = 0.

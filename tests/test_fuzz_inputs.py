@@ -95,12 +95,12 @@ def test_the_checker_sees_failures(workdir, template, monkeypatch):
     """A valid input is not 'rejected', and an internal error is counted as one."""
     good = check_bad_input(BadInput("valid", BASE_SCENE, key="model.mu"), workdir, template=template)
     assert good.exit_code == 0 and not good.clean and not good.untouched
-    import femphase.cli.run
+    import femphase.scene
 
     def broken(*args, **kwargs):
         raise TypeError("a bug")
 
-    monkeypatch.setattr(femphase.cli.run, "scene_from_dict", broken)
+    monkeypatch.setattr(femphase.scene, "scene_from_dict", broken)
     check = check_bad_input(BadInput("bug", BASE_SCENE, key="scene"), workdir, template=template)
     assert check.exit_code == 1 and not check.clean
 

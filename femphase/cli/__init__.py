@@ -39,9 +39,11 @@ from femphase import __version__
 from femphase.cli import aggregate, compare, ode, plot, run, sweep
 from femphase.cli.console import console_handler
 from femphase.errors import BlowUpError, FemphaseError, Interrupted
-from femphase.run.trackers import LOGGER
 
 __all__ = ["COMMANDS", "build_parser", "main"]
+
+#: The logger every femphase module logs to; `femphase run` gives it a console handler.
+LOGGER = logging.getLogger("femphase")
 
 #: The subcommands, in the order ``femphase --help`` lists them.
 COMMANDS = (run, ode, compare, plot, sweep, aggregate)

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from femphase.aggregate import STATUSES, read_summary, write_aggregate
 from femphase.errors import InputError
 
 __all__ = ["register", "run"]
@@ -14,6 +13,9 @@ __all__ = ["register", "run"]
 
 def run(args: argparse.Namespace) -> int:
     """`femphase aggregate DIR`: write sweep.nc and summary.csv and say what they hold."""
+    # the command's implementation loads when it runs: the parser and the other commands start without it
+    from femphase.aggregate import STATUSES, read_summary, write_aggregate
+
     try:
         paths = write_aggregate(args.directory)
     except (ValueError, OSError) as exc:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from femphase.compare import compare_runs, default_output, format_table, write_comparison
 from femphase.errors import InputError
 
 __all__ = ["register", "run"]
@@ -14,6 +13,9 @@ __all__ = ["register", "run"]
 
 def run(args: argparse.Namespace) -> int:
     """`femphase compare DIR_A DIR_B`: write and print the per-frame differences."""
+    # the command's implementation loads when it runs: the parser and the other commands start without it
+    from femphase.compare import compare_runs, default_output, format_table, write_comparison
+
     try:
         result = compare_runs(args.a, args.b, fields=args.fields)
     except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such

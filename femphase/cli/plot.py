@@ -6,11 +6,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from femphase.aggregate import SWEEP_INDEX
 from femphase.errors import InputError
-from femphase.oscillations import K_PAPER
-from femphase.plot.run import plot_run
-from femphase.plot.sweep import plot_sweep
+from femphase.model.minimal import K_PAPER
 
 __all__ = ["register", "run"]
 
@@ -18,6 +15,10 @@ __all__ = ["register", "run"]
 def run(args: argparse.Namespace) -> int:
     """`femphase plot DIR`: write the four figures and list them (a sweep's figures when DIR
     holds sweep.json, :mod:`femphase.aggregate`)."""
+    # the command's implementation loads when it runs: the parser and the other commands start without it
+    from femphase.aggregate import SWEEP_INDEX
+    from femphase.plot.run import plot_run
+
     if (args.directory / SWEEP_INDEX).is_file():
         return _plot_sweep(args)
     try:
@@ -50,6 +51,8 @@ def _plot_sweep(args: argparse.Namespace) -> int:
     if args.ode_rate is not None:
         raise InputError(f"--ode-rate = {args.ode_rate!r} applies to a run directory, not to the sweep "
                          f"{str(args.directory)!r}; plot one of its runs/<id> for the ODE comparison")
+    from femphase.plot.sweep import plot_sweep
+
     try:
         paths = plot_sweep(args.directory, args.output, fmt=args.format)
     except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such

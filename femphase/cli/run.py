@@ -7,14 +7,15 @@ import argparse
 import sys
 from pathlib import Path
 
-from femphase.run.runner import run_scene
-from femphase.scene import read_scene_data, scene_from_dict
-
 __all__ = ["register", "run"]
 
 
 def run(args: argparse.Namespace) -> int:
     """`femphase run`: run a scene into a run directory."""
+    # the command's implementation loads when it runs: the parser and the other commands start without it
+    from femphase.run.runner import run_scene
+    from femphase.scene import read_scene_data, scene_from_dict
+
     scene = scene_from_dict(read_scene_data(args.scene, args.set), Path(args.scene).parent)
     progress = False if args.quiet else None
     state = run_scene(scene, args.output, resume=args.resume, overwrite=args.overwrite, method=args.method,

@@ -27,9 +27,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
-__all__ = ["DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "RESET_ORIENTATION", "angular_frequency",
+__all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "RESET_ORIENTATION", "angular_frequency",
            "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution", "orientation",
            "period", "solve_minimal_model", "t1_times", "wrap_orientation", "write_solution"]
 
@@ -41,6 +40,10 @@ DEFAULT_INITIAL_ELONGATION = 0.1
 DEFAULT_PERIODS = 5
 
 RESET_ORIENTATION = -np.pi / 4
+
+
+#: The paper's ω = kγ̇: its fitted k.
+K_PAPER = 0.01
 
 
 @dataclass(frozen=True)
@@ -56,7 +59,7 @@ class MinimalModelParameters:
     A: float = 2.0
     epsilon: float = 2.3
     K: float = 0.01
-    k: float = 0.01
+    k: float = K_PAPER
 
     def __post_init__(self) -> None:
         for name in ("A", "epsilon", "K"):
@@ -70,19 +73,19 @@ def _require(name: str, value: float, condition: bool, valid: str) -> None:
         raise ValueError(f"{name} = {value!r} is invalid: {valid}")
 
 
-def angular_frequency(rate: float, k: float = 0.01) -> float:
+def angular_frequency(rate: float, k: float = K_PAPER) -> float:
     """ω = k γ̇ (radians per time unit)."""
     _require("rate", rate, rate > 0, "the shear rate γ̇ must be a finite number > 0")
     _require("k", k, k > 0, "must be a finite number > 0")
     return k * rate
 
 
-def period(rate: float, k: float = 0.01) -> float:
+def period(rate: float, k: float = K_PAPER) -> float:
     """π/ω, the period of φ, of sin 2θ and of the periodic r(t) (time units)."""
     return np.pi / angular_frequency(rate, k)
 
 
-def lattice_angle(t: np.ndarray, rate: float, k: float = 0.01) -> np.ndarray:
+def lattice_angle(t: np.ndarray, rate: float, k: float = K_PAPER) -> np.ndarray:
     """φ(t) = (π/12) cos²(ωt) + π/4 (radians): π/3 (hexagonal) at t = 0, π/4 (square) at T1s."""
     omega = angular_frequency(rate, k)
     return np.pi / 12 * np.cos(omega * np.asarray(t, dtype=float)) ** 2 + np.pi / 4
@@ -114,7 +117,7 @@ def _half_period_marks(rate: float, t_end: float, k: float) -> np.ndarray:
     return half_period * np.arange(_half_periods_elapsed(t_end, half_period) + 1)
 
 
-def t1_times(rate: float, t_end: float, k: float = 0.01) -> np.ndarray:
+def t1_times(rate: float, t_end: float, k: float = K_PAPER) -> np.ndarray:
     """The T1 times τ_n = (2n + 1) π/(2ω) in [0, t_end], where φ = π/4 (time units)."""
     return _half_period_marks(rate, t_end, k)[1::2]
 
@@ -124,7 +127,7 @@ def wrap_orientation(theta: np.ndarray) -> np.ndarray:
     return np.pi / 2 - np.mod(np.pi / 2 - np.asarray(theta, dtype=float), np.pi)
 
 
-def orientation(t: np.ndarray, rate: float, k: float = 0.01) -> np.ndarray:
+def orientation(t: np.ndarray, rate: float, k: float = K_PAPER) -> np.ndarray:
     """θ(t) in closed form, wrapped to (−π/2, π/2] (radians, from the x axis).
 
     Between T1s θ = −π/4 − (πω/4) ∫_{τ_n}^t |sin 2ωs| ds, and the integral is analytic: each
@@ -195,6 +198,10 @@ def solve_minimal_model(
     reset θ to −π/4, at the others because |sin 2ωt| has a kink there that would otherwise
     cost the step-size control accuracy.
     """
+    # scipy.integrate loads here, not with the module: the command line reads this module's
+    # defaults for `femphase ode --help` and every other command, and would pay ~0.4 s for it
+    from scipy.integrate import solve_ivp
+
     omega = angular_frequency(rate, parameters.k)
     _require("t_end", t_end, t_end > 0, "must be a finite time > 0")
     _require(
