@@ -40,3 +40,25 @@ def test_the_documented_defaults_are_the_code_defaults():
         assert set(documented) == set(defaults), section
         for key, value in defaults.items():
             assert documented[key] == value, f"docs/scenes.md [{section}] {key}: {documented[key]!r}, code {value!r}"
+
+
+def test_the_readme_table_is_rendered_from_the_benchmark_results():
+    """README.md's accuracy and speed table is what benchmarks/summary.py renders from the
+    result files (so a number in it is a number a benchmark wrote)."""
+    import importlib.util
+    import sys
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "summary.py"
+    spec = importlib.util.spec_from_file_location("benchmark_summary", path)
+    summary = sys.modules[spec.name] = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(summary)
+    readme = summary.README.read_text()
+    assert summary.with_table(readme, summary.table()) == readme, "run: python benchmarks/summary.py"
+
+
+def test_the_readme_is_a_front_page():
+    """At most 150 lines, starting with the two commands a new machine needs."""
+    lines = (Path(__file__).resolve().parents[1] / "README.md").read_text().splitlines()
+    assert len(lines) <= 150
+    commands = [line for line in lines[:6] if line.startswith("pip install")]
+    assert len(commands) == 2 and "femphase run" in commands[0] and "pytest" in commands[1]

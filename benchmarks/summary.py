@@ -1,0 +1,152 @@
+"""The README's table of accuracy and speed, rendered from the benchmarks' result files.
+
+    python benchmarks/summary.py            # rewrite the table in README.md
+    python benchmarks/summary.py --print    # print it
+
+Every number comes from a JSON file in benchmarks/results/ (or verification/results/),
+written by the command in the row; nothing here is measured. Each row names the commit the
+file was measured at: the file's own record (``commit``, or the tree of a same-run
+comparison) where it has one, else the commit that last wrote the file (git log). The
+machine: the file's ``machine`` record where it has one, else the project's 2-core machine
+(the files that predate that record were all measured there). ``tests/test_docs.py`` fails
+when README.md and this table disagree.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import re
+import subprocess
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+MARKERS = ("<!-- BEGIN generated: summary -->", "<!-- END generated: summary -->")
+#: The machine of the files without a ``machine`` record.
+PROJECT_MACHINE = "2-core AMD EPYC, 24 GiB, shared"
+
+
+@dataclass(frozen=True)
+class Row:
+    """One line of the table: what is measured, from which file, shown how."""
+
+    quantity: str
+    path: str                       # relative to the repository
+    value: Callable[[dict], str]    # the file's data → the table cell
+    command: str
+
+
+def _percent(x: float) -> str:
+    return f"{100 * x:.3g} %"
+
+
+def _schemes_row(data: dict, label: str) -> dict:
+    return next(row for row in data["rows"] if row["label"] == label)
+
+
+def _time_error(label: str) -> Callable[[dict], str]:
+    def cell(data: dict) -> str:
+        row = _schemes_row(data, label)
+        errors = row["time_errors"]
+        return (f"r(t) {_percent(errors['elongation'])}, period {_percent(errors['period'])}; "
+                f"{row['seconds']:.3g} CPU s")
+    return cell
+
+
+def _protocol(data: dict) -> str:
+    runs = data["runs"]
+    minutes = ", ".join(f"{runs[rate]['new']['cpu_s'] / 60:.2f}" for rate in runs)
+    peak = max(run["new"]["peak_mb"] for run in runs.values())
+    return f"{minutes} CPU-min at γ̇ = {', '.join(f'{float(r):g}' for r in runs)}; peak {peak:.0f} MB"
+
+
+def _scaling(data: dict) -> str:
+    largest = max(data["by_N"], key=lambda row: row["N"])
+    return (f"N^{data['exponents_N']['default_ms_per_time_unit']:.2f} from N = "
+            f"{min(r['N'] for r in data['by_N'])} to {largest['N']}; peak {largest['peak_rss_mb']:.0f} MB at "
+            f"N = {largest['N']}")
+
+
+def _stability(data: list) -> str:
+    cases = [row for row in data if row["scheme"] == "fem-adaptive"]
+    return f"{sum(row['stable'] for row in cases)} of {len(cases)} cases run to the end (dt up to 100)"
+
+
+def _mesh_memory(data: dict) -> str:
+    default = data["configurations"]["default"]["samples"]
+    return (f"resident {default[-1][1] / 1024:.1f} GB at t = {default[-1][0]:g}, still rising "
+            "(glibc heap fragmentation by the boxes' factorisations)")
+
+
+ROWS = (
+    Row("time error of the default scheme (lattice N = 100, h = 1, one period; against sav2 at dt = 0.25)",
+        "benchmarks/results/work_precision_schemes.json", _time_error("FEM adaptive, tolerance_t 0.1"),
+        "python benchmarks/work_precision.py --schemes"),
+    Row("the same, first-order scheme at dt = 1", "benchmarks/results/work_precision_schemes.json",
+        _time_error("FEM euler"), "python benchmarks/work_precision.py --schemes"),
+    Row("lattice under shear (N = 100), CPU per time unit at the default",
+        "benchmarks/results/step_time.json",
+        lambda d: (f"{d['default_ms_per_time_unit']:.2f} ms; "
+                   f"{d['speedup_over_euler_dt_0.1_at_equal_period_error']:.1f}× first order at equal period error"),
+        "python benchmarks/step_time.py"),
+    Row("the paper's protocol from random discs (relax 2000 + shear 10⁵ time units), one run at a time",
+        "benchmarks/results/protocol.json", _protocol, "python benchmarks/protocol.py"),
+    Row("cost against the number of particles (default scheme)", "benchmarks/results/scaling.json", _scaling,
+        "python benchmarks/scaling.py --repeats 3"),
+    Row("stability matrix of the default scheme (still and sheared, μ × 10, κ × 10, h = λ, walls, overlaps)",
+        "benchmarks/results/stability.json", _stability, "python benchmarks/stability.py"),
+    Row("meshed obstacle channel (examples/obstacle_mesh.toml), memory under flow",
+        "benchmarks/results/mesh_memory.json", _mesh_memory, "python benchmarks/mesh_memory.py"),
+)
+
+
+def measured_at(path: Path, data) -> str:
+    """The commit a result file was measured at (see the module docstring)."""
+    if isinstance(data, dict):
+        if data.get("commit"):
+            return str(data["commit"])[:7]
+        trees = data.get("trees", {})
+        if trees.get("new", {}).get("commit"):
+            return str(trees["new"]["commit"])[:7]
+    done = subprocess.run(["git", "log", "-1", "--format=%h", "--", str(path)], cwd=ROOT,
+                          capture_output=True, text=True)
+    return done.stdout.strip() or "uncommitted"
+
+
+def machine(data) -> str:
+    return str(data.get("machine", PROJECT_MACHINE)) if isinstance(data, dict) else PROJECT_MACHINE
+
+
+def table() -> str:
+    lines = ["| quantity | measured | command | file, commit |", "|---|---|---|---|"]
+    machines = set()
+    for row in ROWS:
+        path = ROOT / row.path
+        data = json.loads(path.read_text())
+        machines.add(machine(data))
+        lines.append(f"| {row.quantity} | {row.value(data)} | `{row.command}` | "
+                     f"[{Path(row.path).name}]({row.path}), {measured_at(path, data)} |")
+    lines += ["", f"Machine: {'; '.join(sorted(machines))}."]
+    return "\n".join(lines)
+
+
+def with_table(document: str, rendered: str) -> str:
+    begin, end = MARKERS
+    head, found, rest = document.partition(begin)
+    if not found:
+        raise ValueError(f"README.md has no {begin!r} marker")
+    _, _, tail = rest.partition(end)
+    return f"{head}{begin}\n{rendered}\n{end}{tail}"
+
+
+if __name__ == "__main__":
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--print", action="store_true", help="print the table instead of rewriting README.md")
+    if parser.parse_args().print:
+        print(table())
+    else:
+        README.write_text(with_table(README.read_text(), table()))
+        print(f"wrote the table into {README}")
