@@ -2,8 +2,8 @@
 
 :func:`kill_and_resume` runs the command line in subprocesses and stops it again and again:
 
-* with SIGKILL at a random moment (what an out-of-memory kill or ``kill -9`` does);
-* with SIGTERM or SIGINT at a random moment (``timeout``, Slurm, ``docker stop``, Ctrl-C:
+* with SIGKILL after 1–3 more frames, mid-step (what an out-of-memory kill or ``kill -9`` does);
+* with SIGTERM or SIGINT after 1–3 more frames (``timeout``, Slurm, ``docker stop``, Ctrl-C:
   handled, the run stops after its current step with a checkpoint);
 * with SIGKILL at a failpoint (:func:`femphase.io.files.failpoint`): half-way through a frame's
   CSV rows, between writing and renaming a field frame, the checkpoint, fields.xdmf or
@@ -76,14 +76,19 @@ def run_uninterrupted(scene: Path, directory: Path) -> None:
     subprocess.run(_command(scene, directory), env=_environment(), check=True, capture_output=True)
 
 
-def kill_and_resume(scene: Path, directory: Path, kills: int, seed: int = 0, timeout: float = 120.0,
+def kill_and_resume(scene: Path, directory: Path, kills: int, seed: int = 0, timeout: float = 900.0,
                     first: int = 0) -> list[dict]:
     """Stop a run of ``scene`` into ``directory`` ``kills`` times (see the module
     docstring), resuming after each stop, then let it finish; the stops cycle through
     :data:`KILLS` from its entry ``first``. Returns one record per attempt: how (``kind``),
     the exit code, whether the next start had to be a fresh one, and ``stopped``: False for
     the last attempt if the run finished before its stop came (a failpoint later than the
-    run's last write, or a signal after its end)."""
+    run's last write, or a signal after its end).
+
+    A signal's stop point is chosen by progress, not by wall time: it is sent as soon as the
+    run has written 1–3 more frames (drawn from ``seed``) since its start, so a loaded machine
+    changes when a stop comes, never whether it lands inside the run. ``timeout`` (seconds per
+    attempt) only guards against a hung run and fails loudly."""
     rng = np.random.default_rng(seed)
     events: list[dict] = []
     flags: tuple[str, ...] = ()
@@ -93,7 +98,7 @@ def kill_and_resume(scene: Path, directory: Path, kills: int, seed: int = 0, tim
         process = subprocess.Popen(_command(scene, directory, *flags), env=_environment(failpoint),
                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
         if failpoint is None:
-            _wait_for_progress(directory, process, extra=float(rng.uniform(0.0, 0.4)))
+            _wait_for_frames(directory, process, frames=int(rng.integers(1, 4)), timeout=timeout)
             if process.poll() is None:
                 process.send_signal(getattr(signal, kind))
         try:
@@ -149,16 +154,26 @@ def campaign(scene_text: str, workdir: Path, kills: int, seed: int = 0) -> dict:
             "differences": differences, "events": events}
 
 
-def _wait_for_progress(directory: Path, process: subprocess.Popen, extra: float) -> None:
-    """Until the run has written a frame more than at its start (or ended), then ``extra`` s."""
+def _wait_for_frames(directory: Path, process: subprocess.Popen, frames: int, timeout: float) -> None:
+    """Until the run has a checkpoint and ``frames`` more rows in global.csv than at its
+    start, or has ended. Polls every 10 ms: the stop lands within a fraction of a frame."""
     path = directory / "global.csv"
-    start = path.stat().st_size if path.exists() else 0
-    deadline = time.monotonic() + 60.0
-    while process.poll() is None and time.monotonic() < deadline:
-        if path.exists() and path.stat().st_size > start and (directory / "checkpoint.h5").exists():
-            break
-        time.sleep(0.02)
-    time.sleep(extra)
+
+    def rows() -> int:
+        try:
+            return path.read_bytes().count(b"\n")
+        except OSError:
+            return 0
+
+    start = rows()
+    deadline = time.monotonic() + timeout
+    while process.poll() is None:
+        if rows() >= start + frames and (directory / "checkpoint.h5").exists():
+            return
+        if time.monotonic() > deadline:
+            process.kill()
+            raise RuntimeError(f"the run in {directory} wrote no {frames} frames within {timeout} s")
+        time.sleep(0.01)
 
 
 def identical_outputs(a: Path, b: Path) -> list[str]:
