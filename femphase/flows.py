@@ -1,6 +1,6 @@
 """Imposed velocity fields v(x, y, t) (lattice units per time unit), by name.
 
-Conventions (see DEVELOPERS.md): γ̇ ("rate") is a velocity scale, not a rate in lattice
+Conventions (see docs/model.md): γ̇ ("rate") is a velocity scale, not a rate in lattice
 units. Linear shear is u = γ̇ y/Ly with the bottom wall at rest and the top wall moving at
 γ̇; ``scale = "shear_rate"`` gives the plain u = γ̇ y (γ̇ is then ∂u/∂y). Poiseuille is
 u = 4 γ̇ y (Ly − y)/Ly², so γ̇ is the centre-line velocity. y is measured from the lower

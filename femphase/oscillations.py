@@ -6,7 +6,7 @@ The paper's observables of a sheared suspension, computed from a :class:`~fempha
 minimal one-variable model aligned with the run by its first T1 event and compared with r̄(t)
 (:func:`ode_solution`, :func:`ode_comparison`). Figures (:mod:`femphase.plot`) and sweep
 summaries (:mod:`femphase.aggregate`) use them. Times in time units, γ̇ as in the scene's
-flow (a velocity scale, DEVELOPERS.md).
+flow (a velocity scale, docs/model.md).
 
 Aligning the ODE with the simulation.  The ODE starts at t = 0 from the hexagonal lattice
 (φ = π/3) and has its first T1 at τ0 = π/(2kγ̇).  The simulation's first T1 after shear

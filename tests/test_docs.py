@@ -1,6 +1,10 @@
 """The documentation lists what the code registers."""
 
+import re
+import subprocess
 from pathlib import Path
+
+import pytest
 
 from femphase.registry import with_registries
 from femphase.scene import registries
@@ -62,3 +66,30 @@ def test_the_readme_is_a_front_page():
     assert len(lines) <= 150
     commands = [line for line in lines[:6] if line.startswith("pip install")]
     assert len(commands) == 2 and "femphase run" in commands[0] and "pytest" in commands[1]
+
+
+#: Numbered stretches of work (the word session or issue and a number): history, which belongs in git and
+#: CHANGELOG.md, never in the files that describe the present.
+WORK_PERIOD = re.compile(r"\b(session|issue)[ _-]?\d+", re.IGNORECASE)
+
+
+def test_no_tracked_file_names_a_work_period():
+    root = Path(__file__).resolve().parents[1]
+    if not (root / ".git").exists():
+        pytest.skip("needs the git work tree to list the tracked files")
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=root, capture_output=True, check=True)
+    found = []
+    for name in listed.stdout.decode().split("\0"):
+        path = root / name
+        if not name or not path.is_file():
+            continue
+        if WORK_PERIOD.search(name):
+            found.append(f"{name} (its name)")
+            continue
+        text = path.read_bytes()
+        if b"\0" in text[:4096]:
+            continue  # binary (figures, HDF5)
+        for number, line in enumerate(text.decode(errors="replace").splitlines(), 1):
+            if WORK_PERIOD.search(line):
+                found.append(f"{name}:{number}: {line.strip()[:100]}")
+    assert not found, "\n".join(found[:40])

@@ -13,7 +13,7 @@ The reproductions run long simulations, so every run is resumable and cached:
   script only analyses what is new.
 
 Conventions: times in solver time units, angles in radians, γ̇ ("rate") the wall velocity
-of the shear u = γ̇ y/Ly (DEVELOPERS.md).
+of the shear u = γ̇ y/Ly (docs/model.md).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ terms use the nodal (lumped-mass) quadrature, the gradient term is exact,
         + (κ/λ) Σ_k m_k Σ_i Σ_{j≠i} φ_ik² φ_jk²                         repulsion
 
 with m the lumped mass and W(φ) = 4φ²(1 − φ)². The repulsion sums over ordered pairs i ≠ j
-as printed, so every unordered pair counts twice (DEVELOPERS.md). The variational derivative
+as printed, so every unordered pair counts twice (docs/model.md). The variational derivative
 in the lumped metric, δF/δφ_ik = (∂F_h/∂φ_ik) / m_k, is
 
     δF/δφ_i = g_i + D M_L⁻¹ K φ_i,   D = 2γλ,
@@ -202,7 +202,7 @@ class InterfaceTerm(EnergyTerm):
 
 @dataclass(frozen=True)
 class AreaTerm(EnergyTerm):
-    """μ (1 − ∫φ²/πR²)² per particle: the soft area constraint (squared; DEVELOPERS.md)."""
+    """μ (1 − ∫φ²/πR²)² per particle: the soft area constraint (squared; docs/model.md)."""
 
     area_stiffness: float
     name: ClassVar[str] = "area"

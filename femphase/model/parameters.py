@@ -8,7 +8,7 @@ Each particle i is a field φ_i(x) ∈ [0, 1] obeying
     F_area      = Σ_i μ (1 − ∫φ_i² / (π R_i²))²
     F_repulsion = Σ_i Σ_{j≠i} (κ/λ) ∫ φ_i² φ_j²
 
-Conventions (decisions on defects of the printed paper, see DEVELOPERS.md):
+Conventions (decisions on defects of the printed paper, see docs/model.md):
 
 * the area term is squared (the printed equation lacks the square, which would make F
   unbounded below);
