@@ -20,7 +20,7 @@ __all__ = ["DIAGONAL_PATTERNS", "FD_ADVECTION", "MASS_TYPES", "PRECISIONS", "SOL
 #: ("right": lower left to upper right; "left") or the two alternating.
 DIAGONAL_PATTERNS = ("right", "left", "alternating")
 #: ``numerics.solver``: see :class:`Numerics`.
-SOLVER_METHODS = ("auto", "direct", "amg", "tensor")
+SOLVER_METHODS = ("auto", "direct", "amg", "tensor", "batched")
 #: ``numerics.mass``: the mass matrix in the time derivative.
 MASS_TYPES = ("lumped", "consistent")
 #: ``numerics.fd_advection``: the finite-difference reference's advection differences.
@@ -42,11 +42,16 @@ class Numerics:
                     finite-difference reference, structured channel only
     mass            "lumped" (default) or "consistent" mass matrix in the time derivative
     stabilisation   "auto" (the smallest energy-stable S for each dt) or a number ≥ 0
-    solver          "auto", "direct" (cached LU), "amg" (pyamg-preconditioned CG) or "tensor"
-                    (exact tensor-product solve; structured channel, one diagonal direction,
-                    lumped mass). "auto": tensor where it applies, else LU up to
-                    DIRECT_MAX_DOFS, else AMG
-    tolerance       relative residual of the AMG-Krylov solves
+    solver          "auto", "direct" (cached LU per window key), "amg" (pyamg-preconditioned
+                    CG per window key), "tensor" (exact tensor-product solve; structured
+                    channel, one diagonal direction, lumped mass) or "batched" (Jacobi-
+                    preconditioned Krylov on all windows at once, :mod:`femphase.fem.blocks`).
+                    "auto": on meshes "batched"; on the structured channel tensor where it
+                    applies, else LU up to DIRECT_MAX_DOFS, else AMG
+    tolerance       relative residual of the Krylov solves ("amg": 2-norm; "batched" and the
+                    meshes' advection: max|D⁻¹r| against max|D⁻¹b|, D the diagonal; under
+                    the adaptive scheme these use at least 1e-5 · tolerance_t,
+                    :attr:`Numerics.krylov_tolerance`)
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
                     dimensionless). The default, 0.1, keeps the lattice's period within 0.3 %
                     and r(t) within 2 % of a time-converged run (0.15 % and 1.1 %;
@@ -110,6 +115,23 @@ class Numerics:
     merged_steps: int = 8
     precision: str = "mixed"
     strict: bool = False
+
+    #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of
+    #: ``tolerance_t``: their error then stays 10⁵ below the local error the scheme allows
+    #: per substep. Measured on examples/straight_mesh.toml (600 time units at dt = 10, against
+    #: per-box LU): 1e-6 moves centroids by 6e-5 and areas by 2.4e-4 for 0.7× the CPU of 1e-10,
+    #: 1e-5 by 1e-3 and 6e-3 (benchmarks/mesh_parity.py, docs/decisions/).
+    KRYLOV_FRACTION = 1e-5
+
+    @property
+    def krylov_tolerance(self) -> float:
+        """Relative tolerance of the batched Krylov solves (window systems and the meshes'
+        advection): ``tolerance`` for schemes at fixed dt, and under the adaptive scheme
+        the larger of ``tolerance`` and KRYLOV_FRACTION · ``tolerance_t`` (1e-6 at the
+        default), so the solves are as accurate as the step needs and no more."""
+        if self.scheme == "adaptive":
+            return max(self.tolerance, self.KRYLOV_FRACTION * self.tolerance_t)
+        return self.tolerance
 
     def __post_init__(self) -> None:
         if not isinstance(self.scheme, str):

@@ -29,6 +29,7 @@ import scipy.sparse as sp
 
 from femphase.config import Numerics
 from femphase.domains.layout import Layout
+from femphase.fem.blocks import BlockPattern, aligned_data, local_block
 from femphase.fem.operators import P1Operators
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow
@@ -55,6 +56,11 @@ class Domain(ABC):
     #: the structured channel's, whose tensor solves and row shifts have single-precision
     #: paths; meshes' LU and Padé solves are double only
     single_precision_steps: ClassVar[bool] = False
+    #: whether ``numerics.solver = "auto"`` solves all windows at once by a Krylov method on
+    #: their block-diagonal matrix (:mod:`femphase.fem.blocks`) rather than one solver per
+    #: window key: meshes, whose every box is its own submatrix, so a factorisation per box
+    #: would be built for one window and rebuilt whenever the box changes
+    batched_solves: ClassVar[bool] = False
     operators: P1Operators
     mesh: object          # the non-periodic skfem.MeshTri
     dof_map: np.ndarray   # (n_mesh_nodes,) the dof of every mesh node
@@ -196,6 +202,56 @@ class Domain(ABC):
         out[layout.order, 0] = self.x0 + (np.arctan2(sin, cos) % (2 * np.pi)) * self.period / (2 * np.pi)
         out[layout.order, 1] = layout.reduce(np.add, weight * y) / total
         return out
+
+    @cached_property
+    def block_pattern(self) -> sp.csr_matrix:
+        """The sparsity pattern of the P1 operators (mass ∪ stiffness, canonical CSR): every
+        matrix the windows solve with or the advection applies has its entries there."""
+        ops = self.operators
+        pattern = (abs(ops.mass) + abs(ops.stiffness)).tocsr()
+        pattern.sum_duplicates()
+        pattern.sort_indices()
+        pattern.data[:] = 1.0
+        return pattern
+
+    def aligned(self, matrix: sp.spmatrix) -> np.ndarray:
+        """``matrix``'s entries aligned to :attr:`block_pattern` (:func:`~femphase.fem.blocks.aligned_data`)."""
+        return aligned_data(matrix, self.block_pattern)
+
+    @cached_property
+    def _operator_data(self) -> dict[str, np.ndarray]:
+        return {"mass": self.aligned(self.operators.mass), "stiffness": self.aligned(self.operators.stiffness)}
+
+    @cached_property
+    def _window_blocks(self) -> dict:
+        return {}
+
+    def window_blocks(self, layout: Layout) -> BlockPattern:
+        """The block-diagonal map of ``layout``'s windows (:class:`~femphase.fem.blocks.BlockPattern`),
+        kept for the last layout only, built from per-window maps kept while their window
+        key is in the layout (most windows survive a refit)."""
+        cache = self._window_blocks
+        if cache.get("layout") is not layout:
+            known = cache.get("local", {})
+            local = {}
+            for group, (key, members, start, stop, size) in enumerate(layout.groups):
+                local[key] = known.get(key)
+                if local[key] is None:
+                    local[key] = local_block(self.block_pattern, self.window_dofs(layout.representative(group)))
+            cache.clear()
+            cache["layout"], cache["local"] = layout, local
+            cache["pattern"] = BlockPattern([local[key] for key, *_ in layout.groups],
+                                            [members.size for _, members, *_ in layout.groups])
+        return cache["pattern"]
+
+    def window_operator(self, layout: Layout, name: str) -> sp.csr_matrix:
+        """The block-diagonal matrix of every window's principal submatrix of the P1
+        operator ``name`` ("mass" or "stiffness"), for the last layout asked."""
+        pattern = self.window_blocks(layout)
+        cache = self._window_blocks
+        if name not in cache:
+            cache[name] = pattern.block(self._operator_data[name])
+        return cache[name]
 
     @cached_property
     def _stiffness_blocks(self) -> dict:

@@ -182,6 +182,9 @@ def make_solver(matrix: sp.spmatrix, method: str = "auto", tol: float = 1e-10):
                          '"auto", "direct" or "amg" here: this matrix has no tensor-product form '
                          "(the tensor solver needs the structured mesh with right or left diagonals "
                          "and the lumped mass)")
+    if method == "batched":
+        raise SceneError("numerics.solver", method, '"auto", "direct" or "amg" for one matrix: "batched" solves '
+                         "all windows at once (femphase.fem.blocks), not a matrix of its own")
     if method == "auto":
         method = "direct" if matrix.shape[0] <= DIRECT_MAX_DOFS else "amg"
     return DirectSolver(matrix) if method == "direct" else AMGSolver(matrix, tol)

@@ -29,6 +29,7 @@ from femphase.config import Numerics
 from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
 from femphase.errors import SceneError
+from femphase.fem.blocks import conjugate_gradient
 from femphase.flows import Flow, no_flow
 from femphase.model.energy import FreeEnergy, WindowedFields
 from femphase.model.parameters import ModelParameters
@@ -78,6 +79,11 @@ class Stepper:
         self._systems: dict = {}
         self._solvers: OrderedDict = OrderedDict()  # least recently used first
         self._cached_bytes = 0
+        #: whether window solves run on all windows at once (``numerics.solver`` "batched",
+        #: or "auto" on a domain with :attr:`~femphase.domains.base.Domain.batched_solves`)
+        self.batched = numerics.solver == "batched" or (numerics.solver == "auto" and domain.batched_solves)
+        #: CG iterations of the batched solves so far (a diagnostic)
+        self.krylov_iterations = 0
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.precision == "mixed" and not self.flow.is_still
@@ -136,6 +142,8 @@ class Stepper:
             rhs *= layout.mass_like(rhs)
         else:
             rhs = layout.mass * nodal_rhs
+        if self.batched:
+            return self._solve_batched(rhs, previous, layout, shift, stabilisation)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
@@ -146,6 +154,29 @@ class Stepper:
                 group_rhs = group_rhs + shift * (mass_block @ current)
             out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, current)
         return out
+
+    def _solve_batched(self, rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
+                       stabilisation: float) -> np.ndarray:
+        """All windows at once: Jacobi-preconditioned CG on the block-diagonal matrix of the
+        windows' systems, warm-started from the fields before the step."""
+        stiffness = self.domain.window_operator(layout, "stiffness")
+        lumped_part = (shift if self.lumped else 0.0) + self.mobility * stabilisation
+        weight = lumped_part * layout.mass
+        b = self.mobility * self.energy.diffusivity
+        diagonal = weight + b * stiffness.diagonal()
+        if self.lumped:
+            def apply(x: np.ndarray) -> np.ndarray:
+                return weight * x + b * (stiffness @ x)
+        else:
+            mass = self.domain.window_operator(layout, "mass")
+            rhs = rhs + shift * (mass @ previous)
+            diagonal = diagonal + shift * mass.diagonal()
+
+            def apply(x: np.ndarray) -> np.ndarray:
+                return shift * (mass @ x) + weight * x + b * (stiffness @ x)
+        solution, iterations = conjugate_gradient(apply, diagonal, rhs, previous, self.numerics.krylov_tolerance)
+        self.krylov_iterations += iterations
+        return solution.astype(previous.dtype, copy=False)
 
     #: Bytes of solvers kept (their ``nbytes`` and their consistent mass blocks',
     #: :func:`cached_bytes`; the least recently used are dropped first).

@@ -104,6 +104,7 @@ class MeshDomain(Domain):
     source: str = ""
     nominal_spacing: float | None = None
     kind = "mesh"
+    batched_solves = True
 
     @classmethod
     def from_mesh(

@@ -1,0 +1,107 @@
+"""The same suspension on the structured channel and on the unstructured straight mesh.
+
+examples/random.toml (N = 100 random discs, seed 1, 70 × 240) in Poiseuille flow u =
+4U y(Ly − y)/Ly² against examples/straight_mesh.toml (the same channel, N and seed, as an
+unstructured Delaunay mesh, in the Stokes flow of centre-line velocity U), both at the
+default scheme and dt = 10, relaxed for ``--relax`` time units and then run for ``--flow``
+time units of flow. Each run is its own process (peak memory is per process); the kinds
+alternate, ``--repeats`` times, and the ratios are mesh/grid within the same run:
+
+* CPU per time unit under flow (process CPU clock around the flow phase's steps);
+* peak resident memory of the whole process;
+* the mesh path with its previous solvers (``numerics.solver = "direct"``: an LU per box
+  and a complex LU per window for the advection) as a third kind, with ``--direct``.
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \\
+        python benchmarks/mesh_parity.py --relax 400 --flow 400 --repeats 2 --direct
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULT = Path(__file__).parent / "results" / "mesh_parity.json"
+SCENES = {
+    "grid": ("examples/random.toml", ["phases.1.name=\"flow\""], "poiseuille"),
+    "mesh": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0"], "stokes"),
+    "mesh_direct": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0",
+                                                    "numerics.solver=\"direct\""], "stokes"),
+}
+THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+def child(kind: str, relax: float, flow: float, velocity: float) -> dict:
+    """Run one kind in this process; its CPU per time unit under flow and peak memory."""
+    from femphase.run.simulation import Simulation
+    from femphase.scene import load_scene
+
+    path, sets, flow_type = SCENES[kind]
+    velocity_key = "rate" if flow_type == "poiseuille" else "max_velocity"
+    flow_table = f'{{type = "{flow_type}", {velocity_key} = {velocity}}}'
+    scene = load_scene(ROOT / path, [*sets, f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+                                      f"phases.1.flow={flow_table}", "output.fields=false"])
+    simulation = Simulation(scene)
+    state = scene.initial_state()
+    cpu = []
+    for phase in scene.phases:
+        stepper = simulation.stepper(phase, state.radii)
+        stepper.scheme.start_phase(state)
+        started = time.process_time()
+        stepper.step(state, phase.n_steps)
+        cpu.append(time.process_time() - started)
+        iterations = getattr(stepper, "krylov_iterations", 0)
+    return {"kind": kind, "relax_cpu_s": cpu[0], "flow_cpu_s": cpu[1], "flow_ms_per_time_unit": 1e3 * cpu[1] / flow,
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "window_cg_iterations": iterations,
+            "positions": int(sum(f.size for f in state.fields))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--relax", type=float, default=400.0, help="time units of relaxation (default 400)")
+    parser.add_argument("--flow", type=float, default=400.0, help="time units of flow (default 400)")
+    parser.add_argument("--velocity", type=float, default=0.1, help="centre-line velocity U (default 0.1)")
+    parser.add_argument("--repeats", type=int, default=1, help="alternations of the kinds (default 1)")
+    parser.add_argument("--direct", action="store_true", help="also the mesh with per-box LU solvers")
+    parser.add_argument("--child", choices=sorted(SCENES), help=argparse.SUPPRESS)
+    parser.add_argument("--output", type=Path, default=RESULT)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child, args.relax, args.flow, args.velocity)))
+        return
+    kinds = ["grid", "mesh"] + (["mesh_direct"] if args.direct else [])
+    runs = []
+    for repeat in range(args.repeats):
+        for kind in kinds:
+            command = [sys.executable, __file__, "--child", kind, "--relax", str(args.relax), "--flow",
+                       str(args.flow), "--velocity", str(args.velocity)]
+            out = subprocess.run(command, env={**os.environ, **THREADS}, capture_output=True, text=True, cwd=ROOT)
+            if out.returncode != 0:
+                raise SystemExit(f"{kind} failed:\n{out.stderr[-3000:]}")
+            runs.append({**json.loads(out.stdout.strip().splitlines()[-1]), "repeat": repeat})
+            print(json.dumps(runs[-1]), flush=True)
+
+    def ratio(kind: str, key: str) -> list[float]:
+        return [m[key] / g[key] for g in runs if g["kind"] == "grid"
+                for m in runs if m["kind"] == kind and m["repeat"] == g["repeat"]]
+
+    ratios = {kind: {"flow_cpu_per_time_unit": ratio(kind, "flow_ms_per_time_unit"), "peak_memory": ratio(kind, "peak_mb")}
+              for kind in kinds[1:]}
+    result = {"relax": args.relax, "flow": args.flow, "velocity": args.velocity, "runs": runs,
+              "ratios_to_grid": ratios, "targets": {"flow_cpu_per_time_unit": 3.0, "peak_memory": 2.0}}
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    for kind, values in ratios.items():
+        print(f"{kind}/grid: CPU per time unit under flow {', '.join(f'{v:.2f}' for v in values['flow_cpu_per_time_unit'])}; "
+              f"peak memory {', '.join(f'{v:.2f}' for v in values['peak_memory'])}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,123 @@
+"""All windows solved at once (femphase.fem.blocks): the block-diagonal matrix is the windows'
+principal submatrices, the Krylov solves reach their tolerance, and a mesh run with them
+agrees with per-window LU to within what the tolerance allows."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from test_unstructured import PARAMS, discs, straight
+
+from femphase.config import Numerics
+from femphase.domains.base import window_block
+from femphase.domains.mesh.advection import PADE_POLE, advection_matrix
+from femphase.fem.blocks import KrylovError, aligned_data, bicgstab, conjugate_gradient
+from femphase.flows import poiseuille
+from femphase.timestepping.stepper import Stepper
+
+
+@pytest.fixture(scope="module")
+def sheared():
+    """Two discs on a 40 × 40 Delaunay channel, their layout and a Poiseuille flow."""
+    domain = straight(40.0, 40.0)
+    state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
+    layout, phi = state.flat()
+    return domain, state, layout, phi
+
+
+def reference_blocks(matrix, domain, layout):
+    """scipy's block_diag of every window's principal submatrix, window by window."""
+    blocks = []
+    for group, (key, members, start, stop, size) in enumerate(layout.groups):
+        block = window_block(matrix, domain.window_dofs(layout.representative(group)))
+        blocks += [block] * members.size
+    return sp.block_diag(blocks, format="csr")
+
+
+def test_the_block_diagonal_matrix_holds_every_windows_principal_submatrix(sheared):
+    domain, _, layout, _ = sheared
+    for matrix in (domain.operators.stiffness, domain.operators.mass):
+        ours = domain.window_blocks(layout).block(domain.aligned(matrix))
+        reference = reference_blocks(matrix, domain, layout)
+        assert ours.shape == reference.shape == (layout.offsets[-1],) * 2
+        assert abs(ours - reference).max() == 0
+        assert ours.has_sorted_indices
+
+
+def test_a_matrix_outside_the_pattern_is_refused(sheared):
+    domain = sheared[0]
+    n = domain.n_dofs
+    far = sp.csr_matrix(([1.0], ([0], [n // 2])), shape=(n, n))
+    if domain.block_pattern[0, n // 2] == 0:
+        with pytest.raises(ValueError, match="outside the block pattern"):
+            aligned_data(far, domain.block_pattern)
+
+
+@pytest.mark.parametrize("tolerance", [1e-4, 1e-8, 1e-12])
+def test_cg_reaches_its_tolerance_on_the_window_systems(sheared, tolerance):
+    domain, _, layout, phi = sheared
+    stiffness = domain.window_operator(layout, "stiffness")
+    matrix = (sp.diags(layout.mass / 3.3) + 0.12 * stiffness).tocsr()  # a substep of 3.3
+    rhs = layout.mass * phi
+    exact = spla.spsolve(matrix.tocsc(), rhs)
+    solution, iterations = conjugate_gradient(matrix.dot, matrix.diagonal(), rhs, np.zeros_like(rhs), tolerance)
+    assert 0 < iterations < 60
+    # the stopping rule bounds the preconditioned residual; the error is that times κ (a few)
+    assert np.abs(solution - exact).max() <= 10 * tolerance * np.abs(rhs / matrix.diagonal()).max()
+    assert np.abs(solution - exact).max() > 1e-3 * tolerance * np.abs(exact).max() or tolerance == 1e-12
+
+
+def test_bicgstab_solves_the_complex_pade_systems(sheared):
+    domain, _, layout, phi = sheared
+    flow = poiseuille(1.0, 40.0)
+    data = domain.aligned(domain.operators.mass) - (3.3 / PADE_POLE) * domain.aligned(advection_matrix(domain, flow))
+    matrix = domain.window_blocks(layout).block(data)
+    rhs = (domain.window_operator(layout, "mass") @ phi).astype(complex)
+    exact = spla.spsolve(matrix.tocsc(), rhs)
+    solution, iterations = bicgstab(matrix.dot, matrix.diagonal(), rhs, phi.astype(complex), 1e-10)
+    assert iterations > 0
+    assert np.abs(solution - exact).max() < 1e-8
+
+
+def test_a_krylov_solve_that_cannot_converge_says_so(sheared):
+    domain, _, layout, phi = sheared
+    stiffness = domain.window_operator(layout, "stiffness")
+    with pytest.raises(KrylovError, match="did not reach"):
+        conjugate_gradient(stiffness.dot, stiffness.diagonal() + 1e-300, layout.mass * phi, np.zeros_like(phi),
+                           1e-14, maxiter=3)
+
+
+def sheared_run(numerics: Numerics, steps: int = 6):
+    domain = straight(40.0, 40.0)
+    state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
+    step = Stepper(domain, PARAMS, numerics, 3.0, poiseuille(1.0, 40.0), state.radii)
+    for _ in range(steps):
+        step.step(state)
+    return state, step
+
+
+def test_batched_solves_agree_with_per_window_lu_within_their_tolerance(monkeypatch):
+    direct, _ = sheared_run(Numerics(solver="direct"))
+    differences = {}
+    for fraction in (1e-4, 1e-6, 1e-8):
+        monkeypatch.setattr(Numerics, "KRYLOV_FRACTION", fraction)
+        batched, step = sheared_run(Numerics())
+        assert step.batched and not step._solvers and not step.advection._solvers  # nothing kept per window
+        differences[fraction] = np.abs(batched.flat()[1] - direct.flat()[1]).max()
+    # the difference follows the Krylov tolerance (fraction × tolerance_t 0.1), far below it
+    assert differences[1e-8] < differences[1e-6] < differences[1e-4] < 1e-3
+    assert differences[1e-8] < 1e-7
+
+
+def test_the_grid_can_batch_its_solves_too():
+    from helpers import small_system
+
+    runs = []
+    for numerics in (Numerics(scheme="sav2"), Numerics(scheme="sav2", solver="batched")):
+        disc, state = small_system([[20, 20]], length=40, width=40, initial_radius=4.0)
+        step = Stepper(disc, PARAMS, numerics, 1.0, None, state.radii)
+        assert step.batched == (numerics.solver == "batched")
+        for _ in range(5):
+            step.step(state)
+        runs.append(state.flat()[1])
+    assert np.abs(runs[0] - runs[1]).max() < 1e-8
