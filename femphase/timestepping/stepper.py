@@ -12,9 +12,11 @@ One step:
    naming the step, with the state untouched).
 
 Every window solves the principal submatrix of the full-domain system on its dofs (see
-:mod:`femphase.domains.layout`); solvers are built once per window key and system, and all
-windows of a key are solved in one multi-right-hand-side call; the solvers kept are bounded in
-memory (:attr:`Stepper.SOLVER_CACHE_BYTES`, least recently used dropped first).
+:mod:`femphase.domains.layout`). Either solvers are built once per window key and system,
+all windows of a key are solved in one multi-right-hand-side call, and the solvers kept are
+bounded in memory (:attr:`Stepper.SOLVER_CACHE_BYTES`, least recently used dropped first);
+or, batched (meshes), all windows are solved at once by CG on their block-diagonal matrix
+(:mod:`femphase.fem.blocks`).
 """
 
 from __future__ import annotations
@@ -178,12 +180,12 @@ class Stepper:
         self.krylov_iterations += iterations
         return solution.astype(previous.dtype, copy=False)
 
-    #: Bytes of solvers kept (their ``nbytes`` and their consistent mass blocks',
-    #: :func:`cached_bytes`; the least recently used are dropped first).
-    #: Windows come and go and the adaptive scheme changes its step size; on a mesh every
-    #: box is its own system, whose LU costs ~2 MB resident per ~1000 dofs: keeping 4096
-    #: solvers took examples/obstacle_mesh.toml to 13 GB by step 5700.
-    #: The structured channel's tensor solvers are ~10 kB each.
+    #: Bytes of per-window-key solvers kept (their ``nbytes`` and their consistent mass
+    #: blocks', :func:`cached_bytes`; the least recently used are dropped first). Windows
+    #: come and go and the adaptive scheme changes its step size; the structured channel's
+    #: tensor solvers are ~10 kB each, but a mesh box's LU (``numerics.solver = "direct"``)
+    #: ~2 MB per ~1000 dofs: keeping 4096 of them took examples/obstacle_mesh.toml to 13 GB.
+    #: Batched solves keep no solver (:mod:`femphase.fem.blocks`).
     SOLVER_CACHE_BYTES = 256 * 2**20
 
     def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
