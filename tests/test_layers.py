@@ -26,7 +26,7 @@ LAYERS = (
     ("scene",),                                 # what to simulate, validated
     ("io",),                                    # run directories written and read back
     ("run",),                                   # the phase loop and its trackers
-    ("sweep", "aggregate", "compare", "oscillations", "plot"),  # applications
+    ("sweep", "converge", "aggregate", "compare", "oscillations", "plot"),  # applications
     ("cli",),                                   # the command line; argparse lives here only
     ("testing",),                               # harnesses for tests/ and benchmarks/
 )

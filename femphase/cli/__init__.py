@@ -7,9 +7,10 @@
     femphase plot DIR [-o OUT] [--ode-rate R] [--ode-k K]
     femphase compare DIR_A DIR_B [-o OUT] [--fields]
     femphase ode --rate R -o OUT
+    femphase converge SCENE.toml -o DIR --h 1,0.5,0.25 | --tolerance-t … | --dt … [--observable …]
 
 One module per command (:mod:`femphase.cli.run`, ``sweep``, ``aggregate``, ``plot``,
-``compare``, ``ode``), each with ``register(subparsers)`` and ``run(args)``; argparse lives
+``compare``, ``ode``, ``converge``), each with ``register(subparsers)`` and ``run(args)``; argparse lives
 here only.
 
 Exit codes: 0 done; 2 bad input (a scene key or value, a command-line value, a run directory
@@ -36,7 +37,7 @@ import traceback
 import warnings
 
 from femphase import __version__
-from femphase.cli import aggregate, compare, ode, plot, run, sweep
+from femphase.cli import aggregate, compare, converge, ode, plot, run, sweep
 from femphase.cli.console import console_handler
 from femphase.errors import BlowUpError, FemphaseError, Interrupted
 
@@ -46,7 +47,7 @@ __all__ = ["COMMANDS", "build_parser", "main"]
 LOGGER = logging.getLogger("femphase")
 
 #: The subcommands, in the order ``femphase --help`` lists them.
-COMMANDS = (run, ode, compare, plot, sweep, aggregate)
+COMMANDS = (run, ode, compare, plot, sweep, aggregate, converge)
 
 
 def build_parser() -> argparse.ArgumentParser:

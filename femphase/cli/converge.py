@@ -1,0 +1,91 @@
+"""``femphase converge SCENE.toml --h 1,0.5,0.25 -o DIR``: a convergence study in one command
+(:mod:`femphase.converge`)."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+__all__ = ["register", "run"]
+
+#: Refinement options: attribute of the parsed arguments → parameter name.
+REFINED = {"h": "h", "tolerance_t": "tolerance_t", "dt": "dt"}
+
+
+def _numbers(text: str) -> list[float]:
+    try:
+        values = [float(item) for item in text.split(",") if item.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers, e.g. 1,0.5,0.25")
+    if not values:
+        raise argparse.ArgumentTypeError("give at least one number")
+    return values
+
+
+def run(args: argparse.Namespace) -> int:
+    """`femphase converge`: run (or continue) the study, then print its table."""
+    from femphase.converge import PARAMETERS, ConvergenceError, run_convergence
+
+    given = {name: getattr(args, name) for name in REFINED if getattr(args, name) is not None}
+    refined = [name for name, values in given.items() if len(values) > 1]
+    if len(refined) != 1:
+        raise ConvergenceError("--h/--tolerance-t/--dt", ", ".join(f"--{n.replace('_', '-')}" for n in refined) or "none",
+                               "exactly one option with two or more values (the refined parameter); the others "
+                               "take one value, which every run uses")
+    parameter = refined[0]
+    fixed = []  # the options with one value: --set assignments of every run
+    for name, values in given.items():
+        if name == "dt" and name != parameter:
+            from femphase.scene import load_scene
+
+            fixed += [f"phases.{k}.dt={values[0]!r}" for k in range(len(load_scene(args.scene).phases))]
+        elif name != parameter:
+            fixed.append(f"{PARAMETERS[name][0]}={values[0]!r}")
+    observables = [name.strip() for name in args.observable.split(",") if name.strip()]
+    try:
+        result = run_convergence(args.scene, args.output, parameter, given[parameter], observables,
+                                 [*fixed, *args.set], expected_order=args.order, workers=args.workers,
+                                 scheduler=args.scheduler, log=lambda line: print(line, flush=True))
+    except KeyboardInterrupt:
+        print(f"femphase converge: interrupted; rerun the same command to continue ({args.output})", file=sys.stderr)
+        return 130
+    print(f"\n{'observable':<16} {'order':>7} {'limit':>14} {'± error bar':>12}   error of each run ({parameter} = "
+          + ", ".join(f"{level['s']:g}" for level in result["levels"]) + ")")
+    for name, estimate in result["estimates"].items():
+        errors = ", ".join("nan" if math.isnan(e) else f"{e:.3g}" for e in estimate.errors)
+        order = f"{estimate.order:.2f}" + ("" if estimate.order_observed else "*")
+        print(f"{name:<16} {order:>7} {estimate.limit:>14.6g} {estimate.error_bar:>12.3g}   {errors}"
+              + (f"  ({estimate.note})" if estimate.note else ""))
+    assumed = any(not estimate.order_observed for estimate in result["estimates"].values())
+    print(("(* assumed, not observed)  " if assumed else "") + f"tables: {Path(args.output) / 'convergence.csv'}, "
+          "convergence.nc; figure: convergence.png")
+    return 0
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    """Add the `converge` subcommand to the femphase command line."""
+    parser = subparsers.add_parser(
+        "converge", help="a convergence study: runs at several h, dt or tolerances, order and extrapolated limit",
+        description="Run a scene at several resolutions (on Dask, resumable), and report per observable the "
+                    "values, the observed order, the Richardson-extrapolated limit with its error bar and each "
+                    "run's error (convergence.csv, convergence.nc, convergence.png in the output directory).")
+    parser.add_argument("scene", help="scene file (TOML)")
+    parser.add_argument("-o", "--output", required=True, help="study directory (rerun the command to continue it)")
+    parser.add_argument("--h", type=_numbers, default=None, metavar="H1,H2,...",
+                        help="mesh spacings (domain.h, lattice units), e.g. 1,0.5,0.25")
+    parser.add_argument("--tolerance-t", dest="tolerance_t", type=_numbers, default=None, metavar="T1,T2,...",
+                        help="the adaptive scheme's tolerances (numerics.tolerance_t), e.g. 0.1,0.01,0.001")
+    parser.add_argument("--dt", type=_numbers, default=None, metavar="DT1,DT2,...",
+                        help="every phase's time step (time units), e.g. 10,5,2.5")
+    parser.add_argument("--observable", default="mean_elongation",
+                        help="comma-separated: period, mean_elongation, area, separation (default mean_elongation)")
+    parser.add_argument("--order", type=float, default=2.0,
+                        help="the order assumed when only two levels are given (default 2)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="override a scene value in every run, e.g. --set phases.1.duration=2000")
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, help="worker processes (default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS", help="a running Dask scheduler")
+    parser.set_defaults(func=run)

@@ -1,0 +1,275 @@
+"""Convergence studies as one command: a scene at several resolutions, its observables'
+observed order, Richardson-extrapolated limit with an error bar, and each run's error.
+
+    femphase converge SCENE.toml --h 1,0.5,0.25 -o DIR [--observable period,area]
+    femphase converge SCENE.toml --tolerance-t 0.1,0.01,0.001 -o DIR
+    femphase converge SCENE.toml --dt 10,5,2.5 -o DIR
+
+**The refinement.** One parameter s takes two or more values: the spacing ``domain.h``
+(spatial), the adaptive scheme's ``numerics.tolerance_t`` or every phase's ``dt``
+(temporal). The study is an ordinary sweep (:mod:`femphase.sweep`) over that key, run on
+Dask and resumable: DIR holds ``sweep.toml`` (the study as a sweep file), ``sweep.json`` and
+``runs/<id>/``; rerunning the command continues it, and added values add runs.
+
+**The analysis** (:func:`richardson`), per observable f, with levels ordered coarse to fine
+and a constant ratio r = s_k/s_{k+1} > 1:
+
+* observed order p = log(|f₁ − f₂| / |f₂ − f₃|) / log r from the three finest levels
+  (f₁ the coarsest of them); with two levels, p is the ``expected_order``;
+* limit f∞ = f₃ + (f₃ − f₂)/(r^p − 1) (Richardson);
+* error bar: Roache's grid convergence index, F·|f₃ − f₂|/(r^p − 1), with the safety
+  factor F = 1.25 when p is observed and 3 when it is assumed;
+* each run's error f_k − f∞.
+
+The limit is not reported (NaN, with the reason) when the differences change sign
+(oscillatory convergence) or p ≤ 0 (divergence): the levels are not in the asymptotic
+range and a finer one is needed.
+
+**Observables** (:data:`OBSERVABLES`), all from the run directories:
+
+* ``period``: period of the bulk-mean elongation r̄(t) in the last phase
+  (:func:`femphase.oscillations.measured_period`), time units;
+* ``mean_elongation``: r averaged over particles and over the last phase's averaging
+  window (the last fifth of its frames), dimensionless;
+* ``area``: mean particle area ∫φ² at the last frame, lattice units²;
+* ``separation``: centroid distance of a two-particle scene at the last frame (minimum
+  image in x), lattice units.
+
+**Outputs** in DIR: ``convergence.csv`` (one row per observable and level: s, value,
+error against the limit, CPU seconds; and per observable the order, limit and error bar),
+``convergence.nc`` (the same as an xarray Dataset over ``observable`` × ``level``) and
+``convergence.png`` (|error| against s and against CPU seconds: the work–precision plot).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from femphase.errors import SceneError
+from femphase.io.files import atomic_write
+from femphase.io.reader import RunData, open_run
+from femphase.tomlio import toml_value
+
+__all__ = ["OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "richardson", "run_convergence",
+           "study_sweep"]
+
+#: Refinement parameters: command-line name → (scene key, its unit).
+PARAMETERS = {"h": ("domain.h", "lattice units"), "tolerance_t": ("numerics.tolerance_t", "dimensionless"),
+              "dt": ("phases.*.dt", "time units")}
+
+
+class ConvergenceError(SceneError):
+    """A convergence study that cannot be run or analysed as asked (names the option)."""
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """What a study says about one observable (see the module docstring)."""
+
+    order: float
+    order_observed: bool
+    limit: float
+    error_bar: float
+    errors: tuple[float, ...]
+    note: str = ""
+
+
+def richardson(spacings: list[float], values: list[float], expected_order: float = 2.0) -> Estimate:
+    """Observed order, Richardson limit, error bar and errors of ``values`` measured at
+    ``spacings`` (any order; a constant refinement ratio is required)."""
+    order_of = np.argsort(spacings)[::-1]  # coarse to fine
+    s = np.asarray(spacings, dtype=float)[order_of]
+    f = np.asarray(values, dtype=float)[order_of]
+    if s.size < 2:
+        raise ConvergenceError("levels", list(spacings), "at least two values of the refined parameter")
+    ratios = s[:-1] / s[1:]
+    if not np.allclose(ratios, ratios[0], rtol=1e-6) or ratios[0] <= 1:
+        raise ConvergenceError("levels", list(spacings), "values with a constant refinement ratio > 1, e.g. 1,0.5,0.25")
+    r = float(ratios[0])
+    nan = (math.nan,) * s.size
+    if not np.all(np.isfinite(f)):
+        return Estimate(math.nan, False, math.nan, math.nan, nan, "an observable could not be measured in every run")
+    observed = s.size >= 3
+    if observed:
+        coarse, fine = f[-3] - f[-2], f[-2] - f[-1]
+        if fine == 0 and coarse == 0:
+            return Estimate(math.inf, True, float(f[-1]), 0.0, tuple(np.zeros(s.size)[np.argsort(order_of)]),
+                            "identical at the finest levels")
+        if coarse * fine <= 0 or fine == 0:
+            return Estimate(math.nan, True, math.nan, math.nan, nan,
+                            "the differences change sign: not in the asymptotic range (refine further)")
+        order = math.log(abs(coarse / fine)) / math.log(r)
+        if order <= 0:
+            return Estimate(order, True, math.nan, math.nan, nan, "the differences grow as s falls: divergent")
+    else:
+        order = float(expected_order)
+    scale = r**order - 1.0
+    limit = float(f[-1] + (f[-1] - f[-2]) / scale)
+    error_bar = (1.25 if observed else 3.0) * abs(f[-1] - f[-2]) / scale
+    errors = np.empty(s.size)
+    errors[order_of] = f - limit
+    return Estimate(float(order), observed, limit, float(error_bar), tuple(float(e) for e in errors))
+
+
+def _period(run: RunData) -> float:
+    from femphase.oscillations import measured_period
+
+    period = measured_period(run, t_from=run.shear_start)
+    return math.nan if period is None else float(period)
+
+
+def _mean_elongation(run: RunData) -> float:
+    from femphase.aggregate import averaging_window
+
+    window = averaging_window(run.time, run.info["settings"]["phases"])
+    return float(np.mean(run.elongation[window])) if window.size else math.nan
+
+
+def _area(run: RunData) -> float:
+    return float(np.mean(run.particles["area"][-1]))
+
+
+def _separation(run: RunData) -> float:
+    if run.n_particles != 2:
+        raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {run.n_particles})")
+    period = float(run.scene["domain"].get("Lx", 0.0)) or run.domain.period
+    dx = (run.x[-1, 1] - run.x[-1, 0] + period / 2) % period - period / 2
+    return float(np.hypot(dx, run.y[-1, 1] - run.y[-1, 0]))
+
+
+#: Observables a study can measure: name → (function of a run, unit).
+OBSERVABLES: dict[str, tuple[Callable[[RunData], float], str]] = {
+    "period": (_period, "time units"),
+    "mean_elongation": (_mean_elongation, "dimensionless"),
+    "area": (_area, "lattice units²"),
+    "separation": (_separation, "lattice units"),
+}
+
+
+def study_sweep(scene: Path, parameter: str, values: list[float], phases: int) -> str:
+    """The sweep file (TOML text) of a study: ``scene`` and the axis of ``parameter``
+    (every phase's dt, zipped, for "dt")."""
+    if parameter not in PARAMETERS:
+        raise ConvergenceError("parameter", parameter, f"one of {sorted(PARAMETERS)}")
+    key = PARAMETERS[parameter][0]
+    keys = [f"phases.{k}.dt" for k in range(phases)] if parameter == "dt" else [key]
+    lines = ["# femphase converge: the study's runs (a sweep file, docs/sweeps.md)", "[sweep]",
+             f"scene = {toml_value(str(Path(scene).resolve()))}", f'mode = "{"zip" if len(keys) > 1 else "product"}"',
+             "", "[axes]"]
+    lines += [f'"{k}" = {toml_value([float(v) for v in values])}' for k in keys]
+    return "\n".join(lines) + "\n"
+
+
+def analyse(directory: Path, parameter: str, observables: list[str], expected_order: float = 2.0) -> dict:
+    """Read a study's runs and estimate every observable; writes convergence.csv, .nc and
+    .png into ``directory`` and returns the estimates."""
+    index = json.loads((directory / "sweep.json").read_text())
+    keys = list(index["axes"])
+    levels = []
+    for entry in index["runs"]:
+        run = open_run(directory / entry["directory"])
+        info = run.info
+        levels.append({"s": float(entry["values"][keys[0]]), "run": entry["id"],
+                       "cpu_s": float(info.get("cpu_time_s", math.nan)),
+                       **{name: OBSERVABLES[name][0](run) for name in observables}})
+    levels.sort(key=lambda level: -level["s"])
+    spacings = [level["s"] for level in levels]
+    estimates = {name: richardson(spacings, [level[name] for level in levels], expected_order)
+                 for name in observables}
+    _write_tables(directory, parameter, levels, estimates)
+    _plot(directory / "convergence.png", parameter, levels, estimates)
+    return {"parameter": parameter, "levels": levels, "estimates": estimates}
+
+
+def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:
+    import xarray as xr
+
+    buffer = io.StringIO()
+    out = csv.writer(buffer, lineterminator="\n")
+    out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "order", "order_observed",
+                  "limit", "error_bar", "note"])
+    for name, estimate in estimates.items():
+        unit = OBSERVABLES[name][1]
+        for level, error in zip(levels, estimate.errors):
+            out.writerow([name, unit, repr(level["s"]), level["run"], repr(level[name]), repr(error),
+                          f"{level['cpu_s']:.3f}", "", "", "", "", ""])
+        out.writerow([name, unit, "limit", "", "", "", "", repr(estimate.order), estimate.order_observed,
+                      repr(estimate.limit), repr(estimate.error_bar), estimate.note])
+    atomic_write(directory / "convergence.csv", buffer.getvalue())
+    names = list(estimates)
+    dataset = xr.Dataset(
+        {"value": (("observable", "level"), [[level[n] for level in levels] for n in names]),
+         "error": (("observable", "level"), [list(estimates[n].errors) for n in names]),
+         "cpu_s": ("level", [level["cpu_s"] for level in levels]),
+         "order": ("observable", [estimates[n].order for n in names]),
+         "limit": ("observable", [estimates[n].limit for n in names]),
+         "error_bar": ("observable", [estimates[n].error_bar for n in names])},
+        coords={"observable": names, "level": np.arange(len(levels)), parameter: ("level", [lv["s"] for lv in levels]),
+                "unit": ("observable", [OBSERVABLES[n][1] for n in names])},
+        attrs={"format": "femphase-convergence", "parameter": parameter,
+               "note": "error = value − limit (Richardson); error_bar: grid convergence index"})
+    path = directory / "convergence.nc"
+    temporary = path.with_suffix(".nc.tmp")
+    dataset.to_netcdf(temporary, engine="h5netcdf")
+    temporary.replace(path)
+
+
+def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:
+    from femphase.plot.figures import pyplot, save
+
+    plt = pyplot()
+    fig, (by_s, by_cpu) = plt.subplots(1, 2, figsize=(9, 3.6))
+    s = np.array([level["s"] for level in levels])
+    cpu = np.array([level["cpu_s"] for level in levels])
+    for name, estimate in estimates.items():
+        error = np.abs(np.asarray(estimate.errors))
+        if not np.any(np.isfinite(error) & (error > 0)):
+            continue
+        label = f"{name} (p = {estimate.order:.2f})"
+        by_s.loglog(s, error, "o-", label=label)
+        by_cpu.loglog(cpu, error, "o-", label=label)
+    by_s.set_xlabel(parameter)
+    by_cpu.set_xlabel("CPU seconds")
+    for ax in (by_s, by_cpu):
+        ax.set_ylabel("|value − Richardson limit|")
+        ax.grid(True, which="both", alpha=0.3)
+    by_s.legend(fontsize=8)
+    fig.tight_layout()
+    save(fig, path)
+
+
+def run_convergence(scene: str | Path, directory: str | Path, parameter: str, values: list[float],
+                    observables: list[str], assignments: list[str] = (), *, expected_order: float = 2.0,
+                    workers: int | None = None, scheduler: str | None = None, client=None,
+                    log: Callable[[str], None] = print) -> dict:
+    """Run (or continue) a convergence study of ``scene`` into ``directory`` and analyse it
+    (module docstring); ``assignments`` are ``--set KEY=VALUE`` overrides of every run.
+    Returns what :func:`analyse` returns."""
+    from femphase.scene import load_scene
+    from femphase.sweep import run_sweep
+
+    unknown = [name for name in observables if name not in OBSERVABLES]
+    if unknown or not observables:
+        raise ConvergenceError("--observable", ",".join(unknown) or "(none)", f"names from {sorted(OBSERVABLES)}")
+    if len(values) < 2 or any(not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0) for v in values):
+        raise ConvergenceError(f"--{parameter.replace('_', '-')}", values, "two or more numbers > 0, e.g. 1,0.5,0.25")
+    phases = len(load_scene(scene).phases)
+    directory = Path(directory)
+    with tempfile.TemporaryDirectory() as scratch:  # the sweep keeps its own copy, DIR/sweep.toml
+        sweep_file = Path(scratch) / "converge.toml"
+        sweep_file.write_text(study_sweep(Path(scene), parameter, values, phases))
+        index = run_sweep(sweep_file, directory, client, assignments=list(assignments), scheduler=scheduler,
+                          workers=workers, log=log)
+    failed = [run["id"] for run in index["runs"] if run["status"] != "done"]
+    if failed:
+        raise ConvergenceError("runs", failed, "every run done (rerun the command to continue the study)")
+    return analyse(directory, parameter, observables, expected_order)

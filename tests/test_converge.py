@@ -1,0 +1,111 @@
+"""femphase converge: Richardson analysis on manufactured values, and a real study end to end."""
+
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from femphase.converge import ConvergenceError, richardson, run_convergence
+
+DISC = """
+name = "disc relaxing from R/2"
+[domain]
+Lx = 40.0
+Ly = 40.0
+h = 1.0
+[particles]
+layout = "list"
+centres = [[20.0, 20.0]]
+initial_radius = 4.0
+[output]
+fields = false
+[[phases]]
+name = "relax"
+duration = 20.0
+dt = 1.0
+frame_interval = 10.0
+"""
+
+
+def test_richardson_recovers_a_manufactured_limit_and_order():
+    h = [1.0, 0.5, 0.25]
+    f = [3.0 + 0.5 * x**2 + 0.1 * x**3 for x in h]
+    estimate = richardson(h, f)
+    assert estimate.order_observed and 2.0 < estimate.order < 2.3
+    assert abs(estimate.limit - 3.0) < estimate.error_bar  # the bar holds the true limit
+    assert estimate.error_bar < 0.05  # 1.25 × the finest difference over (2^p − 1)
+    np.testing.assert_allclose(estimate.errors, np.array(f) - estimate.limit)
+    # the order is that of the refined quantity whatever the levels' order in the input
+    assert richardson(h[::-1], f[::-1]).limit == pytest.approx(estimate.limit)
+
+
+def test_two_levels_assume_the_order_with_a_wider_bar():
+    observed = richardson([1.0, 0.5, 0.25], [3.5, 3.125, 3.03125])
+    assumed = richardson([0.5, 0.25], [3.125, 3.03125], expected_order=2.0)
+    assert not assumed.order_observed and assumed.order == 2.0
+    assert assumed.limit == pytest.approx(3.0) and observed.limit == pytest.approx(3.0)
+    assert assumed.error_bar == pytest.approx(observed.error_bar * 3 / 1.25)
+
+
+def test_oscillating_or_diverging_levels_give_no_limit_and_say_why():
+    oscillating = richardson([1.0, 0.5, 0.25], [3.0, 3.1, 3.05])
+    assert math.isnan(oscillating.limit) and "change sign" in oscillating.note
+    diverging = richardson([1.0, 0.5, 0.25], [3.0, 3.1, 3.3])
+    assert math.isnan(diverging.limit) and "divergent" in diverging.note
+
+
+def test_levels_without_a_constant_ratio_are_refused():
+    with pytest.raises(ConvergenceError, match="constant refinement ratio"):
+        richardson([1.0, 0.5, 0.3], [1.0, 2.0, 3.0])
+    with pytest.raises(ConvergenceError, match="at least two"):
+        richardson([1.0], [1.0])
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    root = tmp_path_factory.mktemp("converge")
+    scene = root / "disc.toml"
+    scene.write_text(DISC)
+    result = run_convergence(scene, root / "study", "h", [2.0, 1.0, 0.5], ["area"], workers=1, log=lambda line: None)
+    return root, result
+
+
+def test_a_spatial_study_of_a_relaxing_disc_converges(study):
+    _, result = study
+    area = result["estimates"]["area"]
+    errors = np.abs(area.errors)
+    assert errors[0] > errors[1] > errors[2]  # h = 2, 1, 0.5
+    assert 1.5 < area.order < 4.5  # P1: second order, with the profile's pinning at h = λ on top
+    values = [level["area"] for level in result["levels"]]
+    assert abs(area.limit - values[-1]) < abs(values[-1] - values[-2])
+
+
+def test_the_tables_hold_what_the_analysis_found_and_a_rerun_continues(study):
+    import xarray as xr
+
+    root, result = study
+    rows = (root / "study" / "convergence.csv").read_text().splitlines()
+    assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,order")
+    assert len(rows) == 1 + 3 + 1
+    dataset = xr.open_dataset(root / "study" / "convergence.nc", engine="h5netcdf")
+    np.testing.assert_allclose(dataset["limit"].sel(observable="area"), result["estimates"]["area"].limit)
+    np.testing.assert_allclose(dataset["h"], [2.0, 1.0, 0.5])
+    assert (root / "study" / "convergence.png").stat().st_size > 1000
+    lines = []
+    again = run_convergence(root / "disc.toml", root / "study", "h", [2.0, 1.0, 0.5], ["area"], workers=1,
+                            log=lines.append)
+    assert "3 done, 0 to run" in lines[0]
+    assert again["estimates"]["area"].limit == result["estimates"]["area"].limit
+
+
+def test_the_command_refuses_two_refined_parameters_and_unknown_observables(tmp_path):
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    command = [sys.executable, "-m", "femphase.cli", "converge", str(scene), "-o", str(tmp_path / "s")]
+    both = subprocess.run(command + ["--h", "1,0.5", "--dt", "1,0.5"], capture_output=True, text=True)
+    assert both.returncode == 2 and "exactly one option with two or more values" in both.stderr
+    unknown = subprocess.run(command + ["--h", "1,0.5", "--observable", "volume"], capture_output=True, text=True)
+    assert unknown.returncode == 2 and "volume" in unknown.stderr and "separation" in unknown.stderr
+    assert not (tmp_path / "s" / "runs").exists()
