@@ -27,8 +27,8 @@ range and a finer one is needed.
 
 **Observables** (:data:`OBSERVABLES`), all from the run directories:
 
-* ``period``: period of the bulk-mean elongation r̄(t) in the last phase
-  (:func:`femphase.oscillations.measured_period`), time units;
+* ``period``: period of the bulk-mean elongation r̄(t) under flow, its first quarter
+  discarded as transient (:func:`femphase.oscillations.measured_period`), time units;
 * ``mean_elongation``: r averaged over particles and over the last phase's averaging
   window (the last fifth of its frames), dimensionless;
 * ``area``: mean particle area ∫φ² at the last frame, lattice units²;
@@ -123,7 +123,7 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
 def _period(run: RunData) -> float:
     from femphase.oscillations import measured_period
 
-    period = measured_period(run, t_from=run.shear_start)
+    period = measured_period(run)  # the first quarter of the last phase is discarded as transient
     return math.nan if period is None else float(period)
 
 
