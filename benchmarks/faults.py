@@ -1,4 +1,4 @@
-"""Fault counts: kills and resumes of a real run, and bad inputs (issue 11).
+"""Fault counts: kills and resumes of a real run, and bad inputs.
 
     python benchmarks/faults.py [--kills 40] [--seed 0]
 

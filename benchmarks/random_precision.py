@@ -12,7 +12,7 @@ sheared from that state for ``--shear-time`` time units at each rate by
 * the reference: sav2 at fixed dt = 0.125 (second order), checked against sav2 at dt = 0.25
   (their difference bounds the reference's own error: ~1/4 of it);
 * the adaptive scheme (outer step 10) at tolerances 1e-1 (the default), 3e-2, 1e-2, 3e-3,
-  and the default before session 8 (1e-2, the repulsion not split off).
+  and the adaptive scheme at 1e-2 with the repulsion not split off.
 
 Errors of the elongation r of every particle at every 10 time units, relative to the
 reference's largest r: the largest over particles and frames, and the median. Over
@@ -47,7 +47,7 @@ from femphase.run.simulation import Simulation
 RESULTS = Path(__file__).parent / "results"
 FRAME = 10.0
 TOLERANCES = (1e-1, 3e-2, 1e-2, 3e-3)
-#: (tolerance_t, repulsion_split) of the default before the repulsion was split off (session 8)
+#: (tolerance_t, repulsion_split) of the adaptive scheme with the repulsion not split off
 FORMER_DEFAULT = (1e-2, False)
 REFERENCE_DT, CHECK_DT = 0.125, 0.25
 RELAXATION_TOLERANCES, RELAXATION_REFERENCE_DT = (1e-1, 3e-2, 1e-2, 1e-3), 0.25
@@ -88,7 +88,7 @@ def report(result: dict) -> str:
                      f"{100 * check['errors']['max']:.2g} %", f"{100 * check['errors']['median']:.2g} %"])
         for row in entry["adaptive"]:
             name = (f"adaptive, tolerance_t {row['tolerance_t']:g}"
-                    + ("" if row.get("repulsion_split", False) else ", repulsion unsplit (the default before session 8)")
+                    + ("" if row.get("repulsion_split", False) else ", repulsion unsplit")
                     + (" **(default)**" if row["default"] else ""))
             rows.append([rate, name, f"{row['substeps']} ({row['rejected']})", f"{row['seconds']:.1f}",
                          f"{100 * row['errors']['max']:.2g} %", f"{100 * row['errors']['median']:.2g} %"])

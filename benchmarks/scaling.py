@@ -9,17 +9,17 @@
   sheared at the paper's velocity gradient (u = 0.1487·y/240 whatever Ly):
   ``euler_ms_per_step``, the first-order scheme at dt = 1 (median over ``STEPS`` steps);
   ``default_ms_per_time_unit``, the default scheme (numerics defaults, outer step
-  ``FRAME``, in calls of ``common.EXAMPLE_CALL`` steps as the examples take them, since
-  session 12) over ``SHEAR_TIME`` time units; ``frame_ms``, a frame with every observable
+  ``FRAME``, in calls of ``common.EXAMPLE_CALL`` steps as the examples take them) over
+  ``SHEAR_TIME`` time units; ``frame_ms``, a frame with every observable
   (shape, energy, order) and the field data of fields.xdmf (`femphase.io.fields.point_data`).
   Frames compute energies and field data window by window, so they should grow linearly
-  in N (before the one-core redesign they built dense N × nodes arrays: ~10 GB at N = 1600).
+  in N (dense N × nodes arrays would take ~10 GB at N = 1600).
 * h = 2, 1, 0.5 for the paper's N = 100 scene, first-order scheme at dt = 1.
 
 ``--repeats R``: every size R times, in the order 100, 400, 1600, 1600, 400, 100, …; the
 rows are the medians (peak memory: the largest). On this shared machine one run's exponent
-moves by ±0.05 with the load (session 11: 1.03, 1.08, 1.09 for the same code), as much as
-the gap to issue 12's target.
+moves by ±0.05 with the load (1.03, 1.08, 1.09 for the same code in three runs), as much
+as the gap between N^1.0 and N^1.05.
 
 The first shear step (factorisations) is not timed. Times are CPU seconds of the process
 (less disturbed by the other processes on the shared machine than wall time). Exponents
@@ -56,7 +56,7 @@ RESULTS = Path(__file__).parent / "results"
 PAPER_RATE, PAPER_LY = 0.1487, 240.0
 PROFILE_STEPS = 300
 SIZES = (100, 400, 1600)
-#: SHEAR_TIME: 1000 time units since session 15; over 100 (300 ms of N = 100's shear) the
+#: SHEAR_TIME: 1000 time units; over 100 (300 ms of N = 100's shear) the
 #: medians of three of N = 100 ranged over 0.73–1.18 ms per time unit between runs and the
 #: exponent over 1.06–1.17, where 1000 gave 1.18 and 1.30 at N = 100 and 21.4 and 21.3 at
 #: N = 1600 in interleaved runs (N^1.03)

@@ -7,7 +7,7 @@
 
 Schemes: ``fem-adaptive`` (the default: error-controlled second-order substeps, dt = the
 largest), ``fem-sav2`` (second order at fixed dt), ``fem-euler`` (first order, lumped mass,
-stabilisation "auto"; the default before issue 12), ``fem-consistent`` (first order,
+stabilisation "auto"), ``fem-consistent`` (first order,
 consistent mass, "auto"), ``fem-S0`` (first order, lumped, stabilisation 0) and ``fd`` (the
 paper's explicit Heun scheme, :mod:`femphase.timestepping.fd`; its constructor refuses a dt above its
 stability limit, which is recorded as outcome "rejected"). The accuracy sweep

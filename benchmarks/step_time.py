@@ -88,7 +88,7 @@ def time_steps(windows: bool, steps: int) -> dict:
             "dofs_per_particle": float(np.mean([f.size for f in state.fields]))}
 
 
-EXAMPLE_CALL = common.EXAMPLE_CALL  # here too: redesign_step_time.py recognises a session-12 tree by it
+EXAMPLE_CALL = common.EXAMPLE_CALL
 
 
 def per_time_unit(dt: float, shear_time: float, steps_per_call: int = 1, **numerics) -> float:

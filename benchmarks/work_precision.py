@@ -26,7 +26,7 @@ defaults (h = 1, dt = 1, lumped mass, right diagonals, windows, direct solver) a
 reference at the paper's h = 1, dt = 0.1: ``speedup_vs_fd`` is the ratio of their times
 when every FEM error of the lattice (r(t) and period) is at most the FD's; otherwise the
 cheapest FEM point at or below the FD's errors is used (both are reported). These two
-sweeps run the first-order scheme ``euler`` (the default before issue 12) unless a point
+sweeps run the first-order scheme ``euler`` unless a point
 says otherwise, so the time scheme's order is not a variable there. Every point lists the
 command that reproduces it (``femphase run`` on examples/single.toml or
 examples/hexagonal.toml with ``--set``).
@@ -364,12 +364,12 @@ def report(result: dict) -> str:
 SCHEME_POINTS = ([Point("lattice", "fem", 1.0, dt, {"scheme": "euler"}) for dt in (1.0, 0.5, 0.25, 0.1)]
                  + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2"}) for dt in (5.0, 2.5, 1.0)]
                  + [Point("lattice", "fem", 1.0, 2.5, {"scheme": "sav2", "repulsion_split": False})]
-                 # the area term's rank-one mode implicit in the predictor (session 9)
+                 # the area term's rank-one mode implicit in the predictor
                  + [Point("lattice", "fem", 1.0, dt, {"scheme": "sav2", "area_implicit": True}) for dt in (5.0, 2.5)]
                  + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": 1e-1, "area_implicit": True})]
                  + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": tol})
                     for tol in (1e-1, 3e-2, 1e-2)]
-                 # the default before the repulsion was split off (session 8)
+                 # the repulsion not split off
                  + [Point("lattice", "fem", 1.0, FRAME, {"scheme": "adaptive", "tolerance_t": 1e-2,
                                                           "repulsion_split": False})])
 SCHEMES_OUT = RESULTS / "work_precision_schemes.json"
