@@ -4,18 +4,21 @@ observed order, Richardson-extrapolated limit with an error bar, and each run's 
     femphase converge SCENE.toml --h 1,0.5,0.25 -o DIR [--observable period,area]
     femphase converge SCENE.toml --tolerance-t 0.1,0.01,0.001 -o DIR
     femphase converge SCENE.toml --dt 10,5,2.5 -o DIR
+    femphase converge MESH_SCENE.toml --mesh coarse.vtu,medium.vtu,fine.vtu -o DIR
 
-**The refinement.** One parameter s takes two or more values: the spacing ``domain.h``
-(spatial), the adaptive scheme's ``numerics.tolerance_t`` or every phase's ``dt``
-(temporal). The study is an ordinary sweep (:mod:`femphase.sweep`) over that key, run on
+**The refinement.** One parameter s takes two or more values: the spacing ``domain.h`` of
+the structured channel or the mesh files ``domain.mesh`` of a meshed one (spatial; s is
+then each mesh's effective spacing √(area / dofs)), the adaptive scheme's
+``numerics.tolerance_t`` or every phase's ``dt`` (temporal). The study is an ordinary sweep (:mod:`femphase.sweep`) over that key, run on
 Dask and resumable: DIR holds ``sweep.toml`` (the study as a sweep file), ``sweep.json`` and
 ``runs/<id>/``; rerunning the command continues it, and added values add runs.
 
 **The analysis** (:func:`richardson`), per observable f, with levels ordered coarse to fine
-and a constant ratio r = s_k/s_{k+1} > 1:
+and r = s₂/s₃ the finest pair's ratio:
 
-* observed order p = log(|f₁ − f₂| / |f₂ − f₃|) / log r from the three finest levels
-  (f₁ the coarsest of them); with two levels, p is the ``expected_order``;
+* observed order p from the three finest levels (f₁ the coarsest of them):
+  (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p), i.e. p = log(|f₁ − f₂| / |f₂ − f₃|) / log r
+  at a constant ratio; with two levels, p is the ``expected_order``;
 * limit f∞ = f₃ + (f₃ − f₂)/(r^p − 1) (Richardson);
 * error bar: Roache's grid convergence index, F·|f₃ − f₂|/(r^p − 1), with the safety
   factor F = 1.25 when p is observed and 3 when it is assumed;
@@ -62,9 +65,10 @@ from femphase.tomlio import toml_value
 __all__ = ["OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "richardson", "run_convergence",
            "study_sweep"]
 
-#: Refinement parameters: command-line name → (scene key, its unit).
-PARAMETERS = {"h": ("domain.h", "lattice units"), "tolerance_t": ("numerics.tolerance_t", "dimensionless"),
-              "dt": ("phases.*.dt", "time units")}
+#: Refinement parameters: command-line name → (scene key, its unit). For "mesh" the values are
+#: mesh files and s is each run's effective spacing √(area / dofs).
+PARAMETERS = {"h": ("domain.h", "lattice units"), "mesh": ("domain.mesh", "lattice units"),
+              "tolerance_t": ("numerics.tolerance_t", "dimensionless"), "dt": ("phases.*.dt", "time units")}
 
 
 class ConvergenceError(SceneError):
@@ -83,18 +87,36 @@ class Estimate:
     note: str = ""
 
 
+def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
+    """p with (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p) for the three finest levels
+    (a constant ratio r gives r^p; other ratios are solved by bisection on p ∈ [1e-3, 20],
+    over which the right side increases)."""
+    s1, s2, s3 = s[-3:]
+    target = (f[-3] - f[-2]) / (f[-2] - f[-1])
+
+    def ratio(p: float) -> float:
+        return (s1**p - s2**p) / (s2**p - s3**p)
+
+    low, high = 1e-3, 20.0
+    if not ratio(low) < target < ratio(high):
+        return math.log(target) / math.log(s2 / s3) if target > 0 else math.nan
+    for _ in range(200):
+        middle = 0.5 * (low + high)
+        low, high = (middle, high) if ratio(middle) < target else (low, middle)
+    return 0.5 * (low + high)
+
+
 def richardson(spacings: list[float], values: list[float], expected_order: float = 2.0) -> Estimate:
     """Observed order, Richardson limit, error bar and errors of ``values`` measured at
-    ``spacings`` (any order; a constant refinement ratio is required)."""
+    ``spacings`` (any order, all different)."""
     order_of = np.argsort(spacings)[::-1]  # coarse to fine
     s = np.asarray(spacings, dtype=float)[order_of]
     f = np.asarray(values, dtype=float)[order_of]
     if s.size < 2:
         raise ConvergenceError("levels", list(spacings), "at least two values of the refined parameter")
-    ratios = s[:-1] / s[1:]
-    if not np.allclose(ratios, ratios[0], rtol=1e-6) or ratios[0] <= 1:
-        raise ConvergenceError("levels", list(spacings), "values with a constant refinement ratio > 1, e.g. 1,0.5,0.25")
-    r = float(ratios[0])
+    if np.any(s[:-1] <= s[1:] * (1 + 1e-9)) or s[-1] <= 0:
+        raise ConvergenceError("levels", list(spacings), "different values > 0 of the refined parameter")
+    r = float(s[-2] / s[-1])  # the finest pair's ratio
     nan = (math.nan,) * s.size
     if not np.all(np.isfinite(f)):
         return Estimate(math.nan, False, math.nan, math.nan, nan, "an observable could not be measured in every run")
@@ -107,8 +129,8 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
         if coarse * fine <= 0 or fine == 0:
             return Estimate(math.nan, True, math.nan, math.nan, nan,
                             "the differences change sign: not in the asymptotic range (refine further)")
-        order = math.log(abs(coarse / fine)) / math.log(r)
-        if order <= 0:
+        order = _observed_order(s, f)
+        if not order > 0:
             return Estimate(order, True, math.nan, math.nan, nan, "the differences grow as s falls: divergent")
     else:
         order = float(expected_order)
@@ -165,7 +187,8 @@ def study_sweep(scene: Path, parameter: str, values: list[float], phases: int) -
     lines = ["# femphase converge: the study's runs (a sweep file, docs/sweeps.md)", "[sweep]",
              f"scene = {toml_value(str(Path(scene).resolve()))}", f'mode = "{"zip" if len(keys) > 1 else "product"}"',
              "", "[axes]"]
-    lines += [f'"{k}" = {toml_value([float(v) for v in values])}' for k in keys]
+    values = [str(Path(v).resolve()) for v in values] if parameter == "mesh" else [float(v) for v in values]
+    lines += [f'"{k}" = {toml_value(values)}' for k in keys]
     return "\n".join(lines) + "\n"
 
 
@@ -178,7 +201,9 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
     for entry in index["runs"]:
         run = open_run(directory / entry["directory"])
         info = run.info
-        levels.append({"s": float(entry["values"][keys[0]]), "run": entry["id"],
+        spacing = (math.sqrt(run.domain.area / run.domain.n_dofs) if parameter == "mesh"
+                   else float(entry["values"][keys[0]]))
+        levels.append({"s": spacing, "run": entry["id"],
                        "cpu_s": float(info.get("cpu_time_s", math.nan)),
                        **{name: OBSERVABLES[name][0](run) for name in observables}})
     levels.sort(key=lambda level: -level["s"])
@@ -193,6 +218,7 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
 def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:
     import xarray as xr
 
+    parameter = "spacing" if parameter == "mesh" else parameter  # a mesh study's s is each mesh's spacing
     buffer = io.StringIO()
     out = csv.writer(buffer, lineterminator="\n")
     out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "order", "order_observed",
@@ -224,6 +250,7 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
 
 
 def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:
+    parameter = "effective spacing √(area / dofs)" if parameter == "mesh" else parameter
     from femphase.plot.figures import pyplot, save
 
     plt = pyplot()
@@ -260,9 +287,18 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     unknown = [name for name in observables if name not in OBSERVABLES]
     if unknown or not observables:
         raise ConvergenceError("--observable", ",".join(unknown) or "(none)", f"names from {sorted(OBSERVABLES)}")
-    if len(values) < 2 or any(not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0) for v in values):
-        raise ConvergenceError(f"--{parameter.replace('_', '-')}", values, "two or more numbers > 0, e.g. 1,0.5,0.25")
-    phases = len(load_scene(scene).phases)
+    option = f"--{parameter.replace('_', '-')}"
+    if parameter == "mesh":
+        if len(values) < 2 or any(not Path(v).is_file() for v in values):
+            raise ConvergenceError(option, values, "two or more mesh files that exist, coarse to fine")
+    elif len(values) < 2 or any(not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0) for v in values):
+        raise ConvergenceError(option, values, "two or more numbers > 0, e.g. 1,0.5,0.25")
+    loaded = load_scene(scene)
+    kind = loaded.domain.kind
+    if (parameter, kind) in (("h", "mesh"), ("mesh", "grid")):
+        raise ConvergenceError(option, values, "--h on the structured channel, --mesh FILE1,FILE2,… on a mesh "
+                               f"domain (this scene's domain is of kind {kind!r}; a mesh's spacing is its file's)")
+    phases = len(loaded.phases)
     directory = Path(directory)
     with tempfile.TemporaryDirectory() as scratch:  # the sweep keeps its own copy, DIR/sweep.toml
         sweep_file = Path(scratch) / "converge.toml"

@@ -56,9 +56,12 @@ def test_oscillating_or_diverging_levels_give_no_limit_and_say_why():
     assert math.isnan(diverging.limit) and "divergent" in diverging.note
 
 
-def test_levels_without_a_constant_ratio_are_refused():
-    with pytest.raises(ConvergenceError, match="constant refinement ratio"):
-        richardson([1.0, 0.5, 0.3], [1.0, 2.0, 3.0])
+def test_levels_at_any_ratios_give_the_order_of_the_manufactured_values():
+    h = [1.0, 0.7, 0.45]  # as the effective spacings of unstructured meshes come
+    estimate = richardson(h, [3.0 + 0.5 * x**2 for x in h])
+    assert estimate.order == pytest.approx(2.0, abs=1e-9) and estimate.limit == pytest.approx(3.0, abs=1e-12)
+    with pytest.raises(ConvergenceError, match="different values"):
+        richardson([1.0, 0.5, 0.5], [1.0, 2.0, 3.0])
     with pytest.raises(ConvergenceError, match="at least two"):
         richardson([1.0], [1.0])
 
@@ -109,3 +112,25 @@ def test_the_command_refuses_two_refined_parameters_and_unknown_observables(tmp_
     unknown = subprocess.run(command + ["--h", "1,0.5", "--observable", "volume"], capture_output=True, text=True)
     assert unknown.returncode == 2 and "volume" in unknown.stderr and "separation" in unknown.stderr
     assert not (tmp_path / "s" / "runs").exists()
+
+
+def test_a_mesh_scene_is_refined_by_its_mesh_files(tmp_path):
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+
+    files = []
+    for h in (1.0, 0.7071, 0.5):
+        files.append(tmp_path / f"channel_{h}.vtu")
+        write_domain(files[-1], *delaunay_channel(40.0, edge_for_spacing(h), lambda x: 0 * x, lambda x: 0 * x + 40.0,
+                                                  seed=1))
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC.replace("Lx = 40.0\nLy = 40.0\nh = 1.0", f'kind = "mesh"\nmesh = "{files[0].name}"'))
+    with pytest.raises(ConvergenceError, match="--mesh FILE1"):
+        run_convergence(scene, tmp_path / "wrong", "h", [1.0, 0.5], ["area"], workers=1, log=lambda line: None)
+    result = run_convergence(scene, tmp_path / "study", "mesh", [str(f) for f in files], ["area"], workers=1,
+                             log=lambda line: None)
+    spacings = [level["s"] for level in result["levels"]]
+    np.testing.assert_allclose(spacings, [1.0, 0.7071, 0.5], rtol=0.05)  # √(area / dofs) of each mesh
+    area = result["estimates"]["area"]
+    assert area.order_observed and 1.0 < area.order < 3.5
+    assert abs(area.errors[2]) < abs(area.errors[0])

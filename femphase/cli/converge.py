@@ -11,7 +11,7 @@ from pathlib import Path
 __all__ = ["register", "run"]
 
 #: Refinement options: attribute of the parsed arguments → parameter name.
-REFINED = {"h": "h", "tolerance_t": "tolerance_t", "dt": "dt"}
+REFINED = {"h": "h", "mesh": "mesh", "tolerance_t": "tolerance_t", "dt": "dt"}
 
 
 def _numbers(text: str) -> list[float]:
@@ -24,6 +24,10 @@ def _numbers(text: str) -> list[float]:
     return values
 
 
+def _files(text: str) -> list[str]:
+    return [item.strip() for item in text.split(",") if item.strip()]
+
+
 def run(args: argparse.Namespace) -> int:
     """`femphase converge`: run (or continue) the study, then print its table."""
     from femphase.converge import PARAMETERS, ConvergenceError, run_convergence
@@ -31,7 +35,7 @@ def run(args: argparse.Namespace) -> int:
     given = {name: getattr(args, name) for name in REFINED if getattr(args, name) is not None}
     refined = [name for name, values in given.items() if len(values) > 1]
     if len(refined) != 1:
-        raise ConvergenceError("--h/--tolerance-t/--dt", ", ".join(f"--{n.replace('_', '-')}" for n in refined) or "none",
+        raise ConvergenceError("--h/--mesh/--tolerance-t/--dt", ", ".join(f"--{n.replace('_', '-')}" for n in refined) or "none",
                                "exactly one option with two or more values (the refined parameter); the others "
                                "take one value, which every run uses")
     parameter = refined[0]
@@ -42,7 +46,8 @@ def run(args: argparse.Namespace) -> int:
 
             fixed += [f"phases.{k}.dt={values[0]!r}" for k in range(len(load_scene(args.scene).phases))]
         elif name != parameter:
-            fixed.append(f"{PARAMETERS[name][0]}={values[0]!r}")
+            value = f'"{Path(values[0]).resolve()}"' if name == "mesh" else repr(values[0])
+            fixed.append(f"{PARAMETERS[name][0]}={value}")
     observables = [name.strip() for name in args.observable.split(",") if name.strip()]
     try:
         result = run_convergence(args.scene, args.output, parameter, given[parameter], observables,
@@ -51,8 +56,9 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"femphase converge: interrupted; rerun the same command to continue ({args.output})", file=sys.stderr)
         return 130
-    print(f"\n{'observable':<16} {'order':>7} {'limit':>14} {'± error bar':>12}   error of each run ({parameter} = "
-          + ", ".join(f"{level['s']:g}" for level in result["levels"]) + ")")
+    spacing = "effective spacing" if parameter == "mesh" else parameter
+    print(f"\n{'observable':<16} {'order':>7} {'limit':>14} {'± error bar':>12}   error of each run ({spacing} = "
+          + ", ".join(f"{level['s']:.4g}" for level in result["levels"]) + ")")
     for name, estimate in result["estimates"].items():
         errors = ", ".join("nan" if math.isnan(e) else f"{e:.3g}" for e in estimate.errors)
         order = f"{estimate.order:.2f}" + ("" if estimate.order_observed else "*")
@@ -75,6 +81,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--output", required=True, help="study directory (rerun the command to continue it)")
     parser.add_argument("--h", type=_numbers, default=None, metavar="H1,H2,...",
                         help="mesh spacings (domain.h, lattice units), e.g. 1,0.5,0.25")
+    parser.add_argument("--mesh", type=_files, default=None, metavar="FILE1,FILE2,...",
+                        help="mesh files of a meshed scene's domain, coarse to fine (domain.mesh)")
     parser.add_argument("--tolerance-t", dest="tolerance_t", type=_numbers, default=None, metavar="T1,T2,...",
                         help="the adaptive scheme's tolerances (numerics.tolerance_t), e.g. 0.1,0.01,0.001")
     parser.add_argument("--dt", type=_numbers, default=None, metavar="DT1,DT2,...",
