@@ -22,13 +22,13 @@ error. Grid data is compared only with grid runs.
 
 What is compared, at the frame times both inputs have (matched to 1e-6 time units):
 
-* observables, per frame: the largest |difference| over the particles (particles matched by
+* observables, per frame: the largest ``|difference|`` over the particles (particles matched by
   id) of the centroid x (minimum image over the period) and y, the area ∫φ², the elongation
   and the orientation (nematic: differences taken modulo π; only for particles whose
   elongation is ≥ 0.01 in both inputs, a disc has no orientation). Runs read them from
   particles.csv; for grid data they are computed from the fields
   (:func:`femphase.analysis.shape.shape_observables`);
-* energies (two run directories only; global.csv): |difference| of the free energy and of
+* energies (two run directories only; global.csv): ``|difference|`` of the free energy and of
   its interface, area and repulsion parts;
 * fields (with ``--fields``, always when an input is grid data): the L2 norm with the
   lumped-mass (nodal) quadrature, ‖e‖ = (Σ_k m_k e_k²)^½, and the L∞ norm of the

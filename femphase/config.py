@@ -33,6 +33,7 @@ PRECISIONS = ("mixed", "double")
 class Numerics:
     """Discretisation choices (scene table ``[numerics]``).
 
+    =============== =========================================================================================
     scheme          the time scheme, a name in :data:`femphase.timestepping.SCHEMES`
                     (checked when a scene or a stepper uses it): "adaptive" (default):
                     error-controlled second-order substeps inside each step of the phase, whose
@@ -96,6 +97,7 @@ class Numerics:
                     benchmarks/stability.py warns (:class:`femphase.run.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
                     :class:`femphase.run.guards.AccuracyError` at that step (docs/outputs.md)
+    =============== =========================================================================================
     """
 
     scheme: str = "adaptive"

@@ -17,10 +17,10 @@ Dask and resumable: DIR holds ``sweep.toml`` (the study as a sweep file), ``swee
 and r = s₂/s₃ the finest pair's ratio:
 
 * observed order p from the three finest levels (f₁ the coarsest of them):
-  (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p), i.e. p = log(|f₁ − f₂| / |f₂ − f₃|) / log r
+  (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p), i.e. ``p = log(|f₁ − f₂| / |f₂ − f₃|) / log r``
   at a constant ratio; with two levels, p is the ``expected_order``;
 * limit f∞ = f₃ + (f₃ − f₂)/(r^p − 1) (Richardson);
-* error bar: Roache's grid convergence index, F·|f₃ − f₂|/(r^p − 1), with the safety
+* error bar: Roache's grid convergence index, ``F·|f₃ − f₂|/(r^p − 1)``, with the safety
   factor F = 1.25 when p is observed and 3 when it is assumed;
 * each run's error f_k − f∞.
 
@@ -41,7 +41,7 @@ range and a finer one is needed.
 **Outputs** in DIR: ``convergence.csv`` (one row per observable and level: s, value,
 error against the limit, CPU seconds; and per observable the order, limit and error bar),
 ``convergence.nc`` (the same as an xarray Dataset over ``observable`` × ``level``) and
-``convergence.png`` (|error| against s and against CPU seconds: the work–precision plot).
+``convergence.png`` (the absolute error against s and against CPU seconds: the work–precision plot).
 """
 
 from __future__ import annotations

@@ -36,10 +36,12 @@ Velocity = Callable[[np.ndarray, np.ndarray, float], tuple[np.ndarray, np.ndarra
 class Flow:
     """A velocity field v(x, y, t) → (u, v).
 
+    ============= =======================================================================================
     row_velocity  u(y, t) for flows (u(y, t), 0), else None
     steady        v does not depend on t (advection operators are then built once)
     stokes        the :class:`femphase.domains.mesh.stokes.StokesFlow` behind a ``stokes`` flow, whose P2
                   field the meshed domain's advection integrates exactly
+    ============= =======================================================================================
     """
 
     name: str

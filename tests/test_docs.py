@@ -93,3 +93,46 @@ def test_no_tracked_file_names_a_work_period():
             if WORK_PERIOD.search(line):
                 found.append(f"{name}:{number}: {line.strip()[:100]}")
     assert not found, "\n".join(found[:40])
+
+
+def _toctree_entries(page: Path) -> list[Path]:
+    """The pages the ``{toctree}`` blocks of a MyST page list (``:glob:`` patterns expanded),
+    as paths of .md files; entries are relative to the page's folder, or to docs/ with a
+    leading "/"."""
+    import re
+
+    pages = []
+    blocks = re.findall(r"^(`{3,}|:{3,})\{toctree\}[^\n]*\n(.*?)^\1[ \t]*$", page.read_text(), re.MULTILINE | re.DOTALL)
+    for _, body in blocks:
+        glob = re.search(r"^:glob:", body, re.MULTILINE) is not None
+        for line in body.splitlines():
+            line = line.strip()
+            if not line or line.startswith(":"):
+                continue
+            titled = re.fullmatch(r".*<(.+)>", line)  # "Title <target>"
+            target = titled.group(1) if titled else line
+            if re.match(r"\w+://", target) or target == "self":
+                continue
+            base = DOCS if target.startswith("/") else page.parent
+            target = target.lstrip("/")
+            if glob and any(ch in target for ch in "*?["):
+                pages += sorted(base.glob(target + ".md"))
+            else:
+                pages.append(base / f"{target}.md")
+    return pages
+
+
+def test_every_page_is_in_the_site():
+    """Every docs/*.md is reachable from docs/index.md through toctrees, and every toctree
+    entry is a page that exists: what the site's build (-W) would stop on, checked without
+    building it."""
+    seen, queue = set(), [DOCS / "index.md"]
+    while queue:
+        page = queue.pop()
+        for entry in _toctree_entries(page):
+            assert entry.exists(), f"{page.relative_to(DOCS)}: toctree entry {entry.relative_to(DOCS)} does not exist"
+            if entry not in seen:
+                seen.add(entry)
+                queue.append(entry)
+    missing = sorted(page.name for page in DOCS.glob("*.md") if page.name != "index.md" and page not in seen)
+    assert not missing, f"add to a toctree in docs/index.md: {missing}"

@@ -6,7 +6,7 @@ The paper measures the structure of the suspension on the particles' centroids:
   (:func:`periodic_delaunay_pairs`);
 * bond order ψ_{m,j} = (1/N_j) Σ_k exp(i m θ_jk) (:func:`bond_order`, m = 6 for Ψ6) and the
   nematic order of neighbouring deformation axes ψ_{2,j} (:func:`nematic_order`); the global
-  parameters are |(1/N) Σ_j ψ_j| per frame (:func:`global_order`), averaged over frames
+  parameters are ``|(1/N) Σ_j ψ_j|`` per frame (:func:`global_order`), averaged over frames
   (:func:`frame_average`);
 * the lattice angle φ ∈ [π/4, π/3] of lanes sliding along x (:func:`lattice_angle`);
 * T1 neighbour exchanges as flips of Delaunay edges (:func:`t1_events`,
@@ -164,7 +164,7 @@ def nematic_order(
     (θ and θ + π are the same axis).  (The paper prints exp(6iθ^d_jk); the 6 is a typo.)
     ψ_{2,j} = 1 when j is aligned with all its neighbours, whatever the common direction;
     a neighbour at right angles contributes −1.  This is the local alignment the paper
-    describes, not the alignment with a global director, |⟨exp(2iθ_j)⟩|.
+    describes, not the alignment with a global director, ``|⟨exp(2iθ_j)⟩|``.
 
     Parameters
     ----------
@@ -191,7 +191,7 @@ def nematic_order(
 
 
 def global_order(psi: ArrayLike, where: ArrayLike | None = None) -> float:
-    """|(1/N) Σ_j ψ_j|, the global order parameter of one frame.
+    """``|(1/N) Σ_j ψ_j|``, the global order parameter of one frame.
 
     `where` is an optional boolean mask of the particles to average over (e.g. away from the
     walls); particles with NaN ψ_j (no neighbours) are always left out.
@@ -311,7 +311,7 @@ def lattice_angle(
 
 
 def frame_order(centroids: ArrayLike, orientation: ArrayLike, period_x: float) -> dict:
-    """One frame's order: per particle |ψ6| and |ψ2| ("psi6_abs", "psi2_abs"), and Ψ6, Ψ2^L
+    """One frame's order: per particle ``|ψ6|`` and ``|ψ2|`` ("psi6_abs", "psi2_abs"), and Ψ6, Ψ2^L
     and the lattice angle (radians).
 
     Never raises on a valid configuration: NaN for fewer than 3 particles, Ψ6 and Ψ2^L NaN

@@ -45,12 +45,14 @@ _METHOD_AGREEMENT = 0.25
 class PeriodEstimate:
     """The period of an oscillation and how well it is known.
 
+    ============ ===================================================================
     period       the lag of the first major peak of the autocorrelation (time units)
     uncertainty  one standard uncertainty of `period` (time units), see
                  :func:`oscillation_period`
     n_cycles     number of complete cycles measured: intervals between successive
                  primary peaks
     method       how `period` and `uncertainty` were obtained
+    ============ ===================================================================
     """
 
     period: float

@@ -1,5 +1,7 @@
 """The ``femphase`` command line.
 
+::
+
     femphase run SCENE.toml -o DIR [--set key=value ...] [--resume | --overwrite] [--method fem|fd]
                  [--status-interval SECONDS] [-q]
     femphase sweep SWEEP.toml -o DIR [--workers N | --scheduler ADDRESS]

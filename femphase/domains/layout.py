@@ -187,7 +187,7 @@ class Layout:
         return fields
 
     def group_block(self, flat: np.ndarray, group: int) -> np.ndarray:
-        """The group's slice of ``flat`` as an (n_members, *shape) view."""
+        """The group's slice of ``flat`` as an ``(n_members, *shape)`` view."""
         _, members, start, stop, _ = self.groups[group]
         return flat[start:stop].reshape((members.size,) + self.shapes[group])
 

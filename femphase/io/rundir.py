@@ -1,6 +1,7 @@
 """Run directories that never lose data: atomic frame-by-frame output, refusals, resumes.
 
-DIR/
+DIR/ ::
+
   scene.toml         the resolved scene of the latest segment (every default filled in)
   particles.csv      one row per particle per frame (columns: docs/outputs.md)
   global.csv         one row per frame

@@ -2,7 +2,7 @@
 
 Hadjifrangiskou, Valani & Pinto reduce the dense sheared suspension to three functions of
 time: the lattice angle φ(t) (fitted to the simulations), the orientation θ(t) of each
-particle's elongation axis (driven by φ) and the elongation r = AR − 1 (AR the aspect ratio):
+particle's elongation axis (driven by φ) and the elongation r = AR − 1 (AR the aspect ratio)::
 
     φ(t) = (π/12) cos²(ωt) + π/4,                       ω = k γ̇
     dθ/dt = −3 |dφ/dt| = −(πω/4) |sin 2ωt|,              θ(0) = π/2,  θ(τ_n⁺) = −π/4
@@ -130,7 +130,7 @@ def wrap_orientation(theta: np.ndarray) -> np.ndarray:
 def orientation(t: np.ndarray, rate: float, k: float = K_PAPER) -> np.ndarray:
     """θ(t) in closed form, wrapped to (−π/2, π/2] (radians, from the x axis).
 
-    Between T1s θ = −π/4 − (πω/4) ∫_{τ_n}^t |sin 2ωs| ds, and the integral is analytic: each
+    Between T1s θ = −π/4 − (πω/4) ``∫_{τ_n}^t |sin 2ωs| ds``, and the integral is analytic: each
     half period π/(2ω) turns θ by π/4, and the part s of a half period by (π/4) sin²(ωs).
     The first stretch [0, τ_0), which starts from θ(0) = π/2, is the second half of such a
     cycle (θ passes −π/2 ≡ π/2 halfway between T1s), so the formula holds for all t ≥ 0.
@@ -195,7 +195,7 @@ def solve_minimal_model(
     θ(0) = π/2. The output holds `n_samples` equally spaced times plus the T1 times.
 
     The integration restarts at every multiple of π/(2ω): at the T1 times (odd multiples) to
-    reset θ to −π/4, at the others because |sin 2ωt| has a kink there that would otherwise
+    reset θ to −π/4, at the others because ``|sin 2ωt|`` has a kink there that would otherwise
     cost the step-size control accuracy.
     """
     # scipy.integrate loads here, not with the module: the command line reads this module's

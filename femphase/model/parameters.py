@@ -1,6 +1,6 @@
 """The multi-phase-field model of Hadjifrangiskou, Valani & Pinto: parameters and pointwise terms.
 
-Each particle i is a field φ_i(x) ∈ [0, 1] obeying
+Each particle i is a field φ_i(x) ∈ [0, 1] obeying ::
 
     ∂t φ_i + v·∇φ_i = −J0 δF/δφ_i,   F = F_interface + F_area + F_repulsion,
 

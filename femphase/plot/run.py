@@ -2,6 +2,7 @@
 
 Four figures, written to OUT (default DIR/figures) as PNG unless ``--format`` says otherwise:
 
+================ =================================================================================
 ``snapshot``     the last frame: Σφ_i in grey, each particle (label = argmax_i φ_i > 1/2)
                  tinted, and a red segment through each centroid along its elongation axis,
                  of length R·r (the paper's Fig. 1b style); from checkpoint.h5, else from
@@ -13,6 +14,7 @@ Four figures, written to OUT (default DIR/figures) as PNG unless ``--format`` sa
 ``limit_cycle``  the (r, 2θ) polar plane (:func:`femphase.analysis.periods.limit_cycle`) of
                  three bulk particles over the last quarter of the run, with the ODE's cycle
 ``order``        Ψ6, Ψ2^L, the lattice angle φ and the cumulative T1 count over time
+================ =================================================================================
 
 The ODE is aligned with the simulation by its first T1 event
 (:mod:`femphase.oscillations`; a run without flow starts it at its first frame, plotted

@@ -1,5 +1,6 @@
 """Running scenes: a simulation is a state, a stepper per phase and trackers (py-pde style).
 
+=============== =====================================================================
 ``simulation``  :class:`~femphase.run.simulation.Simulation`, the phase loop, and the
                 :class:`~femphase.run.simulation.Tracker` interface with its
                 :class:`~femphase.run.simulation.Frame`
@@ -7,6 +8,7 @@
 ``directory``   the tracker that writes a run directory
 ``guards``      the accuracy guard (warns, or stops with ``numerics.strict``)
 ``runner``      :func:`~femphase.run.runner.run_scene`: what ``femphase run`` does
+=============== =====================================================================
 """
 
 from femphase.run.directory import RunDirectory

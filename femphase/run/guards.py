@@ -124,6 +124,7 @@ class AccuracyError(FemphaseError, RuntimeError):
 class StepMeasures:
     """How one phase's step relates to the explicit terms' limits.
 
+    ================= ========================================================================
     scheme            the time scheme's name
     dt                the step
     dt_star           the largest step with no stabilisation ("euler"; inf without curvature),
@@ -132,6 +133,7 @@ class StepMeasures:
     slowdown          1 + J0 S dt: how much slower than dt the explicit forces relax (1: none)
     explicit_fraction dt/dt_star
     accurate_dt       the largest dt with slowdown ≤ ``limit`` (same settings), or inf
+    ================= ========================================================================
     """
 
     scheme: str
@@ -202,7 +204,7 @@ def _velocity(domain, flow: Flow, time: float) -> np.ndarray:
 
 
 def advective_spread(state: State, velocity: np.ndarray, dt: float, threshold: float) -> np.ndarray:
-    """(N,) dt · max |v − v̄_i| over the dofs of particle i where φ_i > ``threshold``, v̄_i
+    """(N,) ``dt · max |v − v̄_i|`` over the dofs of particle i where φ_i > ``threshold``, v̄_i
     its φ²-weighted mean velocity: how far a part of the particle moves relative to its
     window in one step (lattice units). ``velocity`` is (2, n_dofs)."""
     layout, phi = state.flat()
@@ -221,7 +223,7 @@ def advective_spread(state: State, velocity: np.ndarray, dt: float, threshold: f
 
 
 def max_strain_rate(domain, velocity: np.ndarray) -> float:
-    """max over elements of |∇v| (Frobenius norm; G for the shear u = G y): the largest
+    """max over elements of ``|∇v|`` (Frobenius norm; G for the shear u = G y): the largest
     velocity gradient of the nodal velocity (2, n_dofs) on ``domain``."""
     gx, gy = domain.operators.gradient
     squares = sum((g @ np.asarray(component, dtype=float)) ** 2 for g in (gx, gy) for component in velocity)

@@ -101,6 +101,7 @@ TARGETS = {
 class BadInput(NamedTuple):
     """One bad input to ``femphase run``.
 
+    ============ ========================================================================
     description  what is wrong (unique within :func:`bad_inputs`)
     scene        the scene: a dict (written as TOML), TOML text, raw bytes, or None for a
                  scene file that does not exist
@@ -109,6 +110,7 @@ class BadInput(NamedTuple):
     files        (name, bytes) pairs written beside the scene (mesh files)
     options      further command-line arguments, e.g. ("--resume",)
     target       what the ``-o`` path is, a key of :data:`TARGETS`
+    ============ ========================================================================
     """
 
     description: str
@@ -123,6 +125,7 @@ class BadInput(NamedTuple):
 class Check(NamedTuple):
     """What :func:`check_bad_input` saw.
 
+    =========== =====================================================================
     exit_code   the exit code of ``femphase run`` (2 expected)
     names_key   the message names the expected key
     traceback   a traceback was printed, or an exception escaped ``main``
@@ -130,6 +133,7 @@ class Check(NamedTuple):
                 entries of its directories; a path that did not exist still does not)
     message     what was printed to stderr
     seconds     wall time of the call
+    =========== =====================================================================
     """
 
     exit_code: int

@@ -23,7 +23,7 @@ splitting of advection and relaxation,
 Stabilisation ("auto", :meth:`femphase.timestepping.euler.LinearlyImplicitEuler.auto_stabilisation`): with G ≥ c M_L
 (c = 1 lumped, 1/4 consistent P1 mass) and L a bound on the explicit energy's curvature
 (:meth:`femphase.model.energy.FreeEnergy.curvature_bound`), F(φ¹) − F(φ⁰) ≤ −(c/(J0 dt) + S −
-L/2) |φ¹ − φ⁰|²_{M_L}, so S = max(0, L/2 − c/(J0 dt)) makes the no-flow step decrease the
+L/2) ``|φ¹ − φ⁰|²_{M_L}``, so S = max(0, L/2 − c/(J0 dt)) makes the no-flow step decrease the
 discrete energy for any dt. At the paper's parameters S = 0 for dt ≤ dt* = 2c/(J0 L) ≈ 0.92
 (lumped, several particles). Above dt*, G/dt + J0 S M_L = (J0 L/2) M_L no longer depends
 on dt: the explicit forces advance by dt* per step whatever dt is, so large steps are stable

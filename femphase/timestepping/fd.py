@@ -13,25 +13,25 @@ comparing the two methods is a real cross-check.
   model code); ∫φ² by the nodal quadrature (the trapezoid rule: weight h², h²/2 on the walls,
   which is the lumped mass of the structured mesh); Σ_{j≠i} φ_j² summed over the nodes
   where windows overlap (elsewhere it is zero).
-* Advection v·∇φ: third-order upwind-biased differences in each direction,
+* Advection v·∇φ: third-order upwind-biased differences in each direction, ::
 
       u ∂xφ ≈ u (φ_{i−2} − 8φ_{i−1} + 8φ_{i+1} − φ_{i+2})/(12h)
             + |u| (φ_{i−2} − 4φ_{i−1} + 6φ_i − 4φ_{i+1} + φ_{i+2})/(12h),
 
-  i.e. the fourth-order central difference plus a fourth-difference dissipation |u|h³/12
-  ∂x⁴φ that makes it upwind (for u > 0 the stencil is (φ_{i−2} − 6φ_{i−1} + 3φ_i +
+  i.e. the fourth-order central difference plus a fourth-difference dissipation ``|u|h³/12
+  ∂x⁴φ`` that makes it upwind (for u > 0 the stencil is (φ_{i−2} − 6φ_{i−1} + 3φ_i +
   2φ_{i+1})/(6h)). Why not central differences: their symbol is purely imaginary, and
   Heun's stability region touches the imaginary axis only at 0, so central advection
-  grows every mode (|amplification|² = 1 + (ω dt)⁴/4) unless the diffusion happens to damp
-  it; the paper's cell Péclet number |u|h/D reaches ~1–8, so that cannot be relied on.
+  grows every mode (``|amplification|² = 1 + (ω dt)⁴/4``) unless the diffusion happens to damp
+  it; the paper's cell Péclet number ``|u|h/D`` reaches ~1–8, so that cannot be relied on.
   Second-order upwind is stable too, but its leading error is dispersive and O(h²),
-  (h²/3) u ∂x³φ, against the third-order scheme's dissipative (h³/12) |u| ∂x⁴φ; the
+  (h²/3) u ∂x³φ, against the third-order scheme's dissipative ``(h³/12) |u| ∂x⁴φ``; the
   interface (width ~2λ = 4 at h = 1) is only a few nodes wide, so the order matters.
   Row flows (u(y), 0) and general flows share the code: each velocity component is
   differenced along its own direction. ``numerics.fd_advection = "upwind1"`` selects
-  first-order upwind instead (numerical diffusion |u| h/2), to test how much a cruder
+  first-order upwind instead (numerical diffusion ``|u| h/2``), to test how much a cruder
   advection, which the paper does not exclude, changes the physics.
-* Time: explicit predictor–corrector (Heun, second order), the paper's dt = 0.1 by default:
+* Time: explicit predictor–corrector (Heun, second order), the paper's dt = 0.1 by default::
 
       k1 = f(φⁿ, tⁿ),  φ* = φⁿ + dt k1,  k2 = f(φ*, tⁿ⁺¹),  φⁿ⁺¹ = φⁿ + dt (k1 + k2)/2,
       f(φ, t) = −v·∇_h φ − J0 g(φ) + J0 2γλ Δ_h φ + s(x, y, t).
@@ -39,7 +39,7 @@ comparing the two methods is a real cross-check.
 Stability (:func:`explicit_stability_limit`, enforced by the constructor): Heun's stability
 region contains [−2, 0] on the real axis and, for third-order upwind advection, Courant
 numbers up to ≈ 0.87 (von Neumann; ``tests/test_fd.py`` checks the combined symbol).
-The region is convex, so a step is stable when twice each part's spectrum lies inside it:
+The region is convex, so a step is stable when twice each part's spectrum lies inside it::
 
     dt (8 J0 2γλ/h² + J0 L) ≤ 1        (diffusion + the explicit curvature bound L of
                                          :meth:`femphase.model.energy.FreeEnergy.curvature_bound`)
@@ -136,10 +136,10 @@ def five_point_laplacian(padded: np.ndarray, h: float) -> np.ndarray:
 
 def upwind_advection(padded: np.ndarray, velocity: np.ndarray, axis: int, h: float, order: int = 3) -> np.ndarray:
     """w ∂φ by upwind-biased differences along ``axis`` (1: y, 2: x); ``velocity`` w has the
-    shape of the unpadded block. order 3: the fourth-order central difference plus |w| h³/12
+    shape of the unpadded block. order 3: the fourth-order central difference plus ``|w| h³/12``
     times the fourth difference (see the module docstring); order 1: the central difference
-    plus |w| h/2 times the second difference, i.e. the one-sided w (φ_i − φ_{i−1})/h for
-    w > 0, whose error is a numerical diffusion |w| h/2."""
+    plus ``|w| h/2`` times the second difference, i.e. the one-sided w (φ_i − φ_{i−1})/h for
+    w > 0, whose error is a numerical diffusion ``|w| h/2``."""
     m2, m1, p1, p2 = _neighbours(padded, axis)
     centre = padded[:, 2:-2, 2:-2]
     if order == 1:

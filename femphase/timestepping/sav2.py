@@ -75,7 +75,7 @@ class RelaxedSAV2(TimeScheme):
         """φ after ``dt`` of the decay terms alone, ∂tφ_i = −J0 c(φ) φ_i with c the sum of their
         :meth:`~femphase.model.energy.EnergyTerm.decay_rate`, by the exponential midpoint rule:
         φ_i e^{−J0 c(φ̃) dt}, the midpoint φ̃ = φ/(1 + J0 c(φ) dt/2) from an implicit Euler
-        half step (first order there is enough for second order). Second order; |φ_i| never
+        half step (first order there is enough for second order). Second order; ``|φ_i|`` never
         grows, whatever dt; ``dt = 0`` returns φ itself. One call costs two evaluations of c
         (Σ_{j≠i} φ_j², 0.2 ms each on the N = 100 lattice's 10⁵ positions) and one
         exponential (0.08 ms): 0.45 ms in all in the stepper, its arithmetic in place."""
@@ -206,10 +206,10 @@ class RelaxedSAV2(TimeScheme):
               (φ¹ − φ⁰)/dt = −J0 [L (φ¹ + φ⁰)/2 + r^{1/2} b] + s(t + dt/2),
               r¹ − r⁰ = (b, φ¹ − φ⁰)_M / 2,                 r^{1/2} = (r¹ + r⁰)/2,
 
-          whose modified energy D/2 φᵀKφ + r² falls by |φ¹ − φ⁰|²_M/(J0 dt) without source.
+          whose modified energy D/2 φᵀKφ + r² falls by ``|φ¹ − φ⁰|²_M/(J0 dt)`` without source.
           φ¹ = p − r^{1/2} q from two solves with (2M/dt + J0 D K), and r^{1/2} from one
           scalar equation. Then r is relaxed towards V(φ¹): r ← ξ r¹ + (1 − ξ) V(φ¹), ξ ∈
-          [0, 1] the smallest that keeps r² − r¹² ≤ η |φ¹ − φ⁰|²_M/(J0 dt), so r stays
+          [0, 1] the smallest that keeps ``r² − r¹² ≤ η |φ¹ − φ⁰|²_M/(J0 dt)``, so r stays
           √(E1 + C) wherever the dissipation allows (then the modified energy is F + C).
         * r None (with flow): the plain IMEX midpoint step, r^{1/2} b replaced by g(φ̄), one
           solve. With flow F is not a Lyapunov function and r would restart from E1 after
@@ -223,7 +223,7 @@ class RelaxedSAV2(TimeScheme):
           the lattice's r(t) error in time falls from 2.8 % to 0.64 %
           (docs/decisions/0003-repulsion-split.md).
 
-        The error estimate is max |φ¹ − (2φ̄ − φ⁰)|: the predictor doubled is a first-order
+        The error estimate is ``max |φ¹ − (2φ̄ − φ⁰)|``: the predictor doubled is a first-order
         step, so this is that step's local error, O(dt²), at no extra cost (an embedded pair
         of orders 1 and 2; the second-order result is kept). With the split it is the
         midpoint step's: the decay is integrated in exponential form, and its splitting error

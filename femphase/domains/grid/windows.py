@@ -58,12 +58,14 @@ class Window:
 class WindowPolicy:
     """How rectangular windows follow their fields (all lengths in nodes of the lattice).
 
+    =========== ============================================================================
     threshold   φ above which a node belongs to the particle (the paper: 0.01)
     margin      nodes kept between the particle and a window edge (the paper: 4 sites)
     room        extra nodes a new window leaves on each side, so it need not move every step
     quantum     window sizes are rounded up to a multiple of this, so that few distinct
                 shapes (and solvers) exist
     enabled     False: every window is the whole channel (full-mesh mode)
+    =========== ============================================================================
     """
 
     threshold: float = 0.01

@@ -1,12 +1,14 @@
 """Meshed channels, ``[domain] kind = "mesh"``: any triangle mesh meshio reads, periodic in x,
 with named boundaries.
 
+=============== ========================================================================
 ``domain``      :class:`~femphase.domains.mesh.domain.MeshDomain`, registered as "mesh";
                 reading and writing meshed channels with named boundaries
 ``boxes``       box windows and their policy
 ``advection``   the Galerkin–Padé step
 ``stokes``      Stokes flow on the mesh, registered as the flow "stokes"
 ``generation``  channel meshes in pure Python (Delaunay), for tests and examples
+=============== ========================================================================
 """
 
 from femphase.domains.mesh import stokes  # noqa: F401  (registers the flow "stokes")

@@ -40,6 +40,7 @@ def local_x(x: np.ndarray, x0, period: float) -> np.ndarray:
 class BoxPolicy:
     """How boxes follow their fields (lengths in the mesh's unit).
 
+    =========== ============================================================================
     threshold   φ above which a node belongs to the particle (the paper: 0.01)
     margin      length kept between the particle and a box edge (the paper: 4 sites)
     room        extra length a refitted box leaves on each side
@@ -48,6 +49,7 @@ class BoxPolicy:
     lookahead   steps of motion a refitted box leaves room for ahead of a moving particle
                 (up to four margins), so that its solvers last several steps
     enabled     False: every box is the whole domain (full-mesh mode)
+    =========== ============================================================================
     """
 
     threshold: float = 0.01

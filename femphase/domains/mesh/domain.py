@@ -84,15 +84,17 @@ class MeshDomain(Domain):
 
     A channel on a triangular mesh, periodic in x, with its P1 operators.
 
-    mesh        the non-periodic mesh as read (what output files are written on)
-    boundaries  name → indices into ``mesh.facets`` of the boundary facets with that name
-    periodic    the names of the periodic pair (min side, max side)
-    period      the length of the periodic cell in x
-    dof_map     (n_nodes,) the periodic dof of every mesh node (``dof_map`` of
-                every :class:`femphase.domains.base.Domain`, so output code serves both)
-    operators   P1 mass, stiffness, lumped mass and element gradients on the dofs
-    source      the mesh file it was read from ("" if built in memory: no Stokes cache then)
+    ================ ============================================================================
+    mesh             the non-periodic mesh as read (what output files are written on)
+    boundaries       name → indices into ``mesh.facets`` of the boundary facets with that name
+    periodic         the names of the periodic pair (min side, max side)
+    period           the length of the periodic cell in x
+    dof_map          (n_nodes,) the periodic dof of every mesh node (``dof_map`` of
+                     every :class:`femphase.domains.base.Domain`, so output code serves both)
+    operators        P1 mass, stiffness, lumped mass and element gradients on the dofs
+    source           the mesh file it was read from ("" if built in memory: no Stokes cache then)
     nominal_spacing  the scene's ``h`` if it gave one (else :attr:`spacing` is the median edge)
+    ================ ============================================================================
     """
 
     mesh: MeshTri
