@@ -283,3 +283,25 @@ def test_a_blow_up_inside_a_call_of_several_steps_names_its_step_and_leaves_the_
     assert failure.value.step == 3 and 20.0 < failure.value.time < 30.0
     assert state.step == 0 and state.time == 0.0
     assert all(np.array_equal(a, b) for a, b in zip(before, state.fields))
+
+
+def _relaxing_disc_areas(numerics: dict, dt: float) -> np.ndarray:
+    """A disc relaxing from R/2 in a 40 × 40 channel: its area at t = 10, 20, 50, 100
+    (benchmarks/tolerance.py's disc case)."""
+    scene = scene_from_dict({
+        "domain": {"Lx": 40.0, "Ly": 40.0},
+        "particles": {"layout": "single", "initial_radius": 4.0},
+        "numerics": numerics, "output": {"fields": False, "checkpoint": False},
+        "phases": [{"duration": 100.0, "dt": dt, "frame_interval": 10.0}],
+    })
+    recorder = FrameRecorder()
+    Simulation(scene).run(scene.initial_state(), [recorder])
+    return recorder.series("area")[[1, 2, 5, 10], 0]
+
+
+def test_the_global_error_of_a_relaxing_disc_is_proportional_to_the_tolerance():
+    reference = _relaxing_disc_areas({"scheme": "sav2"}, 0.05)  # second order: ~1e-5 from converged
+    tolerances = np.array([1e-2, 1e-3, 1e-4])
+    errors = np.array([np.max(np.abs(_relaxing_disc_areas({"tolerance_t": t}, 10.0) - reference)) for t in tolerances])
+    slope = np.polyfit(np.log(tolerances), np.log(errors), 1)[0]
+    assert 0.8 < slope < 1.2, (slope, errors)
