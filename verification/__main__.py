@@ -25,13 +25,13 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 import argparse  # noqa: E402
 import importlib  # noqa: E402
 import json  # noqa: E402
-import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from femphase.io.files import write_json  # noqa: E402
+from verification.readme import with_block  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 RESULTS = HERE / "results"
@@ -251,13 +251,7 @@ def update_readme(names: tuple[str, ...] = CHECKS) -> None:
     """Rewrite every generated block of the README from the JSON results."""
     text = README.read_text() if README.is_file() else "# Verification\n"
     for name in names:
-        begin, end = f"<!-- BEGIN generated: {name} -->", f"<!-- END generated: {name} -->"
-        block = f"{begin}\n{section(name)}\n{end}"
-        pattern = re.compile(re.escape(begin) + ".*?" + re.escape(end), re.S)
-        if pattern.search(text):
-            text = pattern.sub(lambda _: block, text)
-        else:
-            text = text.rstrip("\n") + f"\n\n## {name}\n\n{block}\n"
+        text = with_block(text, name, section(name), name)
     README.write_text(text)
 
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import sys
 import tempfile
 import time
@@ -41,10 +40,10 @@ from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing 
 from femphase.io.reader import open_run  # noqa: E402
 from femphase.run.runner import run_scene  # noqa: E402
 from femphase.scene import scene_from_dict  # noqa: E402
+from verification.readme import write_block  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
 RESULTS = REPO / "verification" / "results"
-README = REPO / "verification" / "README.md"
 LX, LY, U, DURATION, DT = 48.0, 64.0, 0.5, 2000.0, 10.0
 CASES = {"single": [[24.0, 22.0]], "pair": [[16.0, 24.0], [32.0, 38.0]]}
 
@@ -114,17 +113,6 @@ def markdown(rows: list[dict], command: str) -> str:
     return "\n".join(lines)
 
 
-def update_readme(block: str) -> None:
-    begin, end = "<!-- BEGIN generated: mesh_vs_grid -->", "<!-- END generated: mesh_vs_grid -->"
-    text = README.read_text()
-    new = f"{begin}\n{block}\n{end}"
-    if begin in text:
-        text = re.sub(re.escape(begin) + r".*?" + re.escape(end), lambda _: new, text, flags=re.S)
-    else:
-        text = text.rstrip() + "\n\n## The structured channel and an unstructured mesh in Poiseuille flow\n\n" + new + "\n"
-    README.write_text(text)
-
-
 def plot(rows: list[dict], path: Path) -> None:
     import matplotlib
 
@@ -167,7 +155,8 @@ def main() -> None:
     block = markdown(rows, command)
     print(block)
     if args.output == RESULTS:
-        update_readme(block + "\n\n![mesh against grid](results/mesh_vs_grid.png)")
+        write_block("mesh_vs_grid", block + "\n\n![mesh against grid](results/mesh_vs_grid.png)",
+                    "The structured channel and an unstructured mesh in Poiseuille flow")
 
 
 if __name__ == "__main__":
