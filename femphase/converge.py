@@ -19,8 +19,10 @@ and r = s₂/s₃ the finest pair's ratio:
 * observed order p from the three finest levels (f₁ the coarsest of them):
   (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p), i.e. ``p = log(|f₁ − f₂| / |f₂ − f₃|) / log r``
   at a constant ratio; with two levels, p is the ``expected_order``;
-* limit f∞ = f₃ + (f₃ − f₂)/(r^p − 1) (Richardson);
-* error bar: Roache's grid convergence index, ``F·|f₃ − f₂|/(r^p − 1)``, with the safety
+* limit f∞ = f₃ + (f₃ − f₂)/(r^q − 1) (Richardson), q = min(p, formal order): an observed
+  order above the formal one (2 in h and in dt, 1 in the tolerance; ``--order``) comes from
+  levels outside the asymptotic range and would shrink the error bar;
+* error bar: Roache's grid convergence index, ``F·|f₃ − f₂|/(r^q − 1)``, with the safety
   factor F = 1.25 when p is observed and 3 when it is assumed;
 * each run's error f_k − f∞.
 
@@ -62,13 +64,18 @@ from femphase.io.files import atomic_write
 from femphase.io.reader import RunData, open_run
 from femphase.tomlio import toml_value
 
-__all__ = ["OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "richardson", "run_convergence",
+__all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "richardson", "run_convergence",
            "study_sweep"]
 
 #: Refinement parameters: command-line name → (scene key, its unit). For "mesh" the values are
 #: mesh files and s is each run's effective spacing √(area / dofs).
 PARAMETERS = {"h": ("domain.h", "lattice units"), "mesh": ("domain.mesh", "lattice units"),
               "tolerance_t": ("numerics.tolerance_t", "dimensionless"), "dt": ("phases.*.dt", "time units")}
+
+
+#: Formal order of each refinement: P1 in h (and a mesh's spacing), the default second-order
+#: scheme in dt, and an error per substep proportional to the tolerance.
+FORMAL_ORDER = {"h": 2.0, "mesh": 2.0, "dt": 2.0, "tolerance_t": 1.0}
 
 
 class ConvergenceError(SceneError):
@@ -81,6 +88,7 @@ class Estimate:
 
     order: float
     order_observed: bool
+    order_used: float
     limit: float
     error_bar: float
     errors: tuple[float, ...]
@@ -108,7 +116,8 @@ def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
 
 def richardson(spacings: list[float], values: list[float], expected_order: float = 2.0) -> Estimate:
     """Observed order, Richardson limit, error bar and errors of ``values`` measured at
-    ``spacings`` (any order, all different)."""
+    ``spacings`` (any order, all different); ``expected_order`` is the formal order, used
+    with two levels and whenever the observed order exceeds it."""
     order_of = np.argsort(spacings)[::-1]  # coarse to fine
     s = np.asarray(spacings, dtype=float)[order_of]
     f = np.asarray(values, dtype=float)[order_of]
@@ -119,27 +128,33 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
     r = float(s[-2] / s[-1])  # the finest pair's ratio
     nan = (math.nan,) * s.size
     if not np.all(np.isfinite(f)):
-        return Estimate(math.nan, False, math.nan, math.nan, nan, "an observable could not be measured in every run")
+        return Estimate(math.nan, False, math.nan, math.nan, math.nan, nan,
+                        "an observable could not be measured in every run")
     observed = s.size >= 3
     if observed:
         coarse, fine = f[-3] - f[-2], f[-2] - f[-1]
         if fine == 0 and coarse == 0:
-            return Estimate(math.inf, True, float(f[-1]), 0.0, tuple(np.zeros(s.size)[np.argsort(order_of)]),
+            return Estimate(math.inf, True, math.inf, float(f[-1]), 0.0, tuple(np.zeros(s.size)),
                             "identical at the finest levels")
         if coarse * fine <= 0 or fine == 0:
-            return Estimate(math.nan, True, math.nan, math.nan, nan,
+            return Estimate(math.nan, True, math.nan, math.nan, math.nan, nan,
                             "the differences change sign: not in the asymptotic range (refine further)")
         order = _observed_order(s, f)
         if not order > 0:
-            return Estimate(order, True, math.nan, math.nan, nan, "the differences grow as s falls: divergent")
+            return Estimate(order, True, math.nan, math.nan, math.nan, nan,
+                            "the differences grow as s falls: divergent")
     else:
         order = float(expected_order)
-    scale = r**order - 1.0
+    # an order observed above the formal one comes from levels outside the asymptotic range
+    # and would shrink the bar: extrapolate with the smaller (Roache's conservative choice)
+    used = min(order, float(expected_order))
+    scale = r**used - 1.0
     limit = float(f[-1] + (f[-1] - f[-2]) / scale)
     error_bar = (1.25 if observed else 3.0) * abs(f[-1] - f[-2]) / scale
     errors = np.empty(s.size)
     errors[order_of] = f - limit
-    return Estimate(float(order), observed, limit, float(error_bar), tuple(float(e) for e in errors))
+    note = f"observed order above the formal {expected_order:g}: extrapolated with {expected_order:g}" if used < order else ""
+    return Estimate(float(order), observed, used, limit, float(error_bar), tuple(float(e) for e in errors), note)
 
 
 def _period(run: RunData) -> float:
@@ -192,7 +207,7 @@ def study_sweep(scene: Path, parameter: str, values: list[float], phases: int) -
     return "\n".join(lines) + "\n"
 
 
-def analyse(directory: Path, parameter: str, observables: list[str], expected_order: float = 2.0) -> dict:
+def analyse(directory: Path, parameter: str, observables: list[str], expected_order: float | None = None) -> dict:
     """Read a study's runs and estimate every observable; writes convergence.csv, .nc and
     .png into ``directory`` and returns the estimates."""
     index = json.loads((directory / "sweep.json").read_text())
@@ -208,8 +223,8 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
                        **{name: OBSERVABLES[name][0](run) for name in observables}})
     levels.sort(key=lambda level: -level["s"])
     spacings = [level["s"] for level in levels]
-    estimates = {name: richardson(spacings, [level[name] for level in levels], expected_order)
-                 for name in observables}
+    formal = FORMAL_ORDER[parameter] if expected_order is None else expected_order
+    estimates = {name: richardson(spacings, [level[name] for level in levels], formal) for name in observables}
     _write_tables(directory, parameter, levels, estimates)
     _plot(directory / "convergence.png", parameter, levels, estimates)
     return {"parameter": parameter, "levels": levels, "estimates": estimates}
@@ -222,14 +237,14 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     buffer = io.StringIO()
     out = csv.writer(buffer, lineterminator="\n")
     out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "order", "order_observed",
-                  "limit", "error_bar", "note"])
+                  "order_used", "limit", "error_bar", "note"])
     for name, estimate in estimates.items():
         unit = OBSERVABLES[name][1]
         for level, error in zip(levels, estimate.errors):
             out.writerow([name, unit, repr(level["s"]), level["run"], repr(level[name]), repr(error),
-                          f"{level['cpu_s']:.3f}", "", "", "", "", ""])
+                          f"{level['cpu_s']:.3f}", "", "", "", "", "", ""])
         out.writerow([name, unit, "limit", "", "", "", "", repr(estimate.order), estimate.order_observed,
-                      repr(estimate.limit), repr(estimate.error_bar), estimate.note])
+                      repr(estimate.order_used), repr(estimate.limit), repr(estimate.error_bar), estimate.note])
     atomic_write(directory / "convergence.csv", buffer.getvalue())
     names = list(estimates)
     dataset = xr.Dataset(
@@ -237,6 +252,7 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
          "error": (("observable", "level"), [list(estimates[n].errors) for n in names]),
          "cpu_s": ("level", [level["cpu_s"] for level in levels]),
          "order": ("observable", [estimates[n].order for n in names]),
+         "order_used": ("observable", [estimates[n].order_used for n in names]),
          "limit": ("observable", [estimates[n].limit for n in names]),
          "error_bar": ("observable", [estimates[n].error_bar for n in names])},
         coords={"observable": names, "level": np.arange(len(levels)), parameter: ("level", [lv["s"] for lv in levels]),
@@ -269,17 +285,19 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
     for ax in (by_s, by_cpu):
         ax.set_ylabel("|value − Richardson limit|")
         ax.grid(True, which="both", alpha=0.3)
-    by_s.legend(fontsize=8)
+    if by_s.lines:  # an observable without a finite error draws nothing
+        by_s.legend(fontsize=8)
     fig.tight_layout()
     save(fig, path)
 
 
 def run_convergence(scene: str | Path, directory: str | Path, parameter: str, values: list[float],
-                    observables: list[str], assignments: list[str] = (), *, expected_order: float = 2.0,
+                    observables: list[str], assignments: list[str] = (), *, expected_order: float | None = None,
                     workers: int | None = None, scheduler: str | None = None, client=None,
                     log: Callable[[str], None] = print) -> dict:
     """Run (or continue) a convergence study of ``scene`` into ``directory`` and analyse it
-    (module docstring); ``assignments`` are ``--set KEY=VALUE`` overrides of every run.
+    (module docstring); ``assignments`` are ``--set KEY=VALUE`` overrides of every run;
+    ``expected_order`` overrides the parameter's :data:`FORMAL_ORDER`.
     Returns what :func:`analyse` returns."""
     from femphase.scene import load_scene
     from femphase.sweep import run_sweep

@@ -41,6 +41,14 @@ def test_richardson_recovers_a_manufactured_limit_and_order():
     assert richardson(h[::-1], f[::-1]).limit == pytest.approx(estimate.limit)
 
 
+def test_an_order_above_the_formal_one_is_not_used_to_shrink_the_bar():
+    # the finest levels converge at 2; the coarsest is pre-asymptotic, inflating the observed order
+    estimate = richardson([2.0, 1.0, 0.5], [1.0, 2.9, 2.95])
+    assert estimate.order > 5 and estimate.order_used == 2.0 and "formal" in estimate.note
+    assert estimate.limit == pytest.approx(2.95 + 0.05 / 3)
+    assert estimate.error_bar == pytest.approx(1.25 * 0.05 / 3)
+
+
 def test_two_levels_assume_the_order_with_a_wider_bar():
     observed = richardson([1.0, 0.5, 0.25], [3.5, 3.125, 3.03125])
     assumed = richardson([0.5, 0.25], [3.125, 3.03125], expected_order=2.0)

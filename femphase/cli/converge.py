@@ -89,8 +89,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="every phase's time step (time units), e.g. 10,5,2.5")
     parser.add_argument("--observable", default="mean_elongation",
                         help="comma-separated: period, mean_elongation, area, separation (default mean_elongation)")
-    parser.add_argument("--order", type=float, default=2.0,
-                        help="the order assumed when only two levels are given (default 2)")
+    parser.add_argument("--order", type=float, default=None,
+                        help="the formal order: used with two levels and when the observed order exceeds it "
+                             "(default 2 for --h, --mesh and --dt, 1 for --tolerance-t)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene value in every run, e.g. --set phases.1.duration=2000")
     where = parser.add_mutually_exclusive_group()
