@@ -79,7 +79,7 @@ class Numerics:
                     adaptive scheme runs a call's steps as one run of substeps, synchronised
                     at its end only (:class:`femphase.timestepping.adaptive.AdaptiveSAV2`): 0.94× the CPU per
                     time unit on the lattice with calls of 2 steps, 0.87× with 8 (same run;
-                    docs/decisions/0006-merged-steps.md); results then depend on where calls
+                    docs/decisions/0008-merged-steps.md); results then depend on where calls
                     end, at the level of the splitting error. Other schemes step one by one;
                     trackers' ``after_step`` runs after every call
     precision       "mixed" (default): under flow on the structured channel, each stepper
@@ -87,7 +87,7 @@ class Numerics:
                     fields: forces, tensor solves, row-shift FFTs, error estimates; the state
                     between calls (at frames, T1 looks, every merged_steps steps), checkpoints,
                     observables and energies are double. Rounding ~1e-6 relative, against the
-                    default scheme's time error of ~1e-2 (docs/decisions/0007-single-precision-flow-steps.md
+                    default scheme's time error of ~1e-2 (docs/decisions/0012-single-precision-flow-steps.md
                     gives the CPU saved and the errors, unchanged). Phases without flow
                     compute in double (their steps must not raise F, checked to 1e-12), and
                     so do meshes and the finite-difference reference. "double": everything in
@@ -122,7 +122,7 @@ class Numerics:
     #: ``tolerance_t``: their error then stays 10⁵ below the local error the scheme allows
     #: per substep. Measured on examples/straight_mesh.toml (600 time units at dt = 10, against
     #: per-box LU): 1e-6 moves centroids by 6e-5 and areas by 2.4e-4 for 0.7× the CPU of 1e-10,
-    #: 1e-5 by 1e-3 and 6e-3 (benchmarks/mesh_parity.py, docs/decisions/0011-mesh-window-solves.md).
+    #: 1e-5 by 1e-3 and 6e-3 (benchmarks/mesh_parity.py, docs/decisions/0016-mesh-window-solves.md).
     KRYLOV_FRACTION = 1e-5
 
     @property

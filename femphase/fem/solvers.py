@@ -125,7 +125,7 @@ class TensorSolver:
 
     It computes in the right-hand side's precision: a float32 right-hand side (the stepper's
     working copy under ``numerics.precision = "mixed"``) gets float32 products, 2× faster
-    (docs/decisions/0007-single-precision-flow-steps.md), and a solution with relative error ~1e-6 instead
+    (docs/decisions/0012-single-precision-flow-steps.md), and a solution with relative error ~1e-6 instead
     of ~1e-15.
     """
 

@@ -39,7 +39,7 @@ class AdaptiveSAV2(RelaxedSAV2):
     exactly and the finite set of sizes keeps solvers and advections reusable. The steps of
     4/3 and 3/2 between neighbouring sizes let the controller settle where the tolerance
     puts it instead of on a power of two below it: on the lattice at the default tolerance
-    that is 3.33 instead of 2.5 (docs/decisions/0001-step-controller.md).
+    that is 3.33 instead of 2.5 (docs/decisions/0003-substep-sizes.md).
 
     Without flow (and source), a substep that would raise the free energy F is rejected as
     well; at the finest size, dt/(3·2^LEVELS), the energy-stable Euler step (:meth:`fallback`)
@@ -55,7 +55,7 @@ class AdaptiveSAV2(RelaxedSAV2):
     depend on where the calls end at the level of the splitting error (the simulation ends
     them at frames, T1 looks, phase ends and every ``numerics.merged_steps`` steps, all
     fixed by the clock, so a resumed run takes the same calls); the call's
-    saving is measured in docs/decisions/0006-merged-steps.md."""
+    saving is measured in docs/decisions/0008-merged-steps.md."""
 
     name = "adaptive"
     order = 2

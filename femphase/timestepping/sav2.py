@@ -221,7 +221,7 @@ class RelaxedSAV2(TimeScheme):
           :meth:`decay` over dt/2, the midpoint step of the other terms over dt, :meth:`decay`
           over dt/2 (Strang, second order). Explicit, that decay set the substep: at dt = 2.5
           the lattice's r(t) error in time falls from 2.8 % to 0.64 %
-          (docs/decisions/0003-repulsion-split.md).
+          (docs/decisions/0006-repulsion-split.md).
 
         The error estimate is ``max |φ¹ − (2φ̄ − φ⁰)|``: the predictor doubled is a first-order
         step, so this is that step's local error, O(dt²), at no extra cost (an embedded pair

@@ -127,7 +127,7 @@ class WindowPolicy:
         full-width windows are always re-examined (the particle may fit a narrower one). The
         check runs after every substep: from the occupied boxes of one compiled scan and the
         windows' corners, on the random packing at γ̇ = 1 it costs 0.10–0.14 ms against 0.42
-        for numpy's boolean reductions group by group (docs/decisions/0008-compiled-window-bookkeeping.md)."""
+        for numpy's boolean reductions group by group (docs/decisions/0013-compiled-window-loops.md)."""
         n = len(layout.windows)
         if not self.enabled or n == 0:
             return np.zeros(n, dtype=bool)
