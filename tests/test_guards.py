@@ -167,3 +167,16 @@ def test_advection_beyond_the_window_margin_warns():
     assert "numerics.margin" in str(caught[0].message)
     guard, caught = run(scene(single, [phase(4.0, 1.0, 2.0, type="shear", rate=0.2, scale="shear_rate")]))
     assert guard.issues == []
+
+
+def test_flow_steps_above_2_5_below_h_half_warn_and_name_the_phase_dt():
+    fine = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.4}, "particles": {"layout": "single"}},
+                 [phase(10.0, 10.0), phase(10.0, 10.0, type="shear", rate=0.1)], scheme="adaptive")
+    guard, caught = run(fine)
+    assert [issue.kind for issue in guard.issues] == ["fine grid"] and guard.issues[0].key == "phases.1.dt"
+    assert "phases.1.dt ≤ 2.5" in str(caught[0].message)
+    coarse = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.5}, "particles": {"layout": "single"}},
+                   [phase(10.0, 10.0, type="shear", rate=0.1)], scheme="adaptive")
+    small_dt = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.4}, "particles": {"layout": "single"}},
+                     [phase(10.0, 2.5, type="shear", rate=0.1)], scheme="adaptive")
+    assert not run(coarse)[0].issues and not run(small_dt)[0].issues

@@ -34,6 +34,11 @@ each warned (:class:`AccuracyWarning`) at most once per phase, or, with
     The measure is dt·max|v − v̄_i| over the occupied dofs of particle i (v̄_i its
     φ²-weighted mean velocity) divided by the margin; warned above
     :data:`ADVECTION_LIMIT` = 1 (the paper's lattice: 0.002).
+``fine grid`` (before every phase with a flow; "adaptive" and "sav2")
+    Below h = :data:`FINE_GRID_SPACING` = 0.5 a phase's dt above :data:`FINE_GRID_DT` = 2.5:
+    the paper's lattice at h = 0.25 with the default dt = 10 (substeps 3.33) does not
+    reproduce the oscillation of h = 1 and 0.5 (r̄ irregular, peaks 1.8 against 1.0), while
+    dt = 2.5 does; the embedded error estimate accepts the larger substeps.
 ``area`` (at every frame from t = :func:`relaxation_time` on)
     a_i = ∫φ_i²/(πR_i²) outside [:data:`AREA_RATIO_MIN`, :data:`AREA_RATIO_MAX`] =
     [0.6, 1.25]. Equilibrium areas are not πR²: the diffuse interface and the neighbours'
@@ -80,7 +85,8 @@ from femphase.timestepping.base import MASS_BOUND, SCHEMES, auto_stabilisation, 
 from femphase.timestepping.euler import LinearlyImplicitEuler
 from femphase.timestepping.fd import explicit_stability_limit
 
-__all__ = ["ADVECTION_LIMIT", "AREA_RATIO_MAX", "AREA_RATIO_MIN", "RELAXATION_TIMES", "SLOWDOWN_LIMIT",
+__all__ = ["ADVECTION_LIMIT", "AREA_RATIO_MAX", "AREA_RATIO_MIN", "FINE_GRID_DT", "FINE_GRID_SPACING",
+           "RELAXATION_TIMES", "SLOWDOWN_LIMIT",
            "STRAIN_RATE_ENVELOPE", "AccuracyError", "AccuracyGuard", "AccuracyWarning", "StepMeasures",
            "advective_spread", "area_ratios", "max_strain_rate", "relaxation_time", "step_measures"]
 
@@ -97,6 +103,11 @@ RELAXATION_TIMES = 40.0
 #: The strongest velocity gradient of the measured envelope (the slab sheared at γ̇ = 10 in
 #: the paper's units, u = γ̇ y/240): areas ≥ 0.77, FEM at dt = 0.1 and 1 and FD agreeing.
 STRAIN_RATE_ENVELOPE = 10.0 / 240.0
+#: Below this spacing the second-order schemes need flow steps of at most FINE_GRID_DT: the
+#: lattice at h = 0.25 with substeps of 3.33 does not reproduce the oscillation that dt = 2.5
+#: reproduces (docs/design/time-schemes.md, "Measured limits").
+FINE_GRID_SPACING = 0.5
+FINE_GRID_DT = 2.5
 #: Flow keys that scale the velocity linearly, by flow type.
 VELOCITY_KEYS = {"shear": "rate", "poiseuille": "rate", "oscillating_shear": "rate", "stokes": None}
 STOKES_KEYS = ("max_velocity", "flux", "pressure_drop")
@@ -234,7 +245,7 @@ def max_strain_rate(domain, velocity: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class Issue:
-    """One guard finding: its kind ("saturation", "advection", "area"), the phase index, the
+    """One guard finding: its kind ("saturation", "fine grid", "advection", "area"), the phase index, the
     step and time it was found at, the scene key to change and the message."""
 
     kind: str
@@ -305,7 +316,18 @@ class AccuracyGuard(Tracker):
         m = self.measures(index, state.radii)
         if m.slowdown > SLOWDOWN_LIMIT:
             self._report("saturation", index, state, f"phases.{index}.dt", self._saturation_message(index, m))
+        self._check_fine_grid(index, state)
         self._check_advection(index, state)
+
+    def _check_fine_grid(self, index: int, state: State) -> None:
+        phase, spacing = self.scene.phases[index], self.scene.domain.spacing
+        if (self.scheme in ("adaptive", "sav2") and spacing < FINE_GRID_SPACING - 1e-12 and phase.dt > FINE_GRID_DT
+                and not self._flow(index).is_still):
+            self._report("fine grid", index, state, f"phases.{index}.dt",
+                         f"phases.{index}.dt = {phase.dt:g} at h = {spacing:g}: below h = {FINE_GRID_SPACING:g} the "
+                         f"flow steps of the {self.scheme} scheme are not accurate above {FINE_GRID_DT:g} although its "
+                         f"error estimate accepts them (the lattice at h = 0.25 loses its oscillation at dt = 10, "
+                         f"keeps it at 2.5); set phases.{index}.dt ≤ {FINE_GRID_DT:g}")
 
     def _saturation_message(self, index: int, m: StepMeasures) -> str:
         numerics = self.scene.numerics
