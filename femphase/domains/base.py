@@ -203,6 +203,11 @@ class Domain(ABC):
         out[layout.order, 1] = layout.reduce(np.add, weight * y) / total
         return out
 
+    def solves_batched(self, numerics: Numerics) -> bool:
+        """Whether windows are solved all at once (:mod:`femphase.fem.blocks`): ``numerics.solver``
+        "batched", or "auto" on a domain with :attr:`batched_solves`."""
+        return numerics.solver == "batched" or (numerics.solver == "auto" and self.batched_solves)
+
     @cached_property
     def block_pattern(self) -> sp.csr_matrix:
         """The sparsity pattern of the P1 operators (mass ∪ stiffness, canonical CSR): every

@@ -81,9 +81,8 @@ class Stepper:
         self._systems: dict = {}
         self._solvers: OrderedDict = OrderedDict()  # least recently used first
         self._cached_bytes = 0
-        #: whether window solves run on all windows at once (``numerics.solver`` "batched",
-        #: or "auto" on a domain with :attr:`~femphase.domains.base.Domain.batched_solves`)
-        self.batched = numerics.solver == "batched" or (numerics.solver == "auto" and domain.batched_solves)
+        #: whether window solves run on all windows at once (:meth:`~femphase.domains.base.Domain.solves_batched`)
+        self.batched = domain.solves_batched(numerics)
         #: CG iterations of the batched solves so far (a diagnostic)
         self.krylov_iterations = 0
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)

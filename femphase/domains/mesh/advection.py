@@ -82,10 +82,10 @@ class GalerkinPade(StepAdvection):
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
         super().__init__(domain, flow, dt)
         self.numerics = numerics
-        self.batched = numerics.solver in ("auto", "batched")
+        self.batched = domain.solves_batched(numerics)
         self._assembled_at: float | None = None
         self._solvers: dict = {}
-        self._blocks: tuple = (None, None)
+        self._blocks: tuple = (None, None, None)  # (layout, its block-diagonal system, that system's diagonal)
         #: BiCGSTAB iterations so far (a diagnostic)
         self.krylov_iterations = 0
         if flow.steady:
@@ -96,7 +96,7 @@ class GalerkinPade(StepAdvection):
         advection = advection_matrix(self.domain, self.flow, time)
         if self.batched:
             self._system_data = self.domain.aligned(ops.mass) - (self.dt / PADE_POLE) * self.domain.aligned(advection)
-            self._blocks = (None, None)
+            self._blocks = (None, None, None)
         else:
             self._system = (ops.mass - (self.dt / PADE_POLE) * advection).tocsr()
             self._mass = ops.mass.tocsr()
@@ -125,12 +125,12 @@ class GalerkinPade(StepAdvection):
         return out, layout
 
     def _advect_batched(self, phi: np.ndarray, layout: Layout) -> np.ndarray:
-        blocks, system = self._blocks
+        blocks, system, diagonal = self._blocks
         if blocks is not layout:
             system = self.domain.window_blocks(layout).block(self._system_data)
-            self._blocks = (layout, system)
+            diagonal = system.diagonal()
+            self._blocks = (layout, system, diagonal)
         rhs = (self.domain.window_operator(layout, "mass") @ phi).astype(complex)
-        w, iterations = bicgstab(system.dot, system.diagonal(), rhs, phi.astype(complex),
-                                 self.numerics.krylov_tolerance)
+        w, iterations = bicgstab(system.dot, diagonal, rhs, phi.astype(complex), self.numerics.krylov_tolerance)
         self.krylov_iterations += iterations
         return phi + 4.0 * np.sqrt(3.0) * w.imag
