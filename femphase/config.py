@@ -54,9 +54,13 @@ class Numerics:
                     the adaptive scheme these use at least 1e-5 · tolerance_t,
                     :attr:`Numerics.krylov_tolerance`)
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
-                    dimensionless). The default, 0.1, keeps the lattice's period within 0.3 %
-                    and r(t) within 2 % of a time-converged run (0.15 % and 1.1 %;
-                    benchmarks/README.md, "Time schemes")
+                    dimensionless) in phases with flow, and STILL_FRACTION of it (a tenth) in
+                    phases without (:meth:`Numerics.substep_tolerance`). The default, 0.1,
+                    keeps the time error below the spatial error at h = 1: the lattice's
+                    r(t) within 1.1 % (h-error 12 %), a relaxing disc's area within 0.14
+                    (h-error ≥ 0.15), two discs' separation after 20000 time units within
+                    1.3e-2 (h-error ≥ 0.07) (benchmarks/README.md, "Tolerance
+                    proportionality")
     repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
                     off the explicit midpoint step (Strang) and integrates it as the pointwise
                     decay it is, in exponential form (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`);
@@ -124,6 +128,20 @@ class Numerics:
     #: per-box LU): 1e-6 moves centroids by 6e-5 and areas by 2.4e-4 for 0.7× the CPU of 1e-10,
     #: 1e-5 by 1e-3 and 6e-3 (benchmarks/mesh_parity.py, docs/decisions/0016-mesh-window-solves.md).
     KRYLOV_FRACTION = 1e-5
+
+    #: ``tolerance_t``'s share in phases without flow (:meth:`substep_tolerance`). There the
+    #: relaxation's fast early stretch (discs growing to their area) carries the time error,
+    #: and at the whole tolerance it exceeds the spatial error at h = 1 (a disc relaxing from
+    #: R/2: 0.83 in area at t = 20, against 0.41 between h = 1 and 0.5; at a tenth 0.10).
+    #: Under flow the whole tolerance keeps the time error far below the spatial error (the
+    #: lattice's r(t): 1.1 % against 12 %), and a tenth there costs 1.68× the CPU of the
+    #: protocol's run (benchmarks/tolerance.py, docs/decisions/0017-tolerance-by-phase.md).
+    STILL_FRACTION = 0.1
+
+    def substep_tolerance(self, still: bool) -> float:
+        """The local error the adaptive scheme allows per substep: ``tolerance_t`` in phases
+        with flow, STILL_FRACTION · ``tolerance_t`` in phases without (``still``)."""
+        return self.tolerance_t * (self.STILL_FRACTION if still else 1.0)
 
     @property
     def krylov_tolerance(self) -> float:

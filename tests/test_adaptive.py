@@ -285,11 +285,11 @@ def test_a_blow_up_inside_a_call_of_several_steps_names_its_step_and_leaves_the_
     assert all(np.array_equal(a, b) for a, b in zip(before, state.fields))
 
 
-def _relaxing_disc_areas(numerics: dict, dt: float) -> np.ndarray:
+def _relaxing_disc_areas(numerics: dict, dt: float, h: float = 1.0) -> np.ndarray:
     """A disc relaxing from R/2 in a 40 × 40 channel: its area at t = 10, 20, 50, 100
     (benchmarks/tolerance.py's disc case)."""
     scene = scene_from_dict({
-        "domain": {"Lx": 40.0, "Ly": 40.0},
+        "domain": {"Lx": 40.0, "Ly": 40.0, "h": h},
         "particles": {"layout": "single", "initial_radius": 4.0},
         "numerics": numerics, "output": {"fields": False, "checkpoint": False},
         "phases": [{"duration": 100.0, "dt": dt, "frame_interval": 10.0}],
@@ -299,9 +299,38 @@ def _relaxing_disc_areas(numerics: dict, dt: float) -> np.ndarray:
     return recorder.series("area")[[1, 2, 5, 10], 0]
 
 
-def test_the_global_error_of_a_relaxing_disc_is_proportional_to_the_tolerance():
-    reference = _relaxing_disc_areas({"scheme": "sav2"}, 0.05)  # second order: ~1e-5 from converged
-    tolerances = np.array([1e-2, 1e-3, 1e-4])
-    errors = np.array([np.max(np.abs(_relaxing_disc_areas({"tolerance_t": t}, 10.0) - reference)) for t in tolerances])
+@pytest.fixture(scope="module")
+def relaxing_disc_reference() -> np.ndarray:
+    return _relaxing_disc_areas({"scheme": "sav2"}, 0.05)  # second order: ~1e-5 from converged
+
+
+def test_the_global_error_of_a_relaxing_disc_is_proportional_to_the_tolerance(relaxing_disc_reference):
+    # without flow the scheme allows a tenth of tolerance_t: 5e-3 … 5e-5 per substep here
+    tolerances = np.array([5e-2, 5e-3, 5e-4])
+    errors = np.array([np.max(np.abs(_relaxing_disc_areas({"tolerance_t": t}, 10.0) - relaxing_disc_reference))
+                       for t in tolerances])
     slope = np.polyfit(np.log(tolerances), np.log(errors), 1)[0]
     assert 0.8 < slope < 1.2, (slope, errors)
+
+
+def test_the_default_time_error_of_a_relaxing_disc_is_below_its_spatial_error(relaxing_disc_reference):
+    """The default tolerance's purpose (Numerics.STILL_FRACTION): at h = 1 the time error
+    stays below the h-error, here its lower bound, the difference to h = 0.5, at every time."""
+    time_error = np.abs(_relaxing_disc_areas({}, 10.0) - relaxing_disc_reference)
+    spatial_error = np.abs(_relaxing_disc_areas({"scheme": "sav2"}, 0.05, h=0.5) - relaxing_disc_reference)
+    assert np.all(time_error < spatial_error), (time_error, spatial_error)
+
+
+@pytest.mark.parametrize("still", [True, False])
+def test_phases_without_flow_allow_a_tenth_of_the_tolerance(still):
+    from helpers import small_system
+
+    from femphase.config import Numerics
+    from femphase.flows import linear_shear
+    from femphase.model.parameters import ModelParameters
+    from femphase.timestepping.stepper import Stepper
+
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
+    flow = None if still else linear_shear(0.1, 40.0)
+    stepper = Stepper(domain, ModelParameters(), Numerics(tolerance_t=0.2), 10.0, flow, state.radii)
+    assert stepper.scheme.tolerance == pytest.approx(0.02 if still else 0.2)

@@ -1,7 +1,8 @@
 """The default scheme ``adaptive``: error-controlled substeps of ``sav2`` inside every step of
 the phase (:class:`AdaptiveSAV2`; its docstring gives the substep sizes, the estimate and
 the controller). The phase's dt is the largest substep and the spacing of frames and
-checkpoints; ``numerics.tolerance_t`` is the local error allowed per substep.
+checkpoints; ``numerics.tolerance_t`` is the local error allowed per substep under flow, a
+tenth of it without (:meth:`femphase.config.Numerics.substep_tolerance`).
 """
 
 from __future__ import annotations
@@ -24,7 +25,8 @@ __all__ = ["AdaptiveSAV2"]
 class AdaptiveSAV2(RelaxedSAV2):
     """Error-controlled substeps of sav2 inside every step of the phase (frames stay at exact
     times): embedded first/second-order error estimate, PI step controller, rejected substeps
-    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ).
+    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ)
+    under flow, a tenth of it without (:meth:`femphase.config.Numerics.substep_tolerance`).
 
     Under flow, consecutive substeps share their half-steps of the split operators: the
     second half-advection of one substep and the first of the next are one advection
@@ -82,7 +84,7 @@ class AdaptiveSAV2(RelaxedSAV2):
 
     def __init__(self, stepper: StepperProtocol) -> None:
         super().__init__(stepper)
-        self.tolerance = stepper.numerics.tolerance_t
+        self.tolerance = stepper.numerics.substep_tolerance(stepper.flow.is_still)
         self._advections: OrderedDict[tuple[int, ...], object] = OrderedDict()
 
     def start_phase(self, state: State) -> None:
