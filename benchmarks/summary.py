@@ -82,6 +82,12 @@ def _mesh_memory(data: dict) -> str:
             f"flow phase {data['configurations']['default']['flow_cpu_seconds']:.0f} CPU s")
 
 
+def _tolerance(data: dict) -> str:
+    cases = data["cases"]
+    slopes = ", ".join(f"{case} {entry['slope']:.2f}" for case, entry in cases.items())
+    return f"log–log slopes of error against tolerance_t over three decades: {slopes}"
+
+
 def _mesh_parity(data: dict) -> str:
     ratios = data["ratios_to_grid"]["mesh"]
     cpu, memory = ratios["flow_cpu_per_time_unit"], ratios["peak_memory"]
@@ -95,6 +101,8 @@ ROWS = (
         "python benchmarks/work_precision.py --schemes"),
     Row("the same, first-order scheme at dt = 1", "benchmarks/results/work_precision_schemes.json",
         _time_error("FEM euler"), "python benchmarks/work_precision.py --schemes"),
+    Row("tolerance proportionality (a disc relaxing, two discs drifting apart, the sheared lattice's r̄(t))",
+        "benchmarks/results/tolerance.json", _tolerance, "python benchmarks/tolerance.py"),
     Row("lattice under shear (N = 100), CPU per time unit at the default",
         "benchmarks/results/step_time.json",
         lambda d: (f"{d['default_ms_per_time_unit']:.2f} ms; "
