@@ -11,7 +11,7 @@ from test_unstructured import PARAMS, discs, straight
 from femphase.config import Numerics
 from femphase.domains.base import window_block
 from femphase.domains.mesh.advection import PADE_POLE, advection_matrix
-from femphase.fem.blocks import KrylovError, aligned_data, bicgstab, conjugate_gradient
+from femphase.fem.blocks import KrylovError, aligned_data, bicgstab, conjugate_gradient, local_block
 from femphase.flows import poiseuille
 from femphase.timestepping.stepper import Stepper
 
@@ -32,6 +32,25 @@ def reference_blocks(matrix, domain, layout):
         block = window_block(matrix, domain.window_dofs(layout.representative(group)))
         blocks += [block] * members.size
     return sp.block_diag(blocks, format="csr")
+
+
+@pytest.mark.parametrize("order", ["ascending", "shuffled"])
+def test_a_local_block_is_the_principal_submatrix_in_canonical_order(sheared, order):
+    """Entry (p, q) of a window's block is the pattern's (dofs[p], dofs[q]), each row's
+    columns ascending, whatever order the window numbers its dofs in."""
+    domain, _, layout, _ = sheared
+    pattern = domain.block_pattern
+    dofs = domain.window_dofs(layout.representative(0)).copy()
+    if order == "shuffled":
+        np.random.default_rng(3).shuffle(dofs)
+    block = local_block(pattern, dofs)
+    rebuilt = sp.csr_matrix((np.ones(block.indices.size), block.indices, block.indptr), shape=(dofs.size,) * 2)
+    assert np.array_equal(rebuilt.toarray(), pattern[dofs][:, dofs].toarray())
+    assert all(np.all(np.diff(block.indices[a:b]) > 0) for a, b in zip(block.indptr[:-1], block.indptr[1:]))
+    # source: where each entry sits among the full pattern's stored entries
+    rows = np.repeat(np.arange(dofs.size), np.diff(block.indptr))
+    assert np.all((pattern.indptr[dofs[rows]] <= block.source) & (block.source < pattern.indptr[dofs[rows] + 1]))
+    assert np.array_equal(pattern.indices[block.source], dofs[block.indices])
 
 
 def test_the_block_diagonal_matrix_holds_every_windows_principal_submatrix(sheared):

@@ -258,6 +258,16 @@ class Domain(ABC):
             cache[name] = pattern.block(self._operator_data[name])
         return cache[name]
 
+    def window_diagonal(self, layout: Layout, name: str) -> np.ndarray:
+        """The diagonal of :meth:`window_operator` (kept with it: a Krylov solve's Jacobi
+        preconditioner needs it at every call, and extracting it costs a pass over the
+        matrix)."""
+        operator = self.window_operator(layout, name)
+        cache = self._window_blocks
+        if (name, "diagonal") not in cache:
+            cache[name, "diagonal"] = operator.diagonal()
+        return cache[name, "diagonal"]
+
     @cached_property
     def _stiffness_blocks(self) -> dict:
         return {}

@@ -71,21 +71,25 @@ class LocalBlock(NamedTuple):
 
 
 def local_block(pattern: sp.csr_matrix, dofs: np.ndarray) -> LocalBlock:
-    """The principal submatrix of ``pattern`` (canonical CSR) on ``dofs`` as a
+    """The principal submatrix of ``pattern`` (canonical CSR) on ``dofs`` (distinct) as a
     :class:`LocalBlock`; entry (p, q) is the pattern's (dofs[p], dofs[q])."""
-    order = np.argsort(dofs, kind="stable")
-    sorted_dofs = dofs[order]
     begin = pattern.indptr[dofs].astype(np.int64)
     length = pattern.indptr[dofs + 1].astype(np.int64) - begin
     rows = np.repeat(np.arange(dofs.size, dtype=np.int64), length)
     source = np.arange(rows.size, dtype=np.int64) - np.repeat(np.cumsum(length) - length - begin, length)
-    wanted = pattern.indices[source]
-    found = np.minimum(np.searchsorted(sorted_dofs, wanted), dofs.size - 1)
-    inside = sorted_dofs[found] == wanted
-    rows, columns, source = rows[inside], order[found[inside]], source[inside]
-    canonical = np.lexsort((columns, rows))
+    position = np.full(pattern.shape[1], -1, dtype=np.int64)  # each dof's place in the window, −1 outside
+    position[dofs] = np.arange(dofs.size, dtype=np.int64)
+    columns = position[pattern.indices[source]]
+    inside = columns >= 0
+    rows, columns, source = rows[inside], columns[inside], source[inside]
+    key = rows * dofs.size + columns
+    # rows come in order and the pattern's columns are sorted, so each row's local columns are
+    # too wherever ``dofs`` ascends (a mesh box's); windows numbered otherwise are sorted here
+    if key.size and np.any(key[1:] <= key[:-1]):
+        canonical = np.argsort(key, kind="stable")
+        columns, source = columns[canonical], source[canonical]
     indptr = np.concatenate([[0], np.cumsum(np.bincount(rows, minlength=dofs.size))])
-    return LocalBlock(indptr.astype(np.int64), columns[canonical].astype(np.int64), source[canonical])
+    return LocalBlock(indptr.astype(np.int64), columns, source)
 
 
 class BlockPattern:

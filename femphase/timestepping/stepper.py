@@ -164,14 +164,14 @@ class Stepper:
         lumped_part = (shift if self.lumped else 0.0) + self.mobility * stabilisation
         weight = lumped_part * layout.mass
         b = self.mobility * self.energy.diffusivity
-        diagonal = weight + b * stiffness.diagonal()
+        diagonal = weight + b * self.domain.window_diagonal(layout, "stiffness")
         if self.lumped:
             def apply(x: np.ndarray) -> np.ndarray:
                 return weight * x + b * (stiffness @ x)
         else:
             mass = self.domain.window_operator(layout, "mass")
             rhs = rhs + shift * (mass @ previous)
-            diagonal = diagonal + shift * mass.diagonal()
+            diagonal = diagonal + shift * self.domain.window_diagonal(layout, "mass")
 
             def apply(x: np.ndarray) -> np.ndarray:
                 return shift * (mass @ x) + weight * x + b * (stiffness @ x)
