@@ -179,14 +179,16 @@ def bicgstab(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.ndarray, rh
             break
         beta = (rho_next / rho) * (alpha / omega)
         rho = rho_next
-        p = r + beta * (p - omega * v)
+        p -= omega * v  # p = r + β (p − ω v), in place
+        p *= beta
+        p += r
         p_hat = inverse * p
         v = apply(p_hat)
         alpha = rho / np.vdot(shadow, v)
         s = r - alpha * v
-        if np.max(np.abs(inverse * s)) <= goal:
-            return x + alpha * p_hat, iteration
         s_hat = inverse * s
+        if np.max(np.abs(s_hat)) <= goal:
+            return x + alpha * p_hat, iteration
         t = apply(s_hat)
         omega = np.vdot(t, s) / np.vdot(t, t)
         x += alpha * p_hat + omega * s_hat

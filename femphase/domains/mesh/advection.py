@@ -74,7 +74,7 @@ class GalerkinPade(StepAdvection):
 
     With ``numerics.solver`` "auto" or "batched", the complex systems of all windows are
     solved at once by Jacobi-preconditioned BiCGSTAB on their block-diagonal matrix
-    (:mod:`femphase.fem.blocks`), from the guess w = φ (the solution as dt → 0): mass-dominated
+    (:mod:`femphase.fem.blocks`), from the guess w = φ + (dt/r) M_L⁻¹Cφ: mass-dominated
     at Courant numbers below ~1, they converge in a few iterations, and nothing per window
     is kept. With "direct" or "amg", one complex solver per window key, kept while the
     window's dofs do not change."""
@@ -131,6 +131,10 @@ class GalerkinPade(StepAdvection):
             diagonal = system.diagonal()
             self._blocks = (layout, system, diagonal)
         rhs = (self.domain.window_operator(layout, "mass") @ phi).astype(complex)
-        w, iterations = bicgstab(system.dot, diagonal, rhs, phi.astype(complex), self.numerics.krylov_tolerance)
+        # w = φ solves the system as dt → 0; one step with the lumped mass from there, w = φ +
+        # M_L⁻¹(M φ − A φ) = φ + (dt/r) M_L⁻¹ C φ, is the guess to first order in dt: one
+        # iteration in five fewer at the default substep (measured on examples/straight_mesh.toml)
+        guess = phi + (rhs - system.dot(phi)) / layout.mass
+        w, iterations = bicgstab(system.dot, diagonal, rhs, guess, self.numerics.krylov_tolerance)
         self.krylov_iterations += iterations
         return phi + 4.0 * np.sqrt(3.0) * w.imag
