@@ -62,6 +62,16 @@ def finish(child: subprocess.Popen, started: float) -> dict:
             "peak_mb": usage.ru_maxrss / 1024}
 
 
+def second_phase_duration(duration: float, sets: list[str]) -> float:
+    """The second phase's duration the runs use: ``--duration``, unless a ``--set`` of
+    ``phases.1.duration`` (applied after it) overrides it."""
+    for assignment in reversed(sets):
+        key, _, value = assignment.partition("=")
+        if key.strip() == "phases.1.duration":
+            return float(value)
+    return duration
+
+
 def run_rate(trees: dict[str, Path], scene: str, rate: float | None, duration: float, scratch: Path,
              sets: list[str]) -> dict[str, dict]:
     """The protocol at ``rate`` on every tree at once (one child per tree)."""
@@ -93,6 +103,7 @@ def main() -> None:
     args = parser.parse_args()
     trees = {"new": ROOT} if args.old is None else {"new": ROOT, "old": args.old.resolve()}
     load = common.load_average()
+    shear_time = second_phase_duration(args.duration, args.set)
     rows = {}
     with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
         for rate in args.rates:
@@ -102,10 +113,10 @@ def main() -> None:
             if args.old is not None:
                 line += f"; new/old {rows[str(rate)]['new']['cpu_s'] / rows[str(rate)]['old']['cpu_s']:.3f}"
             flow = "its own flow" if rate is None else f"γ̇ = {rate}"
-            print(f"{args.scene}, {flow}, second phase {args.duration:g} time units: {line}", flush=True)
+            print(f"{args.scene}, {flow}, second phase {shear_time:g} time units: {line}", flush=True)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps({
-        "scene": f"examples/{args.scene}", "shear_time": args.duration, "sets": args.set, "runs": rows,
+        "scene": f"examples/{args.scene}", "shear_time": shear_time, "sets": args.set, "runs": rows,
         "trees": {name: {"path": str(tree), "commit": _commit(tree)} for name, tree in trees.items()},
         "load_average": {"start": load, "end": common.load_average()},
         "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
