@@ -106,38 +106,35 @@ def references(cases: list[str]) -> dict:
     if "disc" in cases and "disc" not in cached:
         cached["disc"] = {"area": disc_areas({"scheme": "sav2"}, 0.05)[0], "scheme": "sav2", "dt": 0.05,
                           "area_h_0.5": disc_areas({"scheme": "sav2"}, 0.05, h=0.5)[0]}
-    if "pair" in cases and cached.get("pair", {}).get("dt") != [0.5, 0.25]:
-        single = cached.get("pair", {})  # a single run at dt = 0.5 serves as the coarse one
-        coarse = single["separation"] if single.get("dt") == 0.5 else pair_separation({"scheme": "sav2"}, 0.5)[0]
-        fine = pair_separation({"scheme": "sav2"}, 0.25)[0]
-        cached["pair"] = {**cached.get("pair", {}), "separation": extrapolated(coarse, fine),
-                          "own_error": abs(fine - coarse) / 3.0, "scheme": "sav2", "dt": [0.5, 0.25]}
-    if "pair" in cases and "separation_h_0.5" not in cached["pair"]:
-        cached["pair"]["separation_h_0.5"] = pair_separation({"scheme": "sav2"}, 1.0, h=0.5)[0]
-    if "lattice" in cases or "lattice" in cached:
-        import work_precision as wp
-    if "lattice" in cases and cached.get("lattice", {}).get("dt") != [0.25, 0.125]:
-        single = cached.get("lattice", {})
-        coarse = (single["result"] if single.get("dt") == 0.25
-                  else wp.run(wp.Point("lattice", "fem", 1.0, 0.25, {"scheme": "sav2"})).result)
-        fine = wp.run(wp.Point("lattice", "fem", 1.0, 0.125, {"scheme": "sav2"})).result
-        elongation = extrapolated(np.array(coarse["mean_elongation"]), np.array(fine["mean_elongation"]))
-        own = wp.lattice_errors(wp.Point("lattice", "fem", 1.0, 0.125, result=fine),
-                                {"times": fine["times"], "mean_elongation": elongation.tolist()})
-        cached["lattice"] = {**cached.get("lattice", {}), "result": {**fine, "mean_elongation": elongation.tolist()},
-                             "own_error": own, "scheme": "sav2", "dt": [0.25, 0.125]}
-    if "lattice" in cases and "result_h_0.5" not in cached["lattice"]:
-        point = wp.run(wp.Point("lattice", "fem", 0.5, 10.0, {"scheme": "adaptive", "tolerance_t": 1e-3}))
-        cached["lattice"]["result_h_0.5"] = point.result
+    if "pair" in cases and "pair" not in cached:
+        coarse, fine = (pair_separation({"scheme": "sav2"}, dt)[0] for dt in (0.5, 0.25))
+        cached["pair"] = {"separation": extrapolated(coarse, fine), "own_error": abs(fine - coarse) / 3.0,
+                          "scheme": "sav2", "dt": [0.5, 0.25],
+                          "separation_h_0.5": pair_separation({"scheme": "sav2"}, 1.0, h=0.5)[0]}
+    if "lattice" in cases and "lattice" not in cached:
+        cached["lattice"] = lattice_reference()
     REFERENCES.parent.mkdir(exist_ok=True)
     REFERENCES.write_text(json.dumps(cached, indent=1) + "\n")
     return cached
 
 
+def lattice_reference() -> dict:
+    """The lattice's reference (sav2 at dt = 0.25 and 0.125, extrapolated) and its h = 0.5 run."""
+    import work_precision as wp
+
+    coarse, fine = (wp.run(wp.Point("lattice", "fem", 1.0, dt, {"scheme": "sav2"})).result for dt in (0.25, 0.125))
+    elongation = extrapolated(np.array(coarse["mean_elongation"]), np.array(fine["mean_elongation"])).tolist()
+    own = wp.lattice_errors(wp.Point("lattice", "fem", 1.0, 0.125, result=fine),
+                            {"times": fine["times"], "mean_elongation": elongation})
+    fine_h = wp.run(wp.Point("lattice", "fem", 0.5, 10.0, {"scheme": "adaptive", "tolerance_t": 1e-3})).result
+    return {"result": {**fine, "mean_elongation": elongation}, "own_error": own, "scheme": "sav2",
+            "dt": [0.25, 0.125], "result_h_0.5": fine_h}
+
+
 def extrapolated(coarse, fine):
-    """Richardson's extrapolation of a second-order scheme's results at dt and dt/2: the
-    reference, whose own error is about |fine − coarse|/3 times the next order's factor
-    (stored as ``own_error``: |fine − coarse|/3, an upper bound in practice)."""
+    """Richardson's extrapolation of a second-order scheme's results at dt and dt/2, the
+    reference. ``own_error`` in the cache is |fine − coarse|/3, the fine run's estimated
+    error, which bounds the extrapolated value's in practice."""
     return fine + (fine - coarse) / 3.0
 
 
