@@ -73,13 +73,42 @@ def test_windows_agree_with_the_full_mesh():
 
 def test_row_shift_is_exact_for_integer_shifts_and_invertible():
     rng = np.random.default_rng(0)
-    fields = rng.random((2, 5, 15))  # odd length: no Nyquist mode, so shifts are invertible
+    fields = rng.random((2, 5, 15))  # odd length: no Nyquist mode, so integer shifts are rolls
     shifts = np.array([[0, 1, 2, 3, -4]] * 2, dtype=float)
     shifted = shift_rows(fields, shifts)
     for row in range(5):
         assert np.allclose(shifted[0, row], np.roll(fields[0, row], int(shifts[0, row])))
     fractional = rng.uniform(-0.5, 0.5, (2, 5))
     assert np.allclose(shift_rows(shift_rows(fields, fractional), -fractional), fields)
+
+
+def test_row_shifts_of_even_rows_compose_exactly_and_keep_the_nyquist_mode():
+    # even length: the Nyquist mode stays in place (the spectral derivative's convention),
+    # so two shifts are one, however a displacement is split into steps
+    rng = np.random.default_rng(1)
+    fields = rng.random((2, 5, 16))
+    first, second = rng.uniform(-0.7, 0.7, (2, 2, 5))
+    twice = shift_rows(shift_rows(fields, first), second)
+    assert np.abs(twice - shift_rows(fields, first + second)).max() < 1e-13
+    nyquist = lambda f: np.fft.rfft(f, axis=-1)[..., -1]
+    assert np.allclose(nyquist(shift_rows(fields, first)), nyquist(fields))
+    # a window moved by an odd number of nodes carries the mode with the opposite sign
+    assert np.allclose(nyquist(shift_rows(fields, first, moves=np.ones((2, 5), dtype=int))), -nyquist(fields))
+
+
+def test_shear_advection_of_windows_does_not_depend_on_how_a_step_is_split():
+    # two advections of dt/2 are one of dt while no window moves by whole nodes: the
+    # adaptive scheme merges half-steps of neighbouring substeps into one advection
+    domain, state = small_system([[13.0, 12.0], [26.0, 28.0]])
+    flow = linear_shear(0.6, 40.0)
+    numerics = Numerics(precision="double")
+    layout, phi = state.flat()
+    halves = [domain.advection(flow, 0.25, numerics) for _ in range(2)]
+    split, split_layout = halves[1].advect(*halves[0].advect(phi.copy(), layout, 0.0), 0.25)
+    whole, whole_layout = domain.advection(flow, 0.5, numerics).advect(phi.copy(), layout, 0.0)
+    assert split_layout.windows == whole_layout.windows == layout.windows
+    assert np.abs(split - whole).max() < 1e-13
+    assert np.abs(whole - phi).max() > 1e-3  # the fields did move
 
 
 def test_shear_advection_does_not_limit_dt():
