@@ -57,7 +57,7 @@ class Numerics:
                     dimensionless) in phases with flow, and STILL_FRACTION of it (a tenth) in
                     phases without (:meth:`Numerics.substep_tolerance`). The default, 0.1,
                     keeps the time error below the spatial error at h = 1: the lattice's
-                    r(t) within 1.1 % (h-error 12 %), a relaxing disc's area within 0.08,
+                    r(t) within 1.2 % (h-error 12 %), a relaxing disc's area within 0.08,
                     0.10, 0.14, 0.08 at t = 10, 20, 50, 100 (h = 1 → 0.5 differences 0.15,
                     0.41, 0.31, 0.086), two discs' separation after 20000 time units within
                     1.3e-2 (h-error ≥ 0.07) (benchmarks/README.md, "Tolerance
@@ -95,9 +95,14 @@ class Numerics:
                     default scheme's time error of ~1e-2 (docs/decisions/0012-single-precision-flow-steps.md
                     gives the CPU saved and the errors, unchanged). Phases without flow
                     compute in double (their steps must not raise F, checked to 1e-12), and
-                    so do meshes and the finite-difference reference. "double": everything in
-                    double, for convergence studies whose errors reach ~1e-5
-                    (verification/mms.py sets it)
+                    so do meshes and the finite-difference reference, and the adaptive
+                    scheme's flow steps at tolerance_t below 1e-4, where single precision's
+                    rounding would set the error (:attr:`Numerics.SINGLE_PRECISION_TOLERANCE`).
+                    "double": everything in double, for convergence studies whose errors
+                    reach ~1e-5 (verification/mms.py sets it) and for time-converged
+                    references at fixed dt: the rounding of many small steps adds up (the
+                    lattice's r̄(t) by sav2 at dt = 0.25, 0.125, 0.0625 diverged at order
+                    −1.9 in mixed precision, converged at 1.95 in double; benchmarks/tolerance.py)
     strict          False (default): a run that leaves the accuracy envelope measured in
                     benchmarks/stability.py warns (:class:`femphase.run.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
@@ -135,7 +140,7 @@ class Numerics:
     #: and at the whole tolerance it exceeds the spatial error at h = 1 (a disc relaxing from
     #: R/2: 0.83 in area at t = 20, against 0.41 between h = 1 and 0.5; at a tenth 0.10).
     #: Under flow the whole tolerance keeps the time error far below the spatial error (the
-    #: lattice's r(t): 1.1 % against 12 %), and a tenth there costs 1.68× the CPU of the
+    #: lattice's r(t): 1.2 % against 12 %), and a tenth there costs 1.68× the CPU of the
     #: protocol's run (benchmarks/tolerance.py, docs/decisions/0017-tolerance-by-phase.md).
     STILL_FRACTION = 0.1
 
@@ -143,6 +148,20 @@ class Numerics:
         """The local error the adaptive scheme allows per substep: ``tolerance_t`` in phases
         with flow, STILL_FRACTION · ``tolerance_t`` in phases without (``still``)."""
         return self.tolerance_t * (self.STILL_FRACTION if still else 1.0)
+
+    #: The tightest ``tolerance_t`` at which "mixed" precision still computes flow steps in
+    #: single precision under the adaptive scheme; below it they compute in double
+    #: (:attr:`single_precision_allowed`). Their rounding otherwise sets a floor: the sheared
+    #: lattice's r̄(t) error against a double-precision reference was 8.1e-5 of max r̄ at 1e-4
+    #: (double: 7.7e-5) and 9.8e-5 at 1e-5 (double: 9.7e-6; docs/decisions/0018-nyquist-mode.md).
+    SINGLE_PRECISION_TOLERANCE = 1e-4
+
+    @property
+    def single_precision_allowed(self) -> bool:
+        """Whether flow steps may compute in single precision: ``precision = "mixed"``, and
+        under the adaptive scheme a ``tolerance_t`` of at least SINGLE_PRECISION_TOLERANCE."""
+        return self.precision == "mixed" and (self.scheme != "adaptive"
+                                               or self.tolerance_t >= self.SINGLE_PRECISION_TOLERANCE)
 
     @property
     def krylov_tolerance(self) -> float:

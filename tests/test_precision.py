@@ -74,3 +74,16 @@ def test_single_precision_only_where_it_applies():
 def test_an_unknown_precision_is_refused_by_name():
     with pytest.raises(SceneError, match=r"numerics\.precision.*single.*mixed.*double"):
         Numerics(precision="single")
+
+
+def test_tight_adaptive_tolerances_step_in_double_under_mixed_precision():
+    # below SINGLE_PRECISION_TOLERANCE single precision's rounding would set the error
+    domain, state = small_system([[13.0, 19.0]])
+    single = {}
+    for tolerance in (1e-3, Numerics.SINGLE_PRECISION_TOLERANCE, 1e-5):
+        numerics = Numerics(scheme="adaptive", tolerance_t=tolerance)
+        single[tolerance] = Stepper(domain, ModelParameters(), numerics, 2.0, linear_shear(1.0, 40.0),
+                                    state.radii).single_precision
+    assert single == {1e-3: True, Numerics.SINGLE_PRECISION_TOLERANCE: True, 1e-5: False}
+    assert not Numerics(scheme="adaptive", tolerance_t=1e-5, precision="double").single_precision_allowed
+    assert Numerics(scheme="sav2", tolerance_t=1e-5).single_precision_allowed  # fixed dt: the user's choice
