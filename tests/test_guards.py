@@ -105,7 +105,7 @@ def test_strict_turns_the_warning_into_an_error_before_the_bad_phase_steps():
     assert (error.step, error.time) == (4, 2.0) and state.step == 4  # phase 1 never stepped
     assert "step 4 (t = 2)" in str(error) and "phases.1.dt" in str(error)
     # an explicit argument overrides the scene
-    guard, caught = run(sc, AccuracyGuard(strict=False))
+    _guard, caught = run(sc, AccuracyGuard(strict=False))
     assert len(caught) == 1
 
 
@@ -169,14 +169,15 @@ def test_advection_beyond_the_window_margin_warns():
     assert guard.issues == []
 
 
-def test_flow_steps_above_2_5_below_h_half_warn_and_name_the_phase_dt():
+def test_loose_tolerances_below_h_half_warn_and_name_the_tolerance():
     fine = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.4}, "particles": {"layout": "single"}},
                  [phase(10.0, 10.0), phase(10.0, 10.0, type="shear", rate=0.1)], scheme="adaptive")
     guard, caught = run(fine)
-    assert [issue.kind for issue in guard.issues] == ["fine grid"] and guard.issues[0].key == "phases.1.dt"
-    assert "phases.1.dt ≤ 2.5" in str(caught[0].message)
+    assert [issue.kind for issue in guard.issues] == ["fine grid"] and guard.issues[0].key == "numerics.tolerance_t"
+    assert guard.issues[0].phase == 1  # the still phase does not warn
+    assert "numerics.tolerance_t ≤ 0.01" in str(caught[0].message)
     coarse = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.5}, "particles": {"layout": "single"}},
                    [phase(10.0, 10.0, type="shear", rate=0.1)], scheme="adaptive")
-    small_dt = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.4}, "particles": {"layout": "single"}},
-                     [phase(10.0, 2.5, type="shear", rate=0.1)], scheme="adaptive")
-    assert not run(coarse)[0].issues and not run(small_dt)[0].issues
+    tight = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.4}, "particles": {"layout": "single"}},
+                  [phase(10.0, 10.0, type="shear", rate=0.1)], scheme="adaptive", tolerance_t=0.01)
+    assert not run(coarse)[0].issues and not run(tight)[0].issues

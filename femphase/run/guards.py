@@ -34,11 +34,14 @@ each warned (:class:`AccuracyWarning`) at most once per phase, or, with
     The measure is dt·max|v − v̄_i| over the occupied dofs of particle i (v̄_i its
     φ²-weighted mean velocity) divided by the margin; warned above
     :data:`ADVECTION_LIMIT` = 1 (the paper's lattice: 0.002).
-``fine grid`` (before every phase with a flow; "adaptive" and "sav2")
-    Below h = :data:`FINE_GRID_SPACING` = 0.5 a phase's dt above :data:`FINE_GRID_DT` = 2.5:
-    the paper's lattice at h = 0.25 with the default dt = 10 (substeps 3.33) does not
-    reproduce the oscillation of h = 1 and 0.5 (r̄ irregular, peaks 1.8 against 1.0), while
-    dt = 2.5 does; the embedded error estimate accepts the larger substeps.
+``fine grid`` (before every phase with a flow; "adaptive")
+    Below h = :data:`FINE_GRID_SPACING` = 0.5 a ``numerics.tolerance_t`` above
+    :data:`FINE_GRID_TOLERANCE` = 0.01: the paper's lattice at h = 0.25 at the default
+    tolerance 0.1 (dt = 10, substeps 3.33) does not reproduce the oscillation of h = 1 and
+    0.5 (r̄ irregular, peaks 1.6–2.0 against 1.0), and with dt = 2.5 it oscillates out of
+    phase with the converged run (mean r 0.27 at t = 3000 against 1.02); at 0.01 it follows
+    the run at 0.003 to 1e-3 (0.53, 1.02, 0.34, 0.20 at t = 2500, 3000, 3500, 4000, as at
+    h = 0.5).
 ``area`` (at every frame from t = :func:`relaxation_time` on)
     a_i = ∫φ_i²/(πR_i²) outside [:data:`AREA_RATIO_MIN`, :data:`AREA_RATIO_MAX`] =
     [0.6, 1.25]. Equilibrium areas are not πR²: the diffuse interface and the neighbours'
@@ -85,7 +88,7 @@ from femphase.timestepping.base import MASS_BOUND, SCHEMES, auto_stabilisation, 
 from femphase.timestepping.euler import LinearlyImplicitEuler
 from femphase.timestepping.fd import explicit_stability_limit
 
-__all__ = ["ADVECTION_LIMIT", "AREA_RATIO_MAX", "AREA_RATIO_MIN", "FINE_GRID_DT", "FINE_GRID_SPACING",
+__all__ = ["ADVECTION_LIMIT", "AREA_RATIO_MAX", "AREA_RATIO_MIN", "FINE_GRID_SPACING", "FINE_GRID_TOLERANCE",
            "RELAXATION_TIMES", "SLOWDOWN_LIMIT",
            "STRAIN_RATE_ENVELOPE", "AccuracyError", "AccuracyGuard", "AccuracyWarning", "StepMeasures",
            "advective_spread", "area_ratios", "max_strain_rate", "relaxation_time", "step_measures"]
@@ -103,11 +106,11 @@ RELAXATION_TIMES = 40.0
 #: The strongest velocity gradient of the measured envelope (the slab sheared at γ̇ = 10 in
 #: the paper's units, u = γ̇ y/240): areas ≥ 0.77, FEM at dt = 0.1 and 1 and FD agreeing.
 STRAIN_RATE_ENVELOPE = 10.0 / 240.0
-#: Below this spacing the second-order schemes need flow steps of at most FINE_GRID_DT: the
-#: lattice at h = 0.25 with substeps of 3.33 does not reproduce the oscillation that dt = 2.5
-#: reproduces (docs/design/time-schemes.md, "Measured limits").
+#: Below this spacing the adaptive scheme needs ``tolerance_t`` ≤ FINE_GRID_TOLERANCE under
+#: flow: at the default 0.1 the lattice at h = 0.25 loses its oscillation, at 0.01 it agrees
+#: with 0.003 (docs/design/time-schemes.md, "Measured limits").
 FINE_GRID_SPACING = 0.5
-FINE_GRID_DT = 2.5
+FINE_GRID_TOLERANCE = 0.01
 #: Flow keys that scale the velocity linearly, by flow type.
 VELOCITY_KEYS = {"shear": "rate", "poiseuille": "rate", "oscillating_shear": "rate", "stokes": None}
 STOKES_KEYS = ("max_velocity", "flux", "pressure_drop")
@@ -320,14 +323,14 @@ class AccuracyGuard(Tracker):
         self._check_advection(index, state)
 
     def _check_fine_grid(self, index: int, state: State) -> None:
-        phase, spacing = self.scene.phases[index], self.scene.domain.spacing
-        if (self.scheme in ("adaptive", "sav2") and spacing < FINE_GRID_SPACING - 1e-12 and phase.dt > FINE_GRID_DT
+        spacing, tolerance = self.scene.domain.spacing, self.scene.numerics.tolerance_t
+        if (self.scheme == "adaptive" and spacing < FINE_GRID_SPACING - 1e-12 and tolerance > FINE_GRID_TOLERANCE
                 and not self._flow(index).is_still):
-            self._report("fine grid", index, state, f"phases.{index}.dt",
-                         f"phases.{index}.dt = {phase.dt:g} at h = {spacing:g}: below h = {FINE_GRID_SPACING:g} the "
-                         f"flow steps of the {self.scheme} scheme are not accurate above {FINE_GRID_DT:g} although its "
-                         f"error estimate accepts them (the lattice at h = 0.25 loses its oscillation at dt = 10, "
-                         f"keeps it at 2.5); set phases.{index}.dt ≤ {FINE_GRID_DT:g}")
+            self._report("fine grid", index, state, "numerics.tolerance_t",
+                         f"numerics.tolerance_t = {tolerance:g} at h = {spacing:g}: below h = {FINE_GRID_SPACING:g} "
+                         f"the adaptive scheme's flow steps at that tolerance are not accurate (the lattice at "
+                         f"h = 0.25 loses its oscillation at 0.1 and agrees with 0.003 at 0.01); set "
+                         f"numerics.tolerance_t ≤ {FINE_GRID_TOLERANCE:g}")
 
     def _saturation_message(self, index: int, m: StepMeasures) -> str:
         numerics = self.scene.numerics
@@ -422,10 +425,10 @@ class AccuracyGuard(Tracker):
                 else:
                     key, target = None, f"the flow's velocities × {factor:.3g}"
                 return (f"phases.{index}.flow" + (f".{key}" if key else ""),
-                        f"the flow's largest velocity gradient {rate:.3g} exceeds the strongest measured one, "
+                        (f"the flow's largest velocity gradient {rate:.3g} exceeds the strongest measured one, "
                         f"{STRAIN_RATE_ENVELOPE:.3g} (γ̇ = 10 in the paper's channel): the flow deforms particles "
                         f"faster than the model restores them, at any dt (the step is within the saturation "
-                        f"limit); use {target}")
+                        f"limit); use {target}"))
         mu = self.scene.model.area_stiffness
         return "model.mu", (f"the area constraint is too weak for this packing or flow: raise model.mu to ≥ "
                             f"{mu * (1 - ratio) / (1 - AREA_RATIO_MIN):.3g} (the area deficit scales as 1/μ)")
