@@ -151,16 +151,16 @@ class Numerics:
 
     #: The tightest ``tolerance_t`` at which "mixed" precision still computes flow steps in
     #: single precision under the adaptive scheme; below it they compute in double
-    #: (:attr:`single_precision_allowed`). Their rounding otherwise sets a floor: the sheared
+    #: (:meth:`single_precision_allowed`). Their rounding otherwise sets a floor: the sheared
     #: lattice's r̄(t) error against a double-precision reference was 8.1e-5 of max r̄ at 1e-4
     #: (double: 7.7e-5) and 9.8e-5 at 1e-5 (double: 9.7e-6; docs/decisions/0018-nyquist-mode.md).
     SINGLE_PRECISION_TOLERANCE = 1e-4
 
-    @property
-    def single_precision_allowed(self) -> bool:
-        """Whether flow steps may compute in single precision: ``precision = "mixed"``, and
-        under the adaptive scheme a ``tolerance_t`` of at least SINGLE_PRECISION_TOLERANCE."""
-        return self.precision == "mixed" and (self.scheme != "adaptive"
+    def single_precision_allowed(self, scheme: str) -> bool:
+        """Whether flow steps of ``scheme`` (the one the stepper runs, which ``--method`` may
+        set apart from ``self.scheme``) may compute in single precision: ``precision =
+        "mixed"``, and for "adaptive" a ``tolerance_t`` of at least SINGLE_PRECISION_TOLERANCE."""
+        return self.precision == "mixed" and (scheme != "adaptive"
                                                or self.tolerance_t >= self.SINGLE_PRECISION_TOLERANCE)
 
     @property

@@ -85,5 +85,7 @@ def test_tight_adaptive_tolerances_step_in_double_under_mixed_precision():
         single[tolerance] = Stepper(domain, ModelParameters(), numerics, 2.0, linear_shear(1.0, 40.0),
                                     state.radii).single_precision
     assert single == {1e-3: True, Numerics.SINGLE_PRECISION_TOLERANCE: True, 1e-5: False}
-    assert not Numerics(scheme="adaptive", tolerance_t=1e-5, precision="double").single_precision_allowed
-    assert Numerics(scheme="sav2", tolerance_t=1e-5).single_precision_allowed  # fixed dt: the user's choice
+    assert not Numerics(scheme="adaptive", tolerance_t=1e-5, precision="double").single_precision_allowed("adaptive")
+    assert Numerics(scheme="sav2", tolerance_t=1e-5).single_precision_allowed("sav2")  # fixed dt: the user's choice
+    # the scheme the stepper runs decides, not the scene's (a method override)
+    assert Numerics(scheme="adaptive", tolerance_t=1e-5).single_precision_allowed("sav2")

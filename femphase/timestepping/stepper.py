@@ -87,7 +87,7 @@ class Stepper:
         self.krylov_iterations = 0
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
-        self.single_precision = (numerics.single_precision_allowed and not self.flow.is_still
+        self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
                                  and domain.single_precision_steps and self.scheme.mixed_precision)
 
     @property
