@@ -54,6 +54,7 @@ from pathlib import Path
 import common  # pins BLAS threads before numpy loads
 import numpy as np
 
+from femphase.analysis.periods import first_peaks
 from femphase.config import Numerics
 from femphase.run.simulation import Simulation
 from femphase.run.trackers import FrameRecorder
@@ -181,7 +182,19 @@ def measure(case: str, tolerance: float, reference: dict) -> dict:
     point = wp.run(wp.Point("lattice", "fem", 1.0, 10.0, {"scheme": "adaptive", **numerics}))
     errors = wp.lattice_errors(point, reference["result"])
     return {"error": errors["elongation"], "errors_at": {"elongation": errors["elongation"]},
-            "period_error": errors["period"], "cpu_s": point.seconds}
+            "period_error": errors["period"], "peak_time_errors": peak_time_errors(point.result, reference["result"]),
+            "cpu_s": point.seconds}
+
+
+def peak_time_errors(result: dict, reference: dict) -> list[float]:
+    """Signed errors (run − reference, time units) of the times of r̄(t)'s first two primary
+    peaks under shear, whose difference is the period (work_precision's ``period`` error)."""
+    import work_precision as wp
+
+    times = np.array(reference["times"])
+    shear = times >= wp.RELAX
+    run, ref = (first_peaks(times[shear], np.array(r["mean_elongation"])[shear]) for r in (result, reference))
+    return (run - ref).tolist() if len(run) == len(ref) == 2 else [float("nan")] * 2
 
 
 def slope(tolerances: list[float], errors: list[float]) -> float:
@@ -221,7 +234,15 @@ def report(result: dict) -> str:
                      + f" | {error(case, default['error'])} ({judged}) | "
                      + ", ".join(error(case, value) for value in spatial.values()) + " |")
     commands = "; ".join(f"`{entry['command']}`" for entry in result["cases"].values())
-    return "\n".join(lines) + f"\n\nCommands: {commands}."
+    text = "\n".join(lines) + f"\n\nCommands: {commands}."
+    lattice = result["cases"].get("lattice")
+    if lattice and all("peak_time_errors" in row for row in lattice["rows"]):
+        window = [row for row in lattice["rows"] if row["tolerance_t"] in lattice["window"]]
+        text += ("\n\nLattice: signed errors of the first and second peak times of r̄(t) (time units; the "
+                 "period is their difference): " + "; ".join(
+                     f"{row['tolerance_t']:g}: {row['peak_time_errors'][0]:+.3g}, {row['peak_time_errors'][1]:+.3g}"
+                     for row in window) + ".")
+    return text
 
 
 def main() -> None:

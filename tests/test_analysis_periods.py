@@ -141,3 +141,13 @@ def test_first_period_of_a_short_record_skips_secondary_peaks():
     assert periods.first_period(time, signal) == pytest.approx(PERIOD, rel=2e-3)
     # one primary peak only: no period, said explicitly
     assert np.isnan(periods.first_period(time[time < 1.5 * PERIOD], signal[time < 1.5 * PERIOD]))
+
+
+def test_first_peaks_are_the_primary_peak_times():
+    time = np.linspace(0.25 * PERIOD, 2.05 * PERIOD, 600)
+    peaks = periods.first_peaks(time, elongation(time, transient=0.0))
+    np.testing.assert_allclose(peaks, [PERIOD, 2 * PERIOD], rtol=2e-3)
+    # a shifted record shifts its peaks by the same time
+    shift = 0.3 * (time[1] - time[0])
+    np.testing.assert_allclose(periods.first_peaks(time, elongation(time - shift, transient=0.0)), peaks + shift,
+                               atol=0.05 * (time[1] - time[0]))

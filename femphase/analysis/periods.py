@@ -17,7 +17,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 from scipy.signal import find_peaks
 
-__all__ = ["first_period", "limit_cycle", "oscillation_period", "PeriodEstimate"]
+__all__ = ["first_peaks", "first_period", "limit_cycle", "oscillation_period", "PeriodEstimate"]
 
 #: An autocorrelation peak is "major" when at least this fraction of the highest one: the
 #: peaks at multiples of the period are all about equally high, while those at the lag between
@@ -170,24 +170,30 @@ def oscillation_period(
     )
 
 
-def first_period(time: ArrayLike, signal: ArrayLike) -> float:
-    """Time between the first two primary peaks of a short record (one to two cycles, too
-    short for :func:`oscillation_period`), e.g. r̄(t) over one period of shear.
+def first_peaks(time: ArrayLike, signal: ArrayLike) -> np.ndarray:
+    """Times of the first two primary peaks of a short record (one to two cycles), in the
+    unit of ``time``; fewer when the record has fewer.
 
     Primary peaks: local maxima with a prominence of at least a quarter of the signal's range
     that reach at least 70 % of the way from its minimum to its maximum (a secondary peak
-    is lower), each refined by the vertex of the parabola through it and its neighbours. The samples must be equally spaced. NaN with fewer than two peaks (the
-    record did not oscillate), so comparisons stay explicit.
+    is lower), each refined by the vertex of the parabola through it and its neighbours. The
+    samples must be equally spaced.
     """
     time, signal = np.asarray(time, dtype=float), np.asarray(signal, dtype=float)
     span = np.ptp(signal)
     peaks, _ = find_peaks(signal, prominence=span / 4.0, height=signal.min() + 0.7 * span)
     peaks = peaks[(peaks > 0) & (peaks < len(signal) - 1)]
-    if len(peaks) < 2:
-        return float("nan")
     step = time[1] - time[0]
-    first, second = (time[i] + step * _parabolic_vertex_offset(signal[i - 1:i + 2]) for i in peaks[:2])
-    return float(second - first)
+    return np.array([time[i] + step * _parabolic_vertex_offset(signal[i - 1:i + 2]) for i in peaks[:2]])
+
+
+def first_period(time: ArrayLike, signal: ArrayLike) -> float:
+    """Time between the first two primary peaks (:func:`first_peaks`) of a short record, e.g.
+    r̄(t) over one period of shear (too short for :func:`oscillation_period`). NaN with fewer
+    than two peaks (the record did not oscillate), so comparisons stay explicit.
+    """
+    peaks = first_peaks(time, signal)
+    return float(peaks[1] - peaks[0]) if len(peaks) == 2 else float("nan")
 
 
 def limit_cycle(
