@@ -9,7 +9,7 @@ itself in :data:`DOMAINS` under the scene's ``[domain] kind``:
 ``grid``  the structured channel (:mod:`femphase.domains.grid`): rectangular windows of the
           node lattice, the exact tensor-product solver, exact row-shift advection
 ``mesh``  any meshio triangle mesh (:mod:`femphase.domains.mesh`): box windows,
-          Galerkin–Padé advection, Stokes flows, mesh generation and files
+          Galerkin advection, Stokes flows, mesh generation and files
 
 Importing this package registers both (the grid first: registries list their entries, and
 ``docs/scenes.md`` documents them, in registration order).

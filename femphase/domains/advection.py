@@ -2,7 +2,7 @@
 
 Each domain picks its advection (:meth:`femphase.domains.base.Domain.advection`): the
 structured channel's row shift and semi-Lagrangian step (:mod:`femphase.domains.grid.advection`),
-the meshes' Galerkin–Padé step (:mod:`femphase.domains.mesh.advection`). All three take
+the meshes' Galerkin steps (:mod:`femphase.domains.mesh.advection`). All take
 the flow at the step's midpoint t + dt/2 when it depends on time (second order in dt for the
 displacement; exact for steady flows).
 

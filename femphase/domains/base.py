@@ -54,7 +54,7 @@ class Domain(ABC):
     kind: ClassVar[str]
     #: whether flow steps may compute in single precision (``numerics.precision = "mixed"``):
     #: the structured channel's, whose tensor solves and row shifts have single-precision
-    #: paths; meshes' LU and Padé solves are double only
+    #: paths; meshes' steps are double only
     single_precision_steps: ClassVar[bool] = False
     #: whether ``numerics.solver = "auto"`` solves all windows at once by a Krylov method on
     #: their block-diagonal matrix (:mod:`femphase.fem.blocks`) rather than one solver per

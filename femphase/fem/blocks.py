@@ -10,8 +10,8 @@ iteration for all windows.
 
 Why this fits: the window systems c·M + J0·D·K are mass-dominated, with condition number
 ≈ 1 + dt·J0·D·λmax(K)/m, a few units at the adaptive scheme's substeps, so Jacobi-
-preconditioned CG converges in tens of iterations; the Galerkin–Padé advection's systems
-M − (dt/r)·C are mass-dominated at Courant numbers below ~1. Memory is the blocks' entries
+preconditioned CG converges in tens of iterations. The meshes' explicit advection applies
+block-diagonal matrices of the same kind and solves nothing. Memory is the blocks' entries
 (about 7 per position for P1), against ~100 per position for a sparse LU.
 
 :func:`local_block` maps a full-domain sparsity pattern onto one window (kept while the
@@ -30,7 +30,7 @@ import scipy.sparse as sp
 
 from femphase.errors import FemphaseError
 
-__all__ = ["BlockPattern", "KrylovError", "LocalBlock", "aligned_data", "bicgstab", "conjugate_gradient", "local_block"]
+__all__ = ["BlockPattern", "KrylovError", "LocalBlock", "aligned_data", "conjugate_gradient", "local_block"]
 
 
 class KrylovError(FemphaseError, ArithmeticError):
@@ -156,44 +156,3 @@ def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.n
     raise KrylovError(f"CG did not reach the relative residual {tolerance:g} in {maxiter} iterations "
                       f"(max |D⁻¹r| {np.max(np.abs(z)):.3g}, goal {goal:.3g}): the windows' systems are "
                       "not mass-dominated; lower the phase's dt")
-
-
-def bicgstab(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.ndarray, rhs: np.ndarray,
-             guess: np.ndarray, tolerance: float, maxiter: int = 1000) -> tuple[np.ndarray, int]:
-    """Solve A x = rhs for a general (complex) A by right-Jacobi-preconditioned BiCGSTAB,
-    with the stopping rule of :func:`conjugate_gradient` (max|D⁻¹ r| ≤ tolerance ·
-    max|D⁻¹ rhs|). Returns (x, iterations); raises KrylovError after ``maxiter``."""
-    x = np.array(guess, dtype=np.result_type(rhs, guess, diagonal), copy=True)
-    inverse = 1.0 / diagonal
-    goal = tolerance * max(float(np.max(np.abs(inverse * rhs))), np.finfo(float).tiny)
-    r = rhs - apply(x)
-    if np.max(np.abs(inverse * r)) <= goal:
-        return x, 0
-    shadow = r.copy()
-    rho = alpha = omega = 1.0
-    v = np.zeros_like(r)
-    p = np.zeros_like(r)
-    for iteration in range(1, maxiter + 1):
-        rho_next = np.vdot(shadow, r)
-        if rho_next == 0:
-            break
-        beta = (rho_next / rho) * (alpha / omega)
-        rho = rho_next
-        p -= omega * v  # p = r + β (p − ω v), in place
-        p *= beta
-        p += r
-        p_hat = inverse * p
-        v = apply(p_hat)
-        alpha = rho / np.vdot(shadow, v)
-        s = r - alpha * v
-        s_hat = inverse * s
-        if np.max(np.abs(s_hat)) <= goal:
-            return x + alpha * p_hat, iteration
-        t = apply(s_hat)
-        omega = np.vdot(t, s) / np.vdot(t, t)
-        x += alpha * p_hat + omega * s_hat
-        r = s - omega * t
-        if np.max(np.abs(inverse * r)) <= goal:
-            return x, iteration
-    raise KrylovError(f"BiCGSTAB did not reach the relative residual {tolerance:g} in {maxiter} iterations: "
-                      "the advection's systems are not mass-dominated at this step; lower the phase's dt")

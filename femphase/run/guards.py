@@ -61,8 +61,9 @@ each warned (:class:`AccuracyWarning`) at most once per phase, or, with
     :data:`STRAIN_RATE_ENVELOPE` = 10/240 (the flow's velocity key, e.g.
     ``phases.K.flow.rate``), or else the area stiffness (``model.mu``).
 
-Not guarded (not measured): the advection's own accuracy at large Courant numbers on meshes
-(Galerkin–Padé: 0.1 % lag at u dt/h = 1), the first-order splitting error below dt*.
+Not guarded (not measured): the Galerkin–Padé step's accuracy at large Courant numbers on
+meshes (0.1 % lag at u dt/h = 1; the default explicit step subcycles at ω h ≤ 1 and has no
+such limit), the first-order splitting error below dt*.
 
 The measures are pure functions (:func:`step_measures`, :func:`area_ratios`,
 :func:`advective_spread`, :func:`max_strain_rate`, :func:`relaxation_time`) usable on their

@@ -12,7 +12,7 @@ The first-order step and its stabilisation, which the others build on (``euler``
 splitting of advection and relaxation,
 
 1. advection over dt by the domain's advection (exact row shift, semi-Lagrangian or
-   Galerkin–Padé, :mod:`femphase.domains.advection`; skipped without flow);
+   Galerkin on meshes, :mod:`femphase.domains.advection`; skipped without flow);
 2. relaxation, linearly implicit in the gradient term, explicit in the rest:
 
        (G/dt + J0 S M_L + J0 D K) φ¹ = (G/dt + J0 S M_L) φ* − J0 M_L g(φ*) + M_L s(tⁿ⁺¹)

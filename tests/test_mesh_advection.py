@@ -1,0 +1,113 @@
+"""The meshes' explicit Galerkin advection (femphase.domains.mesh.advection.GalerkinRK4): its
+corrected mass inverse, its frequency estimate, its agreement with the Galerkin–Padé step it
+replaces in batched runs, and its stability at large steps."""
+
+import itertools
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from test_unstructured import PARAMS, discs, python_flow, straight
+
+from femphase.analysis.shape import shape_observables
+from femphase.config import Numerics
+from femphase.domains.mesh.advection import (
+    COURANT,
+    SPECTRAL_MARGIN,
+    GalerkinPade,
+    GalerkinRK4,
+    advection_matrix,
+    corrected_inverse,
+    spectral_radius,
+)
+from femphase.flows import poiseuille
+from femphase.timestepping.stepper import Stepper
+
+
+@pytest.fixture(scope="module")
+def sheared():
+    """Two relaxed discs on a 40 × 40 Delaunay channel, their layout and a Poiseuille flow."""
+    domain = straight(40.0, 40.0)
+    state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
+    step = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
+    for _ in range(10):
+        step.step(state)
+    layout, phi = state.flat()
+    return domain, layout, phi, poiseuille(1.0, 40.0)
+
+
+def test_each_correction_brings_the_inverse_closer_to_the_consistent_mass(sheared):
+    domain, layout, phi, flow = sheared
+    mass = domain.window_operator(layout, "mass")
+    # the advection's right-hand side on the windows: what the inverse is applied to
+    y = domain.window_blocks(layout).block(domain.aligned(advection_matrix(domain, flow))) @ phi
+    exact = spla.spsolve(mass.tocsc(), y)
+    errors = [np.abs(corrected_inverse(y, mass, 1.0 / layout.mass, k) - exact).max() for k in range(5)]
+    assert all(later < 0.75 * earlier for earlier, later in itertools.pairwise(errors))
+    assert errors[2] < 0.3 * errors[0]
+
+
+def test_the_frequency_estimate_is_the_largest_eigenvalue():
+    domain = straight(12.0, 10.0)
+    flow = poiseuille(1.0, 10.0)
+    ops = domain.operators
+    advection = advection_matrix(domain, flow)
+    rate = sp.diags(1.0 / ops.lumped_mass)  # P for K = 2, built densely
+    identity = np.eye(domain.n_dofs)
+    step = identity - rate @ ops.mass.toarray()
+    inverse = (identity + step + step @ step) @ rate.toarray()
+    eigenvalues = np.linalg.eigvals(inverse @ advection.toarray())
+    assert np.abs(eigenvalues.real).max() < 1e-8 * np.abs(eigenvalues).max()  # imaginary: P C is skew in P⁻¹
+    largest = np.abs(eigenvalues).max()
+    estimate = spectral_radius(lambda x: corrected_inverse(advection @ x, ops.mass, 1.0 / ops.lumped_mass),
+                               domain.n_dofs)
+    assert estimate == pytest.approx(largest, rel=0.02)
+    assert SPECTRAL_MARGIN * estimate >= largest
+
+
+def test_the_explicit_step_agrees_with_the_pade_step(sheared):
+    """Both are Galerkin in space; they differ by the corrected inverse (spatial, O(h⁴) on
+    smooth modes) and by their time errors. Against a converged Padé reference (32 steps),
+    the explicit step's difference is the inverse's, the same at one RK4 substep as at 8."""
+    domain, layout, phi, flow = sheared
+    dt = 3.3
+    reference = phi.copy()
+    pade = GalerkinPade(domain, flow, dt / 32, Numerics(solver="direct"))
+    for _ in range(32):
+        reference, _ = pade.advect(reference, layout, 0.0)
+    explicit = GalerkinRK4(domain, flow, dt, Numerics())
+    assert explicit.substeps == max(1, int(np.ceil(SPECTRAL_MARGIN * explicit.frequency * dt / COURANT)))
+    one, _ = explicit.advect(phi, layout, 0.0)
+    explicit.substeps = 8
+    eight, _ = explicit.advect(phi, layout, 0.0)
+    moved = np.abs(reference - phi).max()
+    assert np.abs(one - reference).max() < 0.05 * moved
+    assert np.abs(one - eight).max() < 0.1 * np.abs(one - reference).max()  # time error below the inverse's
+
+
+def test_large_steps_subcycle_and_stay_bounded():
+    # uniform flow u = 1, one step of dt = 10 (~20 RK4 substeps) against ten Padé steps of 1:
+    # the disc moves by 10 and keeps its area; its field's excursions below 0 and above its
+    # plateau are Galerkin's dispersion, the same in both (without the double well that
+    # otherwise holds the profile)
+    domain = straight(40.0, 30.0)
+    uniform = python_flow(lambda x, y: (np.ones_like(x), np.zeros_like(y)))
+    state = discs(domain, [[10.0, 15.0]])
+    relax = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
+    for _ in range(40):
+        relax.step(state)
+    start = shape_observables(state)
+    layout, phi = state.flat()
+    advection = GalerkinRK4(domain, uniform, 10.0, Numerics())
+    assert advection.substeps >= advection.frequency * 10.0 > 10
+    moved, layout = advection.advect(phi, layout, 0.0)
+    pade, reference = GalerkinPade(domain, uniform, 1.0, Numerics(solver="direct")), phi
+    for _ in range(10):
+        reference, _ = pade.advect(reference, layout, 0.0)
+    state.fields = layout.scatter(moved)
+    end = shape_observables(state)
+    assert (end.x[0] - start.x[0]) % 40.0 == pytest.approx(10.0, rel=0.01)
+    assert end.area[0] == pytest.approx(start.area[0], rel=0.01)
+    assert moved.min() == pytest.approx(reference.min(), abs=0.01)
+    assert moved.max() == pytest.approx(reference.max(), abs=0.02)
