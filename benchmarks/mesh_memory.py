@@ -15,10 +15,10 @@ configuration in its own process:
   in the environment (glibc's tunables; nothing in femphase changes): every block from
   128 kB up is mapped on its own and returned to the system when freed.
 
-Memory is bounded by design: the windows' systems and the advection are solved all at
-once by Krylov methods on block-diagonal matrices (femphase/fem/blocks.py), and only the
-current layout's block maps are kept, so nothing grows with the boxes met; the two
-configurations show that no allocator setting is needed for it.
+Memory is bounded by design: the windows' systems are solved all at once by CG on
+block-diagonal matrices (femphase/fem/blocks.py), the advection applies such matrices
+explicitly, and only the current layout's block maps are kept, so nothing grows with the
+boxes met; the two configurations show that no allocator setting is needed for it.
 Writes results/mesh_memory.json.
 """
 
