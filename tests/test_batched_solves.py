@@ -128,3 +128,16 @@ def test_the_grid_can_batch_its_solves_too():
             step.step(state)
         runs.append(state.flat()[1])
     assert np.abs(runs[0] - runs[1]).max() < 1e-8
+
+
+def test_a_batched_solve_starts_from_its_guess():
+    domain = straight(40.0, 40.0)
+    state = discs(domain, [[12.0, 14.0]], initial_radius=4.0)
+    layout, phi = state.flat()
+    step = Stepper(domain, PARAMS, Numerics(), 3.0, None, state.radii)
+    nodal = np.sin(np.arange(phi.size))
+    solution = step.solve(nodal, phi, layout, 1.0 / 3.0, 0.0)
+    used = step.krylov_iterations
+    again = step.solve(nodal, phi, layout, 1.0 / 3.0, 0.0, guess=solution)
+    assert used > 0 and step.krylov_iterations == used  # started at the solution: no iteration
+    assert np.array_equal(again, solution)

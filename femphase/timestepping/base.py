@@ -112,8 +112,9 @@ class StepperProtocol(Protocol):
         """s(x, y, t) at every position, or None."""
 
     def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-              stabilisation: float) -> np.ndarray:
-        """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous."""
+              stabilisation: float, guess: np.ndarray | None = None) -> np.ndarray:
+        """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous; ``guess``
+        (default ``previous``) starts iterative solvers."""
 
 
 class TimeScheme(ABC):

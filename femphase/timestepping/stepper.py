@@ -133,9 +133,10 @@ class Stepper:
         return self._systems[key]
 
     def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-              stabilisation: float) -> np.ndarray:
+              stabilisation: float, guess: np.ndarray | None = None) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
-        window (all vectors in layout order)."""
+        window (all vectors in layout order). ``guess`` (default ``previous``) starts the
+        iterative solvers (batched CG, AMG); the others are exact."""
         lumped = self.lumped
         if lumped:  # M_L (nodal_rhs + shift·previous), in place
             rhs = previous * shift
@@ -144,7 +145,8 @@ class Stepper:
         else:
             rhs = layout.mass * nodal_rhs
         if self.batched:
-            return self._solve_batched(rhs, previous, layout, shift, stabilisation)
+            return self._solve_batched(rhs, previous, layout, shift, stabilisation,
+                                       previous if guess is None else guess)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
@@ -153,13 +155,14 @@ class Stepper:
             group_rhs = rhs[start:stop].reshape(members.size, size).T
             if not lumped:
                 group_rhs = group_rhs + shift * (mass_block @ current)
-            out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, current)
+            start_from = current if guess is None else guess[start:stop].reshape(members.size, size).T
+            out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, start_from)
         return out
 
     def _solve_batched(self, rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-                       stabilisation: float) -> np.ndarray:
+                       stabilisation: float, guess: np.ndarray) -> np.ndarray:
         """All windows at once: Jacobi-preconditioned CG on the block-diagonal matrix of the
-        windows' systems, warm-started from the fields before the step."""
+        windows' systems, started from ``guess``."""
         stiffness = self.domain.window_operator(layout, "stiffness")
         lumped_part = (shift if self.lumped else 0.0) + self.mobility * stabilisation
         weight = lumped_part * layout.mass
@@ -175,7 +178,7 @@ class Stepper:
 
             def apply(x: np.ndarray) -> np.ndarray:
                 return shift * (mass @ x) + weight * x + b * (stiffness @ x)
-        solution, iterations = conjugate_gradient(apply, diagonal, rhs, previous, self.numerics.krylov_tolerance)
+        solution, iterations = conjugate_gradient(apply, diagonal, rhs, guess, self.numerics.krylov_tolerance)
         self.krylov_iterations += iterations
         return solution.astype(previous.dtype, copy=False)
 
