@@ -259,14 +259,18 @@ class Domain(ABC):
         return cache[name]
 
     def window_diagonal(self, layout: Layout, name: str) -> np.ndarray:
-        """The diagonal of :meth:`window_operator` (kept with it: a Krylov solve's Jacobi
-        preconditioner needs it at every call, and extracting it costs a pass over the
-        matrix)."""
-        operator = self.window_operator(layout, name)
+        """The diagonal of :meth:`window_operator`: a principal submatrix's diagonal is the full
+        matrix's at its dofs, so one gather (kept with the layout's blocks: a Krylov solve's
+        Jacobi preconditioner needs it at every call)."""
+        self.window_blocks(layout)  # the cache below belongs to this layout
         cache = self._window_blocks
         if (name, "diagonal") not in cache:
-            cache[name, "diagonal"] = operator.diagonal()
+            cache[name, "diagonal"] = self._operator_diagonals[name][layout.node_index]
         return cache[name, "diagonal"]
+
+    @cached_property
+    def _operator_diagonals(self) -> dict[str, np.ndarray]:
+        return {"mass": self.operators.mass.diagonal(), "stiffness": self.operators.stiffness.diagonal()}
 
     @cached_property
     def _stiffness_blocks(self) -> dict:

@@ -102,19 +102,23 @@ class BlockPattern:
     entries aligned to the pattern (:func:`aligned_data`) by one gather."""
 
     def __init__(self, blocks: Sequence[LocalBlock], counts: Sequence[int]) -> None:
-        lengths, indices, sources = [], [], []
-        offset = 0
-        for block, count in zip(blocks, counts):
-            size = block.indptr.size - 1
-            for _ in range(count):
-                lengths.append(np.diff(block.indptr))
-                indices.append(block.indices + offset)
-                sources.append(block.source)
-                offset += size
+        # every window's arrays side by side (a block repeated for each window sharing it),
+        # then its columns shifted by the window's first position, all in one pass
+        windows = [block for block, count in zip(blocks, counts) for _ in range(count)]
+        sizes = np.array([block.indptr.size - 1 for block in windows], dtype=np.int64)
+        entries = np.array([block.indices.size for block in windows], dtype=np.int64)
+        offset = int(sizes.sum())
         self.shape = (offset, offset)
-        self.indptr = np.concatenate([[0], np.cumsum(np.concatenate(lengths))])
-        self.indices = np.concatenate(indices)
-        self.source = np.concatenate(sources)
+        starts = np.concatenate([[0], np.cumsum(entries)])
+        # scipy stores CSR indices as int32 where they fit and converts (copies) any other
+        # kind at every construction, i.e. at every :meth:`block`
+        index = np.int32 if max(offset, int(starts[-1])) < np.iinfo(np.int32).max else np.int64
+        self.indptr = np.concatenate([[0], *(block.indptr[1:] + start for block, start in zip(windows, starts))]
+                                     ).astype(index)
+        self.indices = np.concatenate([block.indices for block in windows] or [np.zeros(0, dtype=np.int64)])
+        self.indices += np.repeat(np.cumsum(sizes) - sizes, entries)
+        self.indices = self.indices.astype(index)
+        self.source = np.concatenate([block.source for block in windows] or [np.zeros(0, dtype=np.int64)])
 
     @property
     def nbytes(self) -> int:
