@@ -26,19 +26,21 @@ from femphase.plot.sweep import plot_sweep, sample_curves
 from femphase.aggregate import read_summary
 
 RESULTS = Path(__file__).resolve().parent / "results"
-RATE = "phases.1.flow.rate"
+#: The swept axis that is not a sample axis: the rate (shear, Poiseuille) or, for a Stokes
+#: flow on a mesh, its centre-line velocity ``phases.1.flow.max_velocity``
+SAMPLE_AXES = ("particles.seed",)
 COLUMNS = {"Psi6_mean": "Ψ6", "Psi2_mean": "Ψ2^L", "elongation_mean": "mean r", "t1_rate": "T1 rate (per particle per 1000 t)"}
 
 
-def rate_table(rows: list[dict]) -> list[dict]:
-    """Per rate: samples done and mean ± s.d. of every column of :data:`COLUMNS`."""
+def rate_table(rows: list[dict], rate_key: str = "phases.1.flow.rate") -> list[dict]:
+    """Per value of ``rate_key``: samples done and mean ± s.d. of every column of :data:`COLUMNS`."""
     done = [row for row in rows if row["status"] == "done"]
-    curves = {column: sample_curves(done, column, RATE, [])[()] for column in COLUMNS}
-    rates = sorted({row[RATE] for row in rows})
+    curves = {column: sample_curves(done, column, rate_key, [])[()] for column in COLUMNS}
+    rates = sorted({row[rate_key] for row in rows})
     table = []
     for rate in rates:
-        entry = {"rate": rate, "runs": sum(row[RATE] == rate for row in rows),
-                 "done": sum(row[RATE] == rate for row in done)}
+        entry = {"rate": rate, "runs": sum(row[rate_key] == rate for row in rows),
+                 "done": sum(row[rate_key] == rate for row in done)}
         for column, curve in curves.items():
             if rate in curve.x:
                 k = curve.x.index(rate)
@@ -72,8 +74,9 @@ def main() -> None:
         raise SystemExit(f"{out} holds another verification's results, not a sweep's; "
                          f"name the sweep directory differently (e.g. {name}_full)")
     figures = plot_sweep(args.directory, RESULTS / name)
-    table = rate_table(read_summary(args.directory / "summary.csv"))
     sweep = json.loads((args.directory / "sweep.json").read_text())
+    rate_key = next(key for key in sweep["axes"] if key not in SAMPLE_AXES)
+    table = rate_table(read_summary(args.directory / "summary.csv"), rate_key)
     out.write_text(json.dumps({"sweep": str(args.directory), "axes": sweep["axes"], "rates": table,
                                "figures": {k: str(v.relative_to(RESULTS.parent)) for k, v in figures.items()},
                                "command": f"python -m verification.fig1a_sweep {args.directory}"}, indent=1) + "\n")
