@@ -107,3 +107,16 @@ def test_equilibrium_does_not_depend_on_dt():
         for _ in range(20):
             stepper.step(moved)
         assert equilibrium.integrals_of(domain, moved) == pytest.approx((area, mass), rel=1e-10)
+
+
+# -- sweeps compared point by point -----------------------------------------------------------
+def test_sweep_comparison_states_differences_in_standard_errors():
+    from verification import fig1a_sweep
+
+    this = [{"rate": 0.1, "done": 3, "Psi6_mean": {"mean": 0.40, "sd": 0.03}}]
+    other = [{"rate": 0.1, "done": 3, "Psi6_mean": {"mean": 0.35, "sd": 0.04}},
+             {"rate": 1.0, "done": 3, "Psi6_mean": {"mean": 0.2, "sd": 0.01}}]
+    table = fig1a_sweep.comparison(this, other)
+    # (0.40 − 0.35) / √(0.03²/3 + 0.04²/3) = 0.05 / 0.02887 = +1.7
+    assert "| 0.1 | 0.4, 0.35, +1.7 |" in table
+    assert len(table.splitlines()) == 3  # header, rule, one row: rates only the other sweep has are left out

@@ -5,13 +5,15 @@ the supplement's Poiseuille figure, against the centre-line velocity: the same a
     python -m verification.fig1a_sweep verification/runs/fig1a_reduced
     femphase sweep verification/sweeps/poiseuille_reduced.toml -o verification/runs/poiseuille_reduced
     python -m verification.fig1a_sweep verification/runs/poiseuille_reduced
+    python -m verification.fig1a_sweep verification/runs/poiseuille_mesh_reduced --against poiseuille_reduced
 
 Aggregates the sweep (``femphase aggregate``: Ψ6 and Ψ2^L averaged over the last fifth of
 the shear frames of every run, the paper's last 50 of 250), draws ``femphase plot``'s sweep
 figures into ``verification/results/<sweep name>/``, and writes
 ``verification/results/<sweep name>.json`` with, per rate: the samples done, the mean and
 sample standard deviation (ddof = 1, the paper's shading) of Ψ6, Ψ2^L, the mean elongation
-and the T1 rate; it prints the same as a markdown table for verification/README.md.
+and the T1 rate; it prints the same as a markdown table for verification/README.md, and
+with ``--against NAME`` a point-by-point comparison with another sweep's results.
 Works on a sweep still under way (the runs not done are counted, not averaged).
 """
 
@@ -21,6 +23,8 @@ import argparse
 import json
 import shutil
 from pathlib import Path
+
+import numpy as np
 
 from femphase.plot.sweep import plot_sweep, sample_curves
 from femphase.aggregate import read_summary
@@ -63,9 +67,34 @@ def markdown(table: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def comparison(table: list[dict], other: list[dict]) -> str:
+    """Point by point against another sweep's table (same rates): per column this sweep's
+    mean, the other's, and their difference in units of the two samples' combined standard
+    error √(sd₁²/n₁ + sd₂²/n₂)."""
+    by_rate = {entry["rate"]: entry for entry in other}
+    lines = ["| γ̇ | " + " | ".join(f"{name}: this, other, Δ/s.e." for name in COLUMNS.values()) + " |",
+             "|" + "---|" * (1 + len(COLUMNS))]
+    for entry in table:
+        match = by_rate.get(entry["rate"])
+        cells = []
+        for column in COLUMNS:
+            if match is None or column not in entry or column not in match:
+                cells.append("–")
+                continue
+            scale = 1000.0 if column == "t1_rate" else 1.0
+            a, b = entry[column], match[column]
+            error = np.sqrt(a["sd"] ** 2 / max(entry["done"], 1) + b["sd"] ** 2 / max(match["done"], 1))
+            ratio = (a["mean"] - b["mean"]) / error if error > 0 else float("nan")
+            cells.append(f"{scale * a['mean']:.3g}, {scale * b['mean']:.3g}, {ratio:+.1f}")
+        lines.append(f"| {entry['rate']:g} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("directory", type=Path, help="the sweep directory (femphase sweep -o DIR)")
+    parser.add_argument("--against", metavar="NAME", help="another sweep's results/NAME.json to compare with, "
+                        "rate by rate (e.g. poiseuille_reduced)")
     args = parser.parse_args()
     name = args.directory.name
     out = RESULTS / f"{name}.json"
@@ -81,6 +110,8 @@ def main() -> None:
                                "figures": {k: str(v.relative_to(RESULTS.parent)) for k, v in figures.items()},
                                "command": f"python -m verification.fig1a_sweep {args.directory}"}, indent=1) + "\n")
     print(markdown(table))
+    if args.against:
+        print(comparison(table, json.loads((RESULTS / f"{args.against}.json").read_text())["rates"]))
     print(f"wrote {out} and {', '.join(str(p) for p in figures.values())}")
     shutil.copy(args.directory / "summary.csv", RESULTS / f"{name}_summary.csv")
 
