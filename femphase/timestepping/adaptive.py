@@ -70,7 +70,8 @@ class AdaptiveSAV2(RelaxedSAV2):
     #: m of a phase's first substep (dt/4)
     FIRST = 4
     #: Advections kept (least recently used dropped first): one per pair of neighbouring
-    #: sizes in use; on a mesh each holds a complex LU (tens of MB on the obstacle example)
+    #: sizes in use; on a mesh each holds its assembled advection matrix (and, with
+    #: per-window solvers, a complex LU per window: tens of MB on the obstacle example)
     ADVECTIONS_KEPT = 8
     #: The PI controller (Gustafsson; the defaults of SUNDIALS ARKODE's PI): exponents of
     #: the error ratios for an estimate of local order 2, a safety factor, growth bounds.

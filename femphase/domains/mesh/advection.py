@@ -33,6 +33,8 @@ oscillate at cell Péclet numbers above 2. Two steps in time:
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 import scipy.sparse as sp
 from skfem import Basis, BilinearForm, ElementTriP1
@@ -46,8 +48,8 @@ from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow
 
-__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "GalerkinPade", "GalerkinRK4", "advection_matrix",
-           "skew_advection", "spectral_radius"]
+__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "GalerkinPade", "GalerkinRK4",
+           "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius"]
 
 
 @BilinearForm
@@ -142,12 +144,13 @@ def corrected_inverse(y: np.ndarray, mass: sp.spmatrix, inverse_lumped: np.ndarr
     return z
 
 
-def spectral_radius(apply, size: int, iterations: int = 30) -> float:
+def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterations: int = 30) -> float:
     """ω, the largest |eigenvalue| of an operator with imaginary eigenvalues (``apply``: x ↦
     A x, A skew in some inner product), by power iteration on A² from a fixed random start
     (reproducible). A is not normal in the Euclidean norm used here, so the estimate may
-    land slightly on either side of ω (within 0.01 % after 30 iterations on a Delaunay
-    channel, tests/test_mesh_advection.py); :data:`SPECTRAL_MARGIN` covers it."""
+    land slightly on either side of ω, and it approaches ω more slowly where the largest
+    eigenvalues lie close together; :data:`SPECTRAL_MARGIN` leaves room for both (within
+    2 % of the dense eigenvalue on a small channel, asserted in tests/test_mesh_advection.py)."""
     x = np.random.default_rng(0).standard_normal(size)
     x /= np.linalg.norm(x)
     estimate = 0.0
@@ -164,7 +167,8 @@ class GalerkinRK4(StepAdvection):
     """Galerkin advection with explicit RK4 and a corrected lumped mass inverse (module
     docstring), on all windows at once: per layout the block-diagonal matrices of the windows'
     principal submatrices of C and M (:mod:`femphase.fem.blocks`), nothing per window.
-    A time-dependent flow is assembled at every step's midpoint, with its ω."""
+    A time-dependent flow is assembled at every step's midpoint, with its ω. ``numerics``
+    is taken for the advections' common signature; no setting of it applies."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
         super().__init__(domain, flow, dt)
@@ -181,8 +185,9 @@ class GalerkinRK4(StepAdvection):
         advection = advection_matrix(self.domain, self.flow, time)
         self._advection_data = self.domain.aligned(advection)
         inverse_lumped = 1.0 / ops.lumped_mass
-        #: ω, the spectral radius of P C on the whole mesh (1/time units); a window's
-        #: principal submatrices do not raise it beyond the margin
+        #: ω, the spectral radius of P C on the whole mesh (1/time units). The windows' P C
+        #: are not estimated on their own: the margin and ω h ≤ 1 against RK4's limit 2√2
+        #: leave them room
         self.frequency = spectral_radius(
             lambda x: corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections), self.domain.n_dofs)
         #: RK4 substeps per step of dt
