@@ -141,3 +141,23 @@ def test_a_batched_solve_starts_from_its_guess():
     again = step.solve(nodal, phi, layout, 1.0 / 3.0, 0.0, guess=solution)
     assert used > 0 and step.krylov_iterations == used  # started at the solution: no iteration
     assert np.array_equal(again, solution)
+
+
+def test_the_stiffness_blocks_kept_for_energies_stay_within_their_byte_budget(monkeypatch):
+    domain = straight(40.0, 40.0)
+    state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
+    layout, phi = state.flat()
+    one_layout = domain.stiffness_apply(layout)(phi)
+    budget = 3 * sum(window_block(domain.operators.stiffness, domain.window_dofs(w)).data.nbytes for w in layout.windows)
+    monkeypatch.setattr(type(domain), "STIFFNESS_CACHE_BYTES", budget)
+    kept = []
+    for shift in range(6):  # boxes moved along x: new window keys each time
+        moved = discs(domain, [[12.0 + shift, 14.0], [27.0 + shift, 26.0]])
+        moved_layout, moved_phi = moved.flat()
+        product = domain.stiffness_apply(moved_layout)(moved_phi)
+        cache = domain._stiffness_cache
+        assert cache["bytes"] == sum(b.data.nbytes + b.indices.nbytes + b.indptr.nbytes for b in cache["blocks"].values())
+        kept.append(cache["bytes"])
+        if shift == 0:
+            np.testing.assert_array_equal(product, one_layout)  # the same layout: the same product
+    assert max(kept) <= budget and min(kept[1:]) < max(kept)  # cleared whenever past the budget

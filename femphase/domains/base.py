@@ -272,22 +272,31 @@ class Domain(ABC):
     def _operator_diagonals(self) -> dict[str, np.ndarray]:
         return {"mass": self.operators.mass.diagonal(), "stiffness": self.operators.stiffness.diagonal()}
 
+    #: Bytes of per-window-key stiffness blocks kept for :meth:`stiffness_apply` (cleared when
+    #: exceeded). The structured channel's keys are few and their blocks ~10 kB; a mesh box
+    #: of ~1100 dofs takes ~100 kB, and boxes change at almost every substep.
+    STIFFNESS_CACHE_BYTES = 64 * 2**20
+
     @cached_property
-    def _stiffness_blocks(self) -> dict:
-        return {}
+    def _stiffness_cache(self) -> dict:
+        return {"blocks": {}, "bytes": 0}
 
     def stiffness_apply(self, layout: Layout) -> Callable[[np.ndarray], np.ndarray]:
         """φ ↦ K φ window by window (each window's principal submatrix of K)."""
         def apply(phi: np.ndarray) -> np.ndarray:
             out = np.empty_like(phi)
+            cache = self._stiffness_cache
+            blocks = cache["blocks"]
             for group, (key, members, start, stop, size) in enumerate(layout.groups):
-                block = self._stiffness_blocks.get(key)
+                block = blocks.get(key)
                 if block is None:
                     dofs = self.window_dofs(layout.representative(group))
-                    block = self._stiffness_blocks[key] = window_block(self.operators.stiffness, dofs)
+                    block = blocks[key] = window_block(self.operators.stiffness, dofs)
+                    cache["bytes"] += block.data.nbytes + block.indices.nbytes + block.indptr.nbytes
                 out[start:stop].reshape(members.size, size).T[...] = block @ phi[start:stop].reshape(members.size, size).T
-            if len(self._stiffness_blocks) > 4096:  # windows come and go: keep the cache bounded
-                self._stiffness_blocks.clear()
+            if cache["bytes"] > self.STIFFNESS_CACHE_BYTES:  # windows come and go
+                blocks.clear()
+                cache["bytes"] = 0
             return out
         return apply
 
