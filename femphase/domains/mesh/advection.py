@@ -145,7 +145,7 @@ def corrected_inverse(y: np.ndarray, mass: sp.spmatrix, inverse_lumped: np.ndarr
 
 
 def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterations: int = 30) -> float:
-    """ω, the largest |eigenvalue| of an operator with imaginary eigenvalues (``apply``: x ↦
+    """ω, the largest eigenvalue modulus of an operator with imaginary eigenvalues (``apply``: x ↦
     A x, A skew in some inner product), by power iteration on A² from a fixed random start
     (reproducible). A is not normal in the Euclidean norm used here, so the estimate may
     land slightly on either side of ω, and it approaches ω more slowly where the largest
