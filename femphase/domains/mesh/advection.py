@@ -48,8 +48,8 @@ from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow
 
-__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "GalerkinPade", "GalerkinRK4",
-           "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius"]
+__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "GalerkinAdvection", "GalerkinPade",
+           "GalerkinRK4", "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius"]
 
 
 @BilinearForm
@@ -83,29 +83,45 @@ def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0) -> sp.csr_ma
 PADE_POLE = -3.0 + 1j * np.sqrt(3.0)
 
 
-class GalerkinPade(StepAdvection):
+class GalerkinAdvection(StepAdvection):
+    """What the two Galerkin steps share: the advection matrix C, assembled once for a steady
+    flow and at every step's midpoint for a time-dependent one, handed to :meth:`_assemble`."""
+
+    def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
+        super().__init__(domain, flow, dt)
+        self._assembled_at: float | None = None
+        if flow.steady:
+            self._assemble(advection_matrix(domain, flow, 0.0))
+
+    def _assemble_for(self, time: float) -> None:
+        """C at the midpoint of the step from ``time``, unless it is there (or the flow is steady)."""
+        midpoint = time + 0.5 * self.dt
+        if not self.flow.steady and self._assembled_at != midpoint:
+            self._assemble(advection_matrix(self.domain, self.flow, midpoint))
+            self._assembled_at = midpoint
+
+    def _assemble(self, advection: sp.csr_matrix) -> None:
+        """Set the step up for the advection matrix ``advection`` (full mesh, periodic dofs)."""
+        raise NotImplementedError
+
+
+class GalerkinPade(GalerkinAdvection):
     """Galerkin advection with the (2,2) Padé step on a meshed domain (module docstring), one
     complex solver per window key, kept while the window's dofs do not change. A
     time-dependent flow is assembled at every step's midpoint."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
-        super().__init__(domain, flow, dt)
         self.numerics = numerics
-        self._assembled_at: float | None = None
-        self._solvers: dict = {}
-        if flow.steady:
-            self._assemble(0.0)
+        super().__init__(domain, flow, dt)
 
-    def _assemble(self, time: float) -> None:
+    def _assemble(self, advection: sp.csr_matrix) -> None:
         ops = self.domain.operators
-        self._system = (ops.mass - (self.dt / PADE_POLE) * advection_matrix(self.domain, self.flow, time)).tocsr()
+        self._system = (ops.mass - (self.dt / PADE_POLE) * advection).tocsr()
         self._mass = ops.mass.tocsr()
         self._solvers = {}
-        self._assembled_at = time
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
-        if not self.flow.steady and self._assembled_at != time + 0.5 * self.dt:
-            self._assemble(time + 0.5 * self.dt)
+        self._assemble_for(time)
         current = {key for key, *_ in layout.groups}
         self._solvers = {k: v for k, v in self._solvers.items() if k in current}
         out = np.empty_like(phi)
@@ -163,7 +179,7 @@ def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterat
     return estimate
 
 
-class GalerkinRK4(StepAdvection):
+class GalerkinRK4(GalerkinAdvection):
     """Galerkin advection with explicit RK4 and a corrected lumped mass inverse (module
     docstring), on all windows at once: per layout the block-diagonal matrices of the windows'
     principal submatrices of C and M (:mod:`femphase.fem.blocks`), nothing per window.
@@ -171,18 +187,13 @@ class GalerkinRK4(StepAdvection):
     is taken for the advections' common signature; no setting of it applies."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
-        super().__init__(domain, flow, dt)
         #: K (module docstring), read from :data:`MASS_CORRECTIONS` when built (so a study
         #: can set it, verification/mesh_advection.py)
         self.corrections = MASS_CORRECTIONS
-        self._assembled_at: float | None = None
-        self._blocks: tuple = (None, None)  # (layout, its block-diagonal C)
-        if flow.steady:
-            self._assemble(0.0)
+        super().__init__(domain, flow, dt)
 
-    def _assemble(self, time: float) -> None:
+    def _assemble(self, advection: sp.csr_matrix) -> None:
         ops = self.domain.operators
-        advection = advection_matrix(self.domain, self.flow, time)
         self._advection_data = self.domain.aligned(advection)
         inverse_lumped = 1.0 / ops.lumped_mass
         #: ω, the spectral radius of P C on the whole mesh (1/time units). The windows' P C
@@ -192,12 +203,10 @@ class GalerkinRK4(StepAdvection):
             lambda x: corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections), self.domain.n_dofs)
         #: RK4 substeps per step of dt
         self.substeps = max(1, int(np.ceil(SPECTRAL_MARGIN * self.frequency * self.dt / COURANT)))
-        self._blocks = (None, None)
-        self._assembled_at = time
+        self._blocks: tuple = (None, None)  # (layout, its block-diagonal C)
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
-        if not self.flow.steady and self._assembled_at != time + 0.5 * self.dt:
-            self._assemble(time + 0.5 * self.dt)
+        self._assemble_for(time)
         blocks, advection = self._blocks
         if blocks is not layout:
             advection = self.domain.window_blocks(layout).block(self._advection_data)
