@@ -107,6 +107,12 @@ class Numerics:
                     benchmarks/stability.py warns (:class:`femphase.run.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
                     :class:`femphase.run.guards.AccuracyError` at that step (docs/outputs.md)
+    cache_mib       mebibytes (2²⁰ bytes) that everything a run keeps for reuse may hold
+                    together: window dofs, per-window blocks and solvers, the current
+                    layout's block-diagonal matrices, advections per substep size (the
+                    domain's one budget, :class:`femphase.caches.ByteBudget`; least recently
+                    used dropped first). Default 256: a mesh run of N = 100 at dt = 10 holds
+                    50–61 MiB of it (docs/decisions/0020-one-cache-budget.md)
     =============== =========================================================================================
     """
 
@@ -127,6 +133,7 @@ class Numerics:
     merged_steps: int = 8
     precision: str = "mixed"
     strict: bool = False
+    cache_mib: float = 256.0
 
     #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of
     #: ``tolerance_t``: their error then stays 10⁵ below the local error the scheme allows
@@ -194,7 +201,8 @@ class Numerics:
                 and self.merged_steps >= 1):
             raise SceneError("numerics.merged_steps", self.merged_steps, "a whole number ≥ 1")
         for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
-                               ("tolerance_t", 0.0, 1.0), ("blowup_margin", 0.0, np.inf)):
+                               ("tolerance_t", 0.0, 1.0), ("blowup_margin", 0.0, np.inf),
+                               ("cache_mib", 0.0, np.inf)):
             value = getattr(self, key)
             ok = isinstance(value, (int, float)) and not isinstance(value, bool) and low < value < high
             if not ok:

@@ -16,7 +16,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "femphase"
 
 #: Units of femphase by layer, bottom first. A unit is a top-level module or package.
 LAYERS = (
-    ("errors", "config", "registry", "tomlio"),  # depend on nothing of femphase
+    ("errors", "config", "registry", "tomlio", "caches"),  # depend on nothing of femphase
     ("model", "placement"),                     # the physics, independent of discretisation
     ("fem",),                                   # P1 operators, periodic dofs, solvers, mesh files
     ("flows",),                                 # imposed velocity fields

@@ -10,6 +10,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from test_unstructured import PARAMS, discs, python_flow, straight
 
+import femphase.domains.mesh.advection as advection_module
 from femphase.analysis.shape import shape_observables
 from femphase.config import Numerics
 from femphase.domains.mesh.advection import (
@@ -66,7 +67,7 @@ def test_the_frequency_estimate_is_the_largest_eigenvalue():
     assert SPECTRAL_MARGIN * estimate >= largest
 
 
-def test_the_explicit_step_agrees_with_the_pade_step(sheared):
+def test_the_explicit_step_agrees_with_the_pade_step(sheared, monkeypatch):
     """Both are Galerkin in space; they differ by the corrected inverse (spatial, O(h⁴) on
     smooth modes) and by their time errors. Against a converged Padé reference (32 steps),
     the explicit step's difference is the inverse's, the same at one RK4 substep as at 8."""
@@ -79,7 +80,7 @@ def test_the_explicit_step_agrees_with_the_pade_step(sheared):
     explicit = GalerkinRK4(domain, flow, dt, Numerics())
     assert explicit.substeps == max(1, int(np.ceil(SPECTRAL_MARGIN * explicit.frequency * dt / COURANT)))
     one, _ = explicit.advect(phi, layout, 0.0)
-    explicit.substeps = 8
+    monkeypatch.setattr(GalerkinRK4, "substeps", 8)
     eight, _ = explicit.advect(phi, layout, 0.0)
     moved = np.abs(reference - phi).max()
     assert np.abs(one - reference).max() < 0.05 * moved
@@ -111,3 +112,23 @@ def test_large_steps_subcycle_and_stay_bounded():
     assert end.area[0] == pytest.approx(start.area[0], rel=0.01)
     assert moved.min() == pytest.approx(reference.min(), abs=0.01)
     assert moved.max() == pytest.approx(reference.max(), abs=0.02)
+
+
+def test_advections_of_one_flow_share_its_matrix_and_frequency(sheared, monkeypatch):
+    # the adaptive scheme builds one advection per substep size; C and ω are the flow's
+    domain, layout, phi, _ = sheared
+    flow = poiseuille(1.0, 40.0)  # a flow of its own: none of its operators kept yet
+    assembled, estimated = [], []
+    monkeypatch.setattr(advection_module, "advection_matrix",
+                        lambda *args: assembled.append(args) or advection_matrix(*args))
+    monkeypatch.setattr(advection_module, "spectral_radius",
+                        lambda *args: estimated.append(args) or spectral_radius(*args))
+    short, long = GalerkinRK4(domain, flow, 1.0, Numerics()), GalerkinRK4(domain, flow, 4.0, Numerics())
+    short.advect(phi, layout, 0.0)
+    long.advect(phi, layout, 0.0)
+    assert len(assembled) == 1 and len(estimated) == 1
+    assert long.frequency == short.frequency and long.substeps >= short.substeps
+    other = poiseuille(0.5, 40.0)
+    halved = GalerkinRK4(domain, other, 1.0, Numerics())
+    assert halved.frequency == pytest.approx(0.5 * short.frequency, rel=0.05)
+    assert len(assembled) == 2 and len(estimated) == 2

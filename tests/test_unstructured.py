@@ -17,7 +17,7 @@ from femphase.io.checkpoints import load_checkpoint, save_checkpoint
 from femphase.model.parameters import ModelParameters
 from femphase.scene import scene_from_dict
 from femphase.state import discs_state
-from femphase.timestepping.stepper import Stepper, cached_bytes
+from femphase.timestepping.stepper import Stepper
 
 PARAMS = ModelParameters()
 EDGE = edge_for_spacing(1.0)  # one node per unit area, like the structured grid at h = 1
@@ -292,7 +292,7 @@ def test_a_blow_up_leaves_the_state_unchanged():
 @pytest.mark.parametrize("numerics", [Numerics(solver="direct"), Numerics(scheme="euler", mass="consistent",
                                                                        solver="direct")],
                          ids=["default", "consistent mass"])
-def test_the_solvers_kept_stay_within_their_memory_budget_and_dropping_them_changes_nothing(monkeypatch, numerics):
+def test_the_solvers_kept_stay_within_the_domains_budget_and_dropping_them_changes_nothing(numerics):
     # with per-window solvers ("direct"; meshes batch all windows by default), a mesh box is
     # its own system, and the boxes follow the particles under flow: 4096 LUs kept took
     # examples/obstacle_mesh.toml to 13 GB by step 5700; with the consistent mass every
@@ -300,24 +300,26 @@ def test_the_solvers_kept_stay_within_their_memory_budget_and_dropping_them_chan
     domain = straight(40.0, 40.0)
 
     def sheared(budget: int):
-        monkeypatch.setattr(Stepper, "SOLVER_CACHE_BYTES", budget)
+        domain.caches.limit = budget
         state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
         step = Stepper(domain, PARAMS, numerics, 1.0, poiseuille(1.0, 40.0), state.radii)
         kept = []
         for _ in range(30):
             step.step(state)
-            kept.append((len(step._solvers), sum(cached_bytes(*entry) for entry in step._solvers.values()),
-                         step._cached_bytes))
+            measured = sum(solver.nbytes + (0 if mass is None else mass.data.nbytes + mass.indices.nbytes
+                                            + mass.indptr.nbytes) for solver, mass in step._solvers._values.values())
+            kept.append((len(step._solvers), measured, step._solvers.nbytes, domain.caches.used))
         return state, kept, step
 
     free, kept_free, free_step = sheared(2**40)
-    one_box = max(b for _, b, _ in kept_free[:1]) // max(n for n, _, _ in kept_free[:1])
+    # the consistent mass's blocks are in the count: more than the solvers' own bytes
+    solvers_only = sum(solver.nbytes for solver, _ in free_step._solvers._values.values())
+    assert (free_step._solvers.nbytes > solvers_only) == (numerics.mass == "consistent")
+    one_box = kept_free[0][1] // kept_free[0][0]
     budget = 3 * one_box
     tight, kept_tight, _ = sheared(budget)
     assert kept_free[-1][0] > 6  # the boxes moved: many systems met
-    assert all(total == tracked and (total <= budget or count == 1) for count, total, tracked in kept_tight)
-    assert max(count for count, _, _ in kept_tight) < kept_free[-1][0]
+    # every cache on the domain (dofs, blocks, solvers) shares the one budget
+    assert all(measured == counted and used <= budget for _, measured, counted, used in kept_tight)
+    assert max(count for count, *_ in kept_tight) < kept_free[-1][0]
     np.testing.assert_array_equal(tight.flat()[1], free.flat()[1])
-    # the consistent mass's blocks are in the count: more than the solvers' own bytes
-    solvers_only = sum(solver.nbytes for solver, _ in free_step._solvers.values())
-    assert (free_step._cached_bytes > solvers_only) == (numerics.mass == "consistent")

@@ -28,6 +28,9 @@ __all__ = ["DOMAINS", "Domain", "Layout", "domain_from_table"]
 
 
 def domain_from_table(table: dict, base_dir: str | Path, numerics: Numerics) -> Domain:
-    """The domain a scene's ``[domain]`` table describes (``kind`` names it, default "grid")."""
+    """The domain a scene's ``[domain]`` table describes (``kind`` names it, default "grid"),
+    its caches' budget ``numerics.cache_mib``."""
     cls = DOMAINS.get(table.get("kind", "grid"))
-    return cls.from_table(table, Path(base_dir), numerics)
+    domain = cls.from_table(table, Path(base_dir), numerics)
+    domain.caches.limit = int(numerics.cache_mib * 2**20)
+    return domain

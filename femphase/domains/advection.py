@@ -13,7 +13,9 @@ regathering of fields after a move regroups the windows.
 from __future__ import annotations
 
 import numpy as np
+import scipy.sparse as sp
 
+from femphase.caches import nbytes_of
 from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
 from femphase.flows import Flow
@@ -33,6 +35,13 @@ class StepAdvection:
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         self.domain, self.flow, self.dt = domain, flow, dt
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the arrays and matrices it holds itself; what it keeps for reuse draws on
+        the domain's budget (:attr:`~femphase.domains.base.Domain.caches`) and counts there."""
+        return sum(nbytes_of(value) for value in vars(self).values()
+                   if isinstance(value, np.ndarray) or sp.issparse(value))
 
     def velocity(self, time: float) -> np.ndarray:
         """(2, n_dofs) nodal velocity at the step starting at ``time`` (its midpoint)."""

@@ -10,7 +10,9 @@ bounded by walls that carry the natural (homogeneous Neumann) condition ∇φ·n
 * windows: how a window covers a particle (:meth:`window_policy`, :meth:`disc_window`,
   :meth:`refit`), which dofs it holds, and how windows are grouped (:meth:`layout`);
 * fast paths: a solver for a window's system (:meth:`solver`), advection in a flow
-  (:meth:`advection`), shape moments (:meth:`shape_moments`).
+  (:meth:`advection`), shape moments (:meth:`shape_moments`);
+* memory: :attr:`caches`, the one byte budget of everything the run keeps for reuse, its
+  own caches' and those of the steppers and advections on it (:mod:`femphase.caches`).
 
 Two implementations are registered in :data:`DOMAINS` under the scene's ``[domain] kind``:
 ``grid``, the structured channel (:class:`femphase.domains.grid.domain.GridDomain`: rectangular
@@ -27,6 +29,7 @@ from typing import Callable, ClassVar, Hashable, Protocol, Sequence
 import numpy as np
 import scipy.sparse as sp
 
+from femphase.caches import ByteBudget, nbytes_of
 from femphase.config import Numerics
 from femphase.domains.layout import Layout
 from femphase.fem.blocks import BlockPattern, aligned_data, local_block
@@ -227,76 +230,83 @@ class Domain(ABC):
     def _operator_data(self) -> dict[str, np.ndarray]:
         return {"mass": self.aligned(self.operators.mass), "stiffness": self.aligned(self.operators.stiffness)}
 
+    #: The default of :attr:`caches`' limit (``numerics.cache_mib`` sets it for a scene).
+    CACHE_BYTES = 256 * 2**20
+
     @cached_property
-    def _window_blocks(self) -> dict:
-        return {}
+    def caches(self) -> ByteBudget:
+        """The byte budget every cache of a run on this domain draws on (:mod:`femphase.caches`)."""
+        return ByteBudget(self.CACHE_BYTES)
+
+    @cached_property
+    def _layout_blocks(self):
+        """The last layout's block-diagonal map, operators and diagonals, each entry
+        (layout, tag, value) (:meth:`per_layout`)."""
+        return self.caches.cache("layout blocks")
+
+    def per_layout(self, layout: Layout, name: Hashable, build: Callable[[], object], tag: object = None):
+        """What ``build()`` makes for ``layout`` (a block-diagonal matrix, a diagonal), kept
+        under ``name`` for the last layout only, in :attr:`caches`; ``tag`` tells apart the
+        operators one name may stand for (compared by identity and held with the entry: e.g.
+        the advection matrix's data, which changes with the flow)."""
+        kept = self._layout_blocks.get(name)
+        if kept is None or kept[0] is not layout or kept[1] is not tag:
+            value = build()
+            kept = self._layout_blocks.put(name, (layout, tag, value), nbytes_of(value))
+        return kept[2]
 
     def window_blocks(self, layout: Layout) -> BlockPattern:
         """The block-diagonal map of ``layout``'s windows (:class:`~femphase.fem.blocks.BlockPattern`),
-        kept for the last layout only, built from per-window maps kept while their window
-        key is in the layout (most windows survive a refit)."""
-        cache = self._window_blocks
-        if cache.get("layout") is not layout:
-            known = cache.get("local", {})
+        built from per-window maps (:class:`~femphase.fem.blocks.LocalBlock`) kept for the
+        last layout's window keys: most windows survive a refit, and a box left is rarely met
+        again (kept in a cache of their own, they filled a 256 MiB budget within 800 time units
+        of flow on examples/straight_mesh.toml)."""
+        def build() -> BlockPattern:
+            kept = self._layout_blocks.get("local")
+            known = {} if kept is None else kept[2]
             local = {}
-            for group, (key, members, start, stop, size) in enumerate(layout.groups):
+            for group, (key, *_) in enumerate(layout.groups):
                 local[key] = known.get(key)
                 if local[key] is None:
                     local[key] = local_block(self.block_pattern, self.window_dofs(layout.representative(group)))
-            cache.clear()
-            cache["layout"], cache["local"] = layout, local
-            cache["pattern"] = BlockPattern([local[key] for key, *_ in layout.groups],
-                                            [members.size for _, members, *_ in layout.groups])
-        return cache["pattern"]
+            self._layout_blocks.put("local", (layout, None, local), nbytes_of(local))
+            return BlockPattern(list(local.values()), [members.size for _, members, *_ in layout.groups])
+        return self.per_layout(layout, "pattern", build)
 
     def window_operator(self, layout: Layout, name: str) -> sp.csr_matrix:
         """The block-diagonal matrix of every window's principal submatrix of the P1
         operator ``name`` ("mass" or "stiffness"), for the last layout asked."""
-        pattern = self.window_blocks(layout)
-        cache = self._window_blocks
-        if name not in cache:
-            cache[name] = pattern.block(self._operator_data[name])
-        return cache[name]
+        return self.per_layout(layout, name, lambda: self.window_blocks(layout).block(self._operator_data[name]))
 
     def window_diagonal(self, layout: Layout, name: str) -> np.ndarray:
         """The diagonal of :meth:`window_operator`: a principal submatrix's diagonal is the full
         matrix's at its dofs, so one gather (kept with the layout's blocks: a Krylov solve's
         Jacobi preconditioner needs it at every call)."""
-        self.window_blocks(layout)  # the cache below belongs to this layout
-        cache = self._window_blocks
-        if (name, "diagonal") not in cache:
-            cache[name, "diagonal"] = self._operator_diagonals[name][layout.node_index]
-        return cache[name, "diagonal"]
+        return self.per_layout(layout, (name, "diagonal"), lambda: self._operator_diagonals[name][layout.node_index])
 
     @cached_property
     def _operator_diagonals(self) -> dict[str, np.ndarray]:
         return {"mass": self.operators.mass.diagonal(), "stiffness": self.operators.stiffness.diagonal()}
 
-    #: Bytes of per-window-key stiffness blocks kept for :meth:`stiffness_apply` (cleared when
-    #: exceeded). The structured channel's keys are few and their blocks ~10 kB; a mesh box
-    #: of ~1100 dofs takes ~100 kB, and boxes change at almost every substep.
-    STIFFNESS_CACHE_BYTES = 64 * 2**20
-
     @cached_property
-    def _stiffness_cache(self) -> dict:
-        return {"blocks": {}, "bytes": 0}
+    def _stiffness_blocks(self):
+        """Per window key: its principal submatrix of K, for :meth:`stiffness_apply`."""
+        return self.caches.cache("stiffness blocks")
 
     def stiffness_apply(self, layout: Layout) -> Callable[[np.ndarray], np.ndarray]:
-        """φ ↦ K φ window by window (each window's principal submatrix of K)."""
+        """φ ↦ K φ window by window (each window's principal submatrix of K). On domains
+        with :attr:`batched_solves` (meshes) by the layout's block-diagonal K, which the
+        window solves use too: every box is its own key there, and blocks kept per key
+        were rebuilt for almost every layout and piled up in the budget."""
+        if self.batched_solves:
+            return lambda phi: self.window_operator(layout, "stiffness") @ phi
+
         def apply(phi: np.ndarray) -> np.ndarray:
             out = np.empty_like(phi)
-            cache = self._stiffness_cache
-            blocks = cache["blocks"]
             for group, (key, members, start, stop, size) in enumerate(layout.groups):
-                block = blocks.get(key)
-                if block is None:
-                    dofs = self.window_dofs(layout.representative(group))
-                    block = blocks[key] = window_block(self.operators.stiffness, dofs)
-                    cache["bytes"] += block.data.nbytes + block.indices.nbytes + block.indptr.nbytes
+                block = self._stiffness_blocks.setdefault(
+                    key, lambda: window_block(self.operators.stiffness, self.window_dofs(layout.representative(group))))
                 out[start:stop].reshape(members.size, size).T[...] = block @ phi[start:stop].reshape(members.size, size).T
-            if cache["bytes"] > self.STIFFNESS_CACHE_BYTES:  # windows come and go
-                blocks.clear()
-                cache["bytes"] = 0
             return out
         return apply
 

@@ -86,6 +86,11 @@ class Layout:
     #: What a moved layout does not share with the layout it was moved from
     _PER_POSITION = ("node_index", "mass", "single_mass", "overlap_positions", "_parts", "_pending", "corners")
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the per-position and per-window arrays computed so far."""
+        return sum(int(value.nbytes) for value in self.__dict__.values() if isinstance(value, np.ndarray))
+
     @cached_property
     def node_index(self) -> np.ndarray:
         """The dof of every position (a moved layout's: computed on first use)."""

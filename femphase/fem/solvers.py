@@ -107,6 +107,12 @@ class TensorBasis:
         # contiguous transposes: a transposed view as a product's operand costs ~50 % more
         self.vy_t, self.vx_t = np.ascontiguousarray(self.vy.T), np.ascontiguousarray(self.vx.T)
 
+    @property
+    def nbytes(self) -> int:
+        """Bytes of its eigenpairs (and their single-precision copies, once made)."""
+        arrays = [self.lam_y, self.lam_x, self.vy, self.vx, self.vy_t, self.vx_t, *self.__dict__.get("single", ())]
+        return sum(int(a.nbytes) for a in arrays)
+
     @cached_property
     def single(self) -> tuple[np.ndarray, ...]:
         """(vy, vx, vyᵀ, vxᵀ) in single precision, made on first use."""

@@ -7,7 +7,6 @@ tenth of it without (:meth:`femphase.config.Numerics.substep_tolerance`).
 
 from __future__ import annotations
 
-from collections import OrderedDict
 
 import numpy as np
 
@@ -69,10 +68,6 @@ class AdaptiveSAV2(RelaxedSAV2):
     UNITS = DIVISIONS[-1]
     #: m of a phase's first substep (dt/4)
     FIRST = 4
-    #: Advections kept (least recently used dropped first): one per pair of neighbouring
-    #: sizes in use; on a mesh each holds its assembled advection matrix (and, with
-    #: per-window solvers, a complex LU per window: tens of MB on the obstacle example)
-    ADVECTIONS_KEPT = 8
     #: The PI controller (Gustafsson; the defaults of SUNDIALS ARKODE's PI): exponents of
     #: the error ratios for an estimate of local order 2, a safety factor, growth bounds.
     K_I, K_P, SAFETY, GROWTH, SHRINK = 0.8 / 2, 0.31 / 2, 0.9, 4.0, 0.2
@@ -86,7 +81,10 @@ class AdaptiveSAV2(RelaxedSAV2):
     def __init__(self, stepper: StepperProtocol) -> None:
         super().__init__(stepper)
         self.tolerance = stepper.numerics.substep_tolerance(stepper.flow.is_still)
-        self._advections: OrderedDict[tuple[int, ...], object] = OrderedDict()
+        #: one advection per combination of half substeps in use, in the domain's budget (on a
+        #: mesh they share the flow's matrices; with per-window solvers each keeps a complex
+        #: LU per window there too)
+        self._advections = stepper.domain.caches.cache("advections")
 
     def start_phase(self, state: State) -> None:
         """A new phase (the flow switched on, off or changed) starts the controller afresh,
@@ -105,16 +103,9 @@ class AdaptiveSAV2(RelaxedSAV2):
         still second order), which halves the advection work."""
         if self.stepper.flow.is_still:
             return None
-        advections = self._advections
-        if divisions in advections:
-            advections.move_to_end(divisions)
-        else:
-            stepper = self.stepper
-            duration = sum(0.5 * stepper.dt / m for m in divisions)
-            advections[divisions] = stepper.domain.advection(stepper.flow, duration, stepper.numerics)
-            if len(advections) > self.ADVECTIONS_KEPT:
-                advections.popitem(last=False)
-        return advections[divisions]
+        stepper = self.stepper
+        return self._advections.setdefault(divisions, lambda: stepper.domain.advection(
+            stepper.flow, sum(0.5 * stepper.dt / m for m in divisions), stepper.numerics))
 
     def largest_substep(self, phi: np.ndarray, layout: Layout, radii: np.ndarray) -> float:
         """The largest substep (time units) that damps the explicit rank-one modes,

@@ -13,15 +13,14 @@ One step:
 
 Every window solves the principal submatrix of the full-domain system on its dofs (see
 :mod:`femphase.domains.layout`). Either solvers are built once per window key and system,
-all windows of a key are solved in one multi-right-hand-side call, and the solvers kept are
-bounded in memory (:attr:`Stepper.SOLVER_CACHE_BYTES`, least recently used dropped first);
+all windows of a key are solved in one multi-right-hand-side call, and the solvers are kept
+in the domain's byte budget (:mod:`femphase.caches`, least recently used dropped first);
 or, batched (meshes), all windows are solved at once by CG on their block-diagonal matrix
 (:mod:`femphase.fem.blocks`).
 """
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from typing import Callable
 
 import numpy as np
@@ -38,15 +37,7 @@ from femphase.model.parameters import ModelParameters
 from femphase.state import State
 from femphase.timestepping.base import SCHEMES, check_fields
 
-__all__ = ["Stepper", "cached_bytes"]
-
-
-def cached_bytes(solver, mass_block: sp.csr_matrix | None) -> int:
-    """Bytes a solver cache entry holds: the solver's ``nbytes`` and, with the consistent
-    mass, the window's mass block (its three CSR arrays)."""
-    if mass_block is None:
-        return int(solver.nbytes)
-    return int(solver.nbytes + mass_block.data.nbytes + mass_block.indices.nbytes + mass_block.indptr.nbytes)
+__all__ = ["Stepper"]
 
 
 class Stepper:
@@ -78,9 +69,10 @@ class Stepper:
         self.radii = None if radii is None else np.asarray(radii, dtype=float)
         self.policy = domain.window_policy(numerics)
         self.advection = None if self.flow.is_still else domain.advection(self.flow, self.dt, numerics)
-        self._systems: dict = {}
-        self._solvers: OrderedDict = OrderedDict()  # least recently used first
-        self._cached_bytes = 0
+        #: full-domain system matrices per (shift, stabilisation), and per-window-key solvers
+        #: with their consistent mass blocks, in the domain's byte budget
+        self._systems = domain.caches.cache("systems")
+        self._solvers = domain.caches.cache("window solvers")
         #: whether window solves run on all windows at once (:meth:`~femphase.domains.base.Domain.solves_batched`)
         self.batched = domain.solves_batched(numerics)
         #: CG iterations of the batched solves so far (a diagnostic)
@@ -122,15 +114,14 @@ class Stepper:
 
     def system(self, shift: float, stabilisation: float) -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
         """(shift·G + J0 S M_L + J0 D K, G if the time mass is consistent else None)."""
-        key = (shift, stabilisation)
-        if key not in self._systems:
+        def build() -> tuple[sp.csr_matrix, sp.csr_matrix | None]:
             ops = self.domain.operators
             consistent = not self.lumped
             time_mass = ops.mass if consistent else sp.diags(ops.lumped_mass)
             matrix = (shift * time_mass + self.mobility * stabilisation * sp.diags(ops.lumped_mass)
                       + self.mobility * self.energy.diffusivity * ops.stiffness).tocsr()
-            self._systems[key] = (matrix, sp.csr_matrix(time_mass) if consistent else None)
-        return self._systems[key]
+            return matrix, sp.csr_matrix(time_mass) if consistent else None
+        return self._systems.setdefault((shift, stabilisation), build)
 
     def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
               stabilisation: float, guess: np.ndarray | None = None) -> np.ndarray:
@@ -182,20 +173,9 @@ class Stepper:
         self.krylov_iterations += iterations
         return solution.astype(previous.dtype, copy=False)
 
-    #: Bytes of per-window-key solvers kept (their ``nbytes`` and their consistent mass
-    #: blocks', :func:`cached_bytes`; the least recently used are dropped first). Windows
-    #: come and go and the adaptive scheme changes its step size; the structured channel's
-    #: tensor solvers are ~10 kB each, but a mesh box's LU (``numerics.solver = "direct"``)
-    #: ~2 MB per ~1000 dofs: keeping 4096 of them took examples/obstacle_mesh.toml to 13 GB.
-    #: Batched solves keep no solver (:mod:`femphase.fem.blocks`).
-    SOLVER_CACHE_BYTES = 256 * 2**20
-
     def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
-        cache_key = (key, shift, stabilisation)
-        solvers = self._solvers
-        if cache_key in solvers:
-            solvers.move_to_end(cache_key)
-        else:
+        """(solver, consistent mass block or None) of the window key's system."""
+        def build() -> tuple:
             lumped = self.lumped
             a = shift + self.mobility * stabilisation
             solver = self.domain.solver(window, lambda: window_block(self.system(shift, stabilisation)[0],
@@ -204,12 +184,8 @@ class Stepper:
                                         self.numerics.tolerance)
             mass_block = None if lumped else window_block(self.system(shift, stabilisation)[1],
                                                           self.domain.window_dofs(window))
-            solvers[cache_key] = (solver, mass_block)
-            self._cached_bytes += cached_bytes(solver, mass_block)
-            while self._cached_bytes > self.SOLVER_CACHE_BYTES and len(solvers) > 1:
-                _, dropped = solvers.popitem(last=False)
-                self._cached_bytes -= cached_bytes(*dropped)
-        return solvers[cache_key]
+            return solver, mass_block
+        return self._solvers.setdefault((key, shift, stabilisation), build)
 
     # -- one step -------------------------------------------------------------------------
     def step(self, state: State, steps: int = 1) -> None:

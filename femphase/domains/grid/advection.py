@@ -78,19 +78,15 @@ class RowShift(StepAdvection):
     """Exact advection of the structured channel's windows in a row flow (u(y, t), 0), in
     the fields' precision (:func:`shift_rows`; numerics.precision = "mixed" passes float32)."""
 
-    #: Runs whose phase factors are kept (10 kB a window of 36 × 36 nodes; an adaptive
-    #: stepper keeps up to 8 advections): a new layout regroups a few windows and leaves the
-    #: other groups as they were
-    STACK_CACHE = 32
-
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
         _, self._y = domain.grid.coordinates()
         self._steady_shift = self._row_shift(0.0) if flow.steady else None
         #: per run of windows (:func:`row_runs`; its width, particles, heights and
         #: precision): their first rows (k,), whole-node moves (k,) and stacked phase
-        #: factors (rows, nx//2 + 1)
-        self._stacks: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        #: factors (rows, nx//2 + 1), 10 kB a window of 36 × 36 nodes, in the domain's
+        #: budget (a new layout regroups a few windows and leaves the other groups as they were)
+        self._stacks = domain.caches.cache("row-shift phases")
         #: (groups, :func:`row_runs`) of the last layout advected: moved layouts keep both
         self._runs: tuple[list, list] | None = None
 
@@ -123,12 +119,10 @@ class RowShift(StepAdvection):
         key = (nx, single, members.tobytes(), heights.tobytes())
         kept = self._stacks.get(key)
         if kept is None:
-            if len(self._stacks) >= self.STACK_CACHE:
-                self._stacks.clear()
             changed = np.ones(members.size, dtype=bool)
-            kept = self._stacks[key] = (first_rows.copy(), np.empty(members.size, dtype=np.int64),
-                                        np.empty((int(heights.sum()), nx // 2 + 1),
-                                                 dtype=np.complex64 if single else complex))
+            kept = self._stacks.put(key, (first_rows.copy(), np.empty(members.size, dtype=np.int64),
+                                          np.empty((int(heights.sum()), nx // 2 + 1),
+                                                   dtype=np.complex64 if single else complex)))
         else:
             changed = kept[0] != first_rows
         if changed.any():

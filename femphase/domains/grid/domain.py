@@ -82,7 +82,6 @@ class GridDomain(Domain):
         self.period, self.spacing = grid.length, grid.h
         self.lattice = (grid.ny, grid.nx)
         self._layout: Layout | None = None
-        self._tensor_bases: dict[tuple, TensorBasis | None] = {}
         #: the rows of the last layout moved to: what a move that keeps them reuses
         self._rows: RowOffsets | None = None
         lumped = self.operators.lumped_mass.reshape(grid.ny, grid.nx)
@@ -282,12 +281,17 @@ class GridDomain(Domain):
             # the eigenpairs depend on the window's shape only (its key), not on a and b: a
             # new time step size then costs one division per node, which lets the adaptive
             # scheme choose its substeps freely
-            key = self.window_key(window)
-            if key not in self._tensor_bases:
-                self._tensor_bases[key] = tensor_basis(block(), window, self.grid, a, b)
-            if self._tensor_bases[key] is not None:
-                return self._tensor_bases[key].solver(a, b)
+            basis = self._tensor_bases.setdefault(self.window_key(window),
+                                                  lambda: tensor_basis(block(), window, self.grid, a, b))
+            if basis is not None:
+                return basis.solver(a, b)
         return super().solver(window, block, a, b, lumped, method, tolerance)
+
+    @cached_property
+    def _tensor_bases(self):
+        """Per window key: its :class:`~femphase.fem.solvers.TensorBasis`, or None where the
+        tensor solver does not apply."""
+        return self.caches.cache("tensor bases")
 
     def advection(self, flow: Flow, dt: float, numerics: Numerics):
         if flow.row_velocity is not None:

@@ -40,6 +40,7 @@ import scipy.sparse as sp
 from skfem import Basis, BilinearForm, ElementTriP1
 from skfem.helpers import dot, grad
 
+from femphase.caches import nbytes_of
 from femphase.config import Numerics
 from femphase.domains.advection import StepAdvection
 from femphase.domains.base import Domain, window_block
@@ -84,57 +85,62 @@ PADE_POLE = -3.0 + 1j * np.sqrt(3.0)
 
 
 class GalerkinAdvection(StepAdvection):
-    """What the two Galerkin steps share: the advection matrix C, assembled once for a steady
-    flow and at every step's midpoint for a time-dependent one, handed to :meth:`_assemble`."""
+    """What the two Galerkin steps share: the advection matrix C of the flow, assembled once
+    for a steady flow and at every step's midpoint for a time-dependent one, and kept in the
+    domain's budget per flow, so that advections of one flow over different dt (the adaptive
+    scheme's substep sizes) share it and what is derived from it (:meth:`_per_flow`)."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
-        self._assembled_at: float | None = None
-        if flow.steady:
-            self._assemble(advection_matrix(domain, flow, 0.0))
+        #: the time C is assembled at: None for a steady flow, else the current step's midpoint
+        self._when: float | None = None
 
-    def _assemble_for(self, time: float) -> None:
-        """C at the midpoint of the step from ``time``, unless it is there (or the flow is steady)."""
-        midpoint = time + 0.5 * self.dt
-        if not self.flow.steady and self._assembled_at != midpoint:
-            self._assemble(advection_matrix(self.domain, self.flow, midpoint))
-            self._assembled_at = midpoint
+    def _per_flow(self, name: str, build: Callable[[], object]):
+        """What ``build()`` derives from the flow at :attr:`_when` (C itself, its aligned entries,
+        ω), kept under ``name`` for this flow and time."""
+        key = (name, id(self.flow))
+        operators = self.domain.advection_operators
+        kept = operators.get(key)
+        if kept is None or kept[0] is not self.flow or kept[1] != self._when:
+            value = build()
+            kept = operators.put(key, (self.flow, self._when, value), nbytes_of(value))
+        return kept[2]
 
-    def _assemble(self, advection: sp.csr_matrix) -> None:
-        """Set the step up for the advection matrix ``advection`` (full mesh, periodic dofs)."""
-        raise NotImplementedError
+    @property
+    def advection(self) -> sp.csr_matrix:
+        """C (full mesh, periodic dofs) at :attr:`_when`."""
+        return self._per_flow("matrix", lambda: advection_matrix(self.domain, self.flow, self._when or 0.0))
+
+    def _step_from(self, time: float) -> None:
+        """Set :attr:`_when` for the step from ``time``: its midpoint, for a flow that changes."""
+        if not self.flow.steady:
+            self._when = time + 0.5 * self.dt
 
 
 class GalerkinPade(GalerkinAdvection):
     """Galerkin advection with the (2,2) Padé step on a meshed domain (module docstring), one
-    complex solver per window key, kept while the window's dofs do not change. A
-    time-dependent flow is assembled at every step's midpoint."""
+    complex solver per window key in the domain's budget, rebuilt when the flow changes."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
         self.numerics = numerics
         super().__init__(domain, flow, dt)
-
-    def _assemble(self, advection: sp.csr_matrix) -> None:
-        ops = self.domain.operators
-        self._system = (ops.mass - (self.dt / PADE_POLE) * advection).tocsr()
-        self._mass = ops.mass.tocsr()
-        self._solvers = {}
+        self._solvers = domain.caches.cache("Padé solvers")
+        self._system: tuple[float | None, sp.csr_matrix] | None = None
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
-        self._assemble_for(time)
-        current = {key for key, *_ in layout.groups}
-        self._solvers = {k: v for k, v in self._solvers.items() if k in current}
+        self._step_from(time)
+        if self._system is None or self._system[0] != self._when:
+            self._system = (self._when, (self.domain.operators.mass - (self.dt / PADE_POLE) * self.advection).tocsr())
+            self._solvers.clear()
+        system, mass = self._system[1], self.domain.operators.mass
         out = np.empty_like(phi)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
-            if key not in self._solvers:
-                dofs = self.domain.window_dofs(layout.representative(group))
-                self._solvers[key] = (
-                    make_solver(window_block(self._system, dofs), self.numerics.solver, self.numerics.tolerance),
-                    window_block(self._mass, dofs),
-                )
-            solver, mass = self._solvers[key]
+            dofs = self.domain.window_dofs(layout.representative(group))
+            solver, mass_block = self._solvers.setdefault(key, lambda: (
+                make_solver(window_block(system, dofs), self.numerics.solver, self.numerics.tolerance),
+                window_block(mass, dofs)))
             current_phi = phi[start:stop].reshape(members.size, size).T
-            w = solver.solve((mass @ current_phi).astype(complex))
+            w = solver.solve((mass_block @ current_phi).astype(complex))
             out[start:stop].reshape(members.size, size).T[...] = current_phi + 4.0 * np.sqrt(3.0) * w.imag
         return out, layout
 
@@ -183,8 +189,9 @@ class GalerkinRK4(GalerkinAdvection):
     """Galerkin advection with explicit RK4 and a corrected lumped mass inverse (module
     docstring), on all windows at once: per layout the block-diagonal matrices of the windows'
     principal submatrices of C and M (:mod:`femphase.fem.blocks`), nothing per window.
-    A time-dependent flow is assembled at every step's midpoint, with its ω. ``numerics``
-    is taken for the advections' common signature; no setting of it applies."""
+    C, its entries aligned to the block pattern, its block-diagonal form on the current
+    layout and ω are the flow's, shared by every dt. ``numerics`` is taken for the
+    advections' common signature; no setting of it applies."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
         #: K (module docstring), read from :data:`MASS_CORRECTIONS` when built (so a study
@@ -192,25 +199,27 @@ class GalerkinRK4(GalerkinAdvection):
         self.corrections = MASS_CORRECTIONS
         super().__init__(domain, flow, dt)
 
-    def _assemble(self, advection: sp.csr_matrix) -> None:
+    @property
+    def frequency(self) -> float:
+        """ω, the spectral radius of P C on the whole mesh (1/time units). The windows' P C are
+        not estimated on their own: the margin and ω h ≤ 1 against RK4's limit 2√2 leave
+        them room."""
         ops = self.domain.operators
-        self._advection_data = self.domain.aligned(advection)
         inverse_lumped = 1.0 / ops.lumped_mass
-        #: ω, the spectral radius of P C on the whole mesh (1/time units). The windows' P C
-        #: are not estimated on their own: the margin and ω h ≤ 1 against RK4's limit 2√2
-        #: leave them room
-        self.frequency = spectral_radius(
-            lambda x: corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections), self.domain.n_dofs)
-        #: RK4 substeps per step of dt
-        self.substeps = max(1, int(np.ceil(SPECTRAL_MARGIN * self.frequency * self.dt / COURANT)))
-        self._blocks: tuple = (None, None)  # (layout, its block-diagonal C)
+        advection = self.advection
+        return self._per_flow(f"frequency {self.corrections}", lambda: spectral_radius(
+            lambda x: corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections), self.domain.n_dofs))
+
+    @property
+    def substeps(self) -> int:
+        """RK4 substeps per step of dt."""
+        return max(1, int(np.ceil(SPECTRAL_MARGIN * self.frequency * self.dt / COURANT)))
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
-        self._assemble_for(time)
-        blocks, advection = self._blocks
-        if blocks is not layout:
-            advection = self.domain.window_blocks(layout).block(self._advection_data)
-            self._blocks = (layout, advection)
+        self._step_from(time)
+        aligned = self._per_flow("aligned", lambda: self.domain.aligned(self.advection))
+        advection = self.domain.per_layout(layout, "advection",
+                                           lambda: self.domain.window_blocks(layout).block(aligned), tag=aligned)
         mass, inverse_lumped = self.domain.window_operator(layout, "mass"), 1.0 / layout.mass
 
         def rate(x: np.ndarray) -> np.ndarray:
@@ -218,9 +227,10 @@ class GalerkinRK4(GalerkinAdvection):
             out *= -1.0
             return out
 
-        h = self.dt / self.substeps
+        substeps = self.substeps
+        h = self.dt / substeps
         x = phi.astype(np.float64)
-        for _ in range(self.substeps):
+        for _ in range(substeps):
             k = rate(x)
             total = k.copy()
             k = rate(x + (0.5 * h) * k)

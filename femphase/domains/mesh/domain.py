@@ -253,8 +253,10 @@ class MeshDomain(Domain):
 
     # -- windows: the dofs inside boxes -----------------------------------------------------
     @cached_property
-    def _cache(self) -> dict:
-        return {"dofs": {}, "layout": None}
+    def _dofs(self):
+        """Per box: its dofs, for the last layout's boxes and those asked since (boxes last
+        many substeps; a box left is rarely met again, and kept by count these took 36 MB)."""
+        return self.caches.cache("window dofs")
 
     @property
     def extent(self) -> tuple[float, float, float, float]:
@@ -274,21 +276,27 @@ class MeshDomain(Domain):
         return policy.cover((cx - reach, cx + reach), (cy - reach, cy + reach), self.extent)
 
     def window_dofs(self, window: Box) -> np.ndarray:
-        """The dofs inside the box, sorted (cached: boxes last many steps)."""
-        dofs = self._cache["dofs"]
-        if window not in dofs:
-            if len(dofs) > 4096:
-                dofs.clear()
-            x, y = self.coordinates
-            dofs[window] = np.flatnonzero(window.contains(x, y, self.period))
-        return dofs[window]
+        """The dofs inside the box, sorted (kept in :attr:`caches`: boxes last many substeps)."""
+        x, y = self.coordinates
+        return self._dofs.setdefault(window, lambda: np.flatnonzero(window.contains(x, y, self.period)))
+
+    @cached_property
+    def advection_operators(self):
+        """Per flow: its advection matrix and what is derived from it, shared by the flow's
+        advections over every dt (:class:`~femphase.domains.mesh.advection.GalerkinAdvection`)."""
+        return self.caches.cache("advection operators")
+
+    @cached_property
+    def _last_layout(self):
+        return self.caches.cache("layout")
 
     def layout(self, windows: Sequence[Box]) -> Layout:
-        last = self._cache["layout"]
+        last = self._last_layout.get("last")
         if last is None or last.windows != tuple(windows):
-            last = self._cache["layout"] = Layout(
+            last = self._last_layout.put("last", Layout(
                 windows, lambda box: box, lambda boxes: np.stack([self.window_dofs(b) for b in boxes]),
-                lambda box: (self.window_dofs(box).size,), self.operators.lumped_mass)
+                lambda box: (self.window_dofs(box).size,), self.operators.lumped_mass))
+            self._dofs.retain(set(last.windows))
         return last
 
     def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
