@@ -27,6 +27,7 @@ import scipy.sparse as sp
 __all__ = ["ByteBudget", "Cache", "nbytes_of"]
 
 Value = TypeVar("Value")
+_MISSING = object()
 
 
 def nbytes_of(value: Any) -> int:
@@ -139,10 +140,11 @@ class Cache:
         self._values: dict = {}
 
     def get(self, key: Hashable, default: Any = None) -> Any:
-        if key in self._values:
-            self.budget._touch(self._ident, key)
-            return self._values[key]
-        return default
+        value = self._values.get(key, _MISSING)
+        if value is _MISSING:
+            return default
+        self.budget._touch(self._ident, key)
+        return value
 
     def __contains__(self, key: Hashable) -> bool:
         return key in self._values
@@ -160,9 +162,8 @@ class Cache:
 
     def setdefault(self, key: Hashable, build: Callable[[], Value]) -> Value:
         """The entry under ``key``, built by ``build()`` and kept if there is none."""
-        if key in self._values:
-            return self.get(key)
-        return self.put(key, build())
+        value = self.get(key, _MISSING)
+        return self.put(key, build()) if value is _MISSING else value
 
     def pop(self, key: Hashable, default: Any = None) -> Any:
         self.budget._release(self._ident, key)

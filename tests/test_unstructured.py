@@ -9,6 +9,7 @@ from skfem import MeshTri
 
 from femphase.analysis.shape import shape_observables
 from femphase.config import Numerics
+from femphase.domains.mesh.boxes import Box
 from femphase.domains.mesh.domain import MeshDomain, read_domain, write_domain
 from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing, structured_channel
 from femphase.errors import BlowUpError, SceneError
@@ -171,6 +172,20 @@ def test_windows_agree_with_the_full_mesh_on_an_unstructured_channel():
 
 
 # -- transport by the Stokes flow, large steps, obstacles -----------------------------------
+
+def test_a_boxs_dofs_found_by_strips_are_those_inside_it():
+    # the strips only narrow the candidates; every box, across the seam, on dof
+    # coordinates, past the walls or the whole period, gets exactly the dofs inside it
+    domain = straight(40.0, 30.0)
+    x, y = domain.coordinates
+    rng = np.random.default_rng(3)
+    boxes = [Box(domain.x0 + rng.uniform(0, 40), rng.uniform(0.5, 40), rng.uniform(-2, 30), 0.0) for _ in range(200)]
+    boxes = [Box(b.x0, b.width, b.y0, b.y0 + rng.uniform(0, 25)) for b in boxes]
+    boxes += [Box(float(x[i]), 12.0, float(y[i]), float(y[i]) + 8.0) for i in rng.integers(0, domain.n_dofs, 100)]
+    boxes += [Box(domain.x0, 40.0, 0.0, 30.0), Box(domain.x0 + 35.0, 40.0, 5.0, 9.0)]
+    for box in boxes:
+        np.testing.assert_array_equal(domain.window_dofs(box), np.flatnonzero(box.contains(x, y, domain.period)))
+
 
 def test_stokes_flow_carries_a_particle_at_its_local_velocity():
     # a constricted channel: the particle speeds up into the throat and slows after it

@@ -103,21 +103,22 @@ class BlockPattern:
 
     def __init__(self, blocks: Sequence[LocalBlock], counts: Sequence[int]) -> None:
         # every window's arrays side by side (a block repeated for each window sharing it),
-        # then its columns shifted by the window's first position, all in one pass
+        # each shifted by its window's first entry and position before one concatenation
+        # into the final type: temporaries the size of the whole pattern (a shift array, a
+        # cast) are fresh pages every layout, and faulting them in was 3/5 of the build
         windows = [block for block, count in zip(blocks, counts) for _ in range(count)]
         sizes = np.array([block.indptr.size - 1 for block in windows], dtype=np.int64)
         entries = np.array([block.indices.size for block in windows], dtype=np.int64)
         offset = int(sizes.sum())
         self.shape = (offset, offset)
-        starts = np.concatenate([[0], np.cumsum(entries)])
         # scipy stores CSR indices as int32 where they fit and converts (copies) any other
         # kind at every construction, i.e. at every :meth:`block`
-        index = np.int32 if max(offset, int(starts[-1])) < np.iinfo(np.int32).max else np.int64
-        self.indptr = np.concatenate([[0], *(block.indptr[1:] + start for block, start in zip(windows, starts))]
-                                     ).astype(index)
-        self.indices = np.concatenate([block.indices for block in windows] or [np.zeros(0, dtype=np.int64)])
-        self.indices += np.repeat(np.cumsum(sizes) - sizes, entries)
-        self.indices = self.indices.astype(index)
+        index = np.int32 if max(offset, int(entries.sum())) < np.iinfo(np.int32).max else np.int64
+        starts, shifts = np.cumsum(entries) - entries, np.cumsum(sizes) - sizes
+        self.indptr = np.concatenate([np.zeros(1, dtype=index)]
+                                     + [block.indptr[1:] + start for block, start in zip(windows, starts)], dtype=index)
+        self.indices = np.concatenate([block.indices + shift for block, shift in zip(windows, shifts)]
+                                      or [np.zeros(0, dtype=index)], dtype=index)
         self.source = np.concatenate([block.source for block in windows] or [np.zeros(0, dtype=np.int64)])
 
     @property
