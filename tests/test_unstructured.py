@@ -187,6 +187,30 @@ def test_a_boxs_dofs_found_by_strips_are_those_inside_it():
         np.testing.assert_array_equal(domain.window_dofs(box), np.flatnonzero(box.contains(x, y, domain.period)))
 
 
+def test_the_compiled_extents_are_numpys_masked_reductions():
+    from femphase.domains.mesh.kernels import occupied_extents
+
+    domain = straight(40.0, 30.0)
+    state = discs(domain, [[3.0, 14.0], [20.0, 8.0], [37.0, 22.0]])  # the first and last across the seam
+    layout, phi = state.flat()
+    phi = phi.copy()
+    phi[::97] = np.nan  # counts as below the threshold
+    phi[layout.offsets[1]:layout.offsets[2]] = 0.0  # a window with nothing above it
+    x, y = domain.coordinates
+    box_x0 = np.array([layout.windows[i].x0 for i in layout.order])
+    ours = occupied_extents(phi, layout.node_index, layout.offsets, x, y, box_x0, domain.period, 0.01)
+    occupied = phi > 0.01
+    lx = np.mod(x[layout.node_index] - np.repeat(box_x0, layout.sizes), domain.period)
+    with np.errstate(invalid="ignore"):
+        numpy = np.stack([layout.reduce(np.minimum, np.where(occupied, lx, np.inf)),
+                          layout.reduce(np.maximum, np.where(occupied, lx, -np.inf)),
+                          layout.reduce(np.minimum, np.where(occupied, y[layout.node_index], np.inf)),
+                          layout.reduce(np.maximum, np.where(occupied, y[layout.node_index], -np.inf))], axis=1)
+    numpy[~np.isfinite(numpy[:, 0])] = np.nan
+    np.testing.assert_array_equal(ours, numpy)
+    assert np.isnan(ours[1]).all() and np.isfinite(ours[[0, 2]]).all()
+
+
 def test_stokes_flow_carries_a_particle_at_its_local_velocity():
     # a constricted channel: the particle speeds up into the throat and slows after it
     bump = lambda x: 6 * (1 + np.cos(2 * np.pi * (x - 20) / 40)) / 2  # noqa: E731

@@ -8,6 +8,7 @@ with named boundaries.
 ``advection``   the Galerkin advection: explicit RK4, or Padé with per-window solvers
 ``stokes``      Stokes flow on the mesh, registered as the flow "stokes"
 ``generation``  channel meshes in pure Python (Delaunay), for tests and examples
+``kernels``     compiled loops for the refits (numba, imported on first use)
 =============== ========================================================================
 """
 

@@ -42,7 +42,7 @@ from femphase.config import Numerics
 from femphase.domains.base import DOMAINS, Domain
 from femphase.domains.layout import Layout
 from femphase.domains.mesh.advection import GalerkinPade, GalerkinRK4
-from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent, local_x
+from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
 from femphase.errors import SceneError
 from femphase.fem.meshfiles import read_meshio
 from femphase.fem.operators import (
@@ -347,19 +347,15 @@ class MeshDomain(Domain):
     def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
         """Boxes refitted to the field and to the coming step's motion (see BoxPolicy)."""
+        from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
+
         boxes, fields = list(layout.windows), layout.scatter(phi)
         steps = np.zeros((len(boxes), 2)) if motion is None else motion()
-        occupied = phi > policy.threshold
-        x, y = np.take(self.coordinates, layout.node_index, axis=1)
-        lx = local_x(x, np.array([b.x0 for b in boxes])[layout.owner], self.period)
         extents = np.empty((len(boxes), 4))
-        extents[layout.order] = np.stack([
-            layout.reduce(np.minimum, np.where(occupied, lx, np.inf)),
-            layout.reduce(np.maximum, np.where(occupied, lx, -np.inf)),
-            layout.reduce(np.minimum, np.where(occupied, y, np.inf)),
-            layout.reduce(np.maximum, np.where(occupied, y, -np.inf)),
-        ], axis=1)
-        extents[~np.isfinite(extents[:, 0])] = np.nan
+        x, y = self.coordinates
+        extents[layout.order] = kernels.occupied_extents(
+            phi, layout.node_index, layout.offsets, x, y, np.array([boxes[i].x0 for i in layout.order]),
+            float(self.period), float(policy.threshold))
         slot = np.empty(len(boxes), dtype=int)
         slot[layout.order] = np.arange(len(boxes))
         scratch = np.zeros(self.n_dofs)
@@ -367,7 +363,7 @@ class MeshDomain(Domain):
             box = boxes[i]
             if box.width >= self.period:
                 part = slice(layout.offsets[slot[i]], layout.offsets[slot[i] + 1])
-                x_range = circular_extent(x[part][occupied[part]], self.period)
+                x_range = circular_extent(x[layout.node_index[part]][phi[part] > policy.threshold], self.period)
             else:
                 x_range = (box.x0 + extents[i, 0], box.x0 + extents[i, 1])
             fitted = policy.cover(x_range, tuple(extents[i, 2:]), self.extent, tuple(steps[i]))
