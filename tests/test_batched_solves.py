@@ -10,7 +10,7 @@ from test_unstructured import PARAMS, discs, straight
 
 from femphase.config import Numerics
 from femphase.domains.base import window_block
-from femphase.fem.blocks import KrylovError, aligned_data, conjugate_gradient, local_block
+from femphase.fem.blocks import BlockPattern, KrylovError, aligned_data, conjugate_gradient
 from femphase.timestepping.stepper import Stepper
 
 
@@ -33,7 +33,7 @@ def reference_blocks(matrix, domain, layout):
 
 
 @pytest.mark.parametrize("order", ["ascending", "shuffled"])
-def test_a_local_block_is_the_principal_submatrix_in_canonical_order(sheared, order):
+def test_a_windows_block_is_the_principal_submatrix_in_canonical_order(sheared, order):
     """Entry (p, q) of a window's block is the pattern's (dofs[p], dofs[q]), each row's
     columns ascending, whatever order the window numbers its dofs in."""
     domain, _, layout, _ = sheared
@@ -41,14 +41,18 @@ def test_a_local_block_is_the_principal_submatrix_in_canonical_order(sheared, or
     dofs = domain.window_dofs(layout.representative(0)).copy()
     if order == "shuffled":
         np.random.default_rng(3).shuffle(dofs)
-    block = local_block(pattern, dofs)
-    rebuilt = sp.csr_matrix((np.ones(block.indices.size), block.indices, block.indptr), shape=(dofs.size,) * 2)
-    assert np.array_equal(rebuilt.toarray(), pattern[dofs][:, dofs].toarray())
+    other = domain.window_dofs(layout.representative(1))  # a second window after it
+    block = BlockPattern(pattern, np.concatenate([dofs, other]), np.array([0, dofs.size, dofs.size + other.size]))
+    rebuilt = sp.csr_matrix((np.ones(block.indices.size), block.indices, block.indptr), shape=block.shape)
+    expected = sp.block_diag([pattern[dofs][:, dofs], pattern[other][:, other]]).toarray()
+    assert np.array_equal(rebuilt.toarray(), expected)
     assert all(np.all(np.diff(block.indices[a:b]) > 0) for a, b in zip(block.indptr[:-1], block.indptr[1:]))
     # source: where each entry sits among the full pattern's stored entries
-    rows = np.repeat(np.arange(dofs.size), np.diff(block.indptr))
-    assert np.all((pattern.indptr[dofs[rows]] <= block.source) & (block.source < pattern.indptr[dofs[rows] + 1]))
-    assert np.array_equal(pattern.indices[block.source], dofs[block.indices])
+    node_index = np.concatenate([dofs, other])
+    rows = np.repeat(np.arange(node_index.size), np.diff(block.indptr))
+    assert np.all((pattern.indptr[node_index[rows]] <= block.source)
+                  & (block.source < pattern.indptr[node_index[rows] + 1]))
+    assert np.array_equal(pattern.indices[block.source], node_index[block.indices])
 
 
 def test_the_block_diagonal_matrix_holds_every_windows_principal_submatrix(sheared):

@@ -32,7 +32,7 @@ import scipy.sparse as sp
 from femphase.caches import ByteBudget, nbytes_of
 from femphase.config import Numerics
 from femphase.domains.layout import Layout
-from femphase.fem.blocks import BlockPattern, aligned_data, local_block
+from femphase.fem.blocks import BlockPattern, aligned_data
 from femphase.fem.operators import P1Operators
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow
@@ -257,21 +257,9 @@ class Domain(ABC):
 
     def window_blocks(self, layout: Layout) -> BlockPattern:
         """The block-diagonal map of ``layout``'s windows (:class:`~femphase.fem.blocks.BlockPattern`),
-        built from per-window maps (:class:`~femphase.fem.blocks.LocalBlock`) kept for the
-        last layout's window keys: most windows survive a refit, and a box left is rarely met
-        again (kept in a cache of their own, they filled a 256 MiB budget within 800 time units
-        of flow on examples/straight_mesh.toml)."""
-        def build() -> BlockPattern:
-            kept = self._layout_blocks.get("local")
-            known = {} if kept is None else kept[2]
-            local = {}
-            for group, (key, *_) in enumerate(layout.groups):
-                local[key] = known.get(key)
-                if local[key] is None:
-                    local[key] = local_block(self.block_pattern, self.window_dofs(layout.representative(group)))
-            self._layout_blocks.put("local", (layout, None, local), nbytes_of(local))
-            return BlockPattern(list(local.values()), [members.size for _, members, *_ in layout.groups])
-        return self.per_layout(layout, "pattern", build)
+        for the last layout asked."""
+        return self.per_layout(layout, "pattern",
+                               lambda: BlockPattern(self.block_pattern, layout.node_index, layout.offsets))
 
     def window_operator(self, layout: Layout, name: str) -> sp.csr_matrix:
         """The block-diagonal matrix of every window's principal submatrix of the P1

@@ -1,0 +1,72 @@
+"""Compiled loops for the block-diagonal window matrices (numba), built at almost every
+substep on a mesh as boxes follow their particles.
+
+Compiled on first use and cached on disk (numba's ``cache=True``), as the domains' kernels;
+imported only where windows are solved all at once (:mod:`femphase.fem.blocks`).
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["principal_block_entries", "principal_block_rows"]
+
+
+@numba.njit(inline="always", boundscheck=False)
+def _map_window(slot: np.ndarray, node_index: np.ndarray, start: int, stop: int, on: bool) -> None:
+    """Set each dof of positions start:stop to its position in ``slot`` (``on``), or back to −1."""
+    for p in range(start, stop):
+        slot[node_index[p]] = p if on else -1
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def principal_block_rows(indptr: np.ndarray, indices: np.ndarray, node_index: np.ndarray, offsets: np.ndarray,
+                         slot: np.ndarray) -> np.ndarray:
+    """The CSR row pointer (positions + 1,) of the block-diagonal matrix of every window's
+    principal submatrix of the full-domain pattern (``indptr``, ``indices``: canonical CSR):
+    window w holds positions ``offsets[w]:offsets[w + 1]``, position p the dof
+    ``node_index[p]``. ``slot`` (n_dofs,) is scratch, all −1, and left so."""
+    out = np.zeros(node_index.size + 1, dtype=np.int64)
+    for window in range(offsets.size - 1):
+        start, stop = offsets[window], offsets[window + 1]
+        _map_window(slot, node_index, start, stop, True)
+        for p in range(start, stop):
+            dof = node_index[p]
+            count = 0
+            for k in range(indptr[dof], indptr[dof + 1]):
+                if slot[indices[k]] >= 0:
+                    count += 1
+            out[p + 1] = out[p] + count
+        _map_window(slot, node_index, start, stop, False)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def principal_block_entries(indptr: np.ndarray, indices: np.ndarray, node_index: np.ndarray, offsets: np.ndarray,
+                            slot: np.ndarray, out_indptr: np.ndarray, out_indices: np.ndarray,
+                            source: np.ndarray) -> None:
+    """Fill ``out_indices`` (each entry's column: the position of its dof in the same window)
+    and ``source`` (its place among the full pattern's stored entries) of the matrix whose
+    rows :func:`principal_block_rows` gave, each row's columns ascending."""
+    for window in range(offsets.size - 1):
+        start, stop = offsets[window], offsets[window + 1]
+        _map_window(slot, node_index, start, stop, True)
+        for p in range(start, stop):
+            dof = node_index[p]
+            first = out_indptr[p]
+            at = first
+            for k in range(indptr[dof], indptr[dof + 1]):
+                column = slot[indices[k]]
+                if column >= 0:
+                    # insertion by position: already in order where the window's dofs ascend
+                    # (a mesh box's), a few shifts where they do not (a window across the seam)
+                    q = at
+                    while q > first and out_indices[q - 1] > column:
+                        out_indices[q] = out_indices[q - 1]
+                        source[q] = source[q - 1]
+                        q -= 1
+                    out_indices[q] = column
+                    source[q] = k
+                    at += 1
+        _map_window(slot, node_index, start, stop, False)
