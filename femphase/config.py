@@ -111,8 +111,9 @@ class Numerics:
                     together: window dofs, per-window blocks and solvers, the current
                     layout's block-diagonal matrices, advections per substep size (the
                     domain's one budget, :class:`femphase.caches.ByteBudget`; least recently
-                    used dropped first). Default 256: a mesh run of N = 100 at dt = 10 holds
-                    50–61 MiB of it (docs/decisions/0020-one-cache-budget.md)
+                    used dropped first). Default 256: examples/obstacle_mesh.toml (N = 95,
+                    dt = 10) holds 37–39 MiB of it under flow (benchmarks/mesh_memory.py;
+                    docs/decisions/0020-one-cache-budget.md)
     =============== =========================================================================================
     """
 
