@@ -13,6 +13,7 @@ from test_unstructured import PARAMS, discs, python_flow, straight
 import femphase.domains.mesh.advection as advection_module
 from femphase.analysis.shape import shape_observables
 from femphase.config import Numerics
+from femphase.domains.mesh.boxes import Box
 from femphase.domains.mesh.advection import (
     COURANT,
     SPECTRAL_MARGIN,
@@ -132,3 +133,13 @@ def test_advections_of_one_flow_share_its_matrix_and_frequency(sheared, monkeypa
     halved = GalerkinRK4(domain, other, 1.0, Numerics())
     assert halved.frequency == pytest.approx(0.5 * short.frequency, rel=0.05)
     assert len(assembled) == 2 and len(estimated) == 2
+
+
+def test_the_pade_step_keeps_solvers_for_the_current_boxes_only(sheared):
+    domain, layout, phi, flow = sheared
+    pade = GalerkinPade(domain, flow, 1.0, Numerics(solver="direct"))
+    pade.advect(phi, layout, 0.0)
+    assert set(pade._solvers._values) == {key for key, *_ in layout.groups}
+    moved = domain.layout([Box(b.x0 + 1.0, b.width, b.y0, b.y1) for b in layout.windows])
+    pade.advect(np.zeros(moved.offsets[-1]), moved, 0.0)
+    assert set(pade._solvers._values) == {key for key, *_ in moved.groups}

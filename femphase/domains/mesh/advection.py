@@ -133,6 +133,8 @@ class GalerkinPade(GalerkinAdvection):
             self._system = (self._when, (self.domain.operators.mass - (self.dt / PADE_POLE) * self.advection).tocsr())
             self._solvers.clear()
         system, mass = self._system[1], self.domain.operators.mass
+        # solvers are kept for the layout's boxes only: a box left is rarely met again
+        self._solvers.retain({key for key, *_ in layout.groups})
         out = np.empty_like(phi)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             dofs = self.domain.window_dofs(layout.representative(group))
