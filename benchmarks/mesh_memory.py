@@ -1,7 +1,7 @@
 """Resident memory of a meshed run over time, with glibc's default allocator settings and
 with large allocations served by mmap.
 
-    python benchmarks/mesh_memory.py [--stokes-time 2000]
+    python benchmarks/mesh_memory.py [--stokes-time 2000] [--allocator default] [--output NAME.json]
 
 examples/obstacle_mesh.toml (95 particles around an obstacle, P1 on an unstructured mesh)
 relaxed 200 time units, then driven by its Stokes flow for ``--stokes-time``; the resident
@@ -21,7 +21,8 @@ block-diagonal matrices (femphase/fem/blocks.py), the advection applies such mat
 explicitly, and only the current layout's block maps are kept, so nothing grows with the
 boxes met, and every cache draws on the domain's one byte budget (``numerics.cache_mib``);
 the two configurations show that no allocator setting is needed for it.
-Writes results/mesh_memory.json.
+Writes results/mesh_memory.json (``--output``: another name in results/); ``--allocator``
+runs one configuration only (a long run of glibc as it comes: ``--allocator default``).
 """
 
 from __future__ import annotations
@@ -68,16 +69,23 @@ def worker(stokes_time: float) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--stokes-time", type=float, default=1000.0)
+    parser.add_argument("--allocator", choices=list(CONFIGS), action="append",
+                        help="a configuration to run (repeatable; default: all)")
+    parser.add_argument("--output", default="mesh_memory.json", help="file name in benchmarks/results/")
     parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.worker:
         worker(args.stokes_time)
         return
-    out = {"command": "python benchmarks/mesh_memory.py" + (f" --stokes-time {args.stokes_time:g}"
-                                                              if args.stokes_time != 1000.0 else ""),
+    options = ([f"--stokes-time {args.stokes_time:g}"] if args.stokes_time != 1000.0 else []) + [
+        f"--allocator {name!r}" for name in args.allocator or []] + (
+        [f"--output {args.output}"] if args.output != "mesh_memory.json" else [])
+    out = {"command": " ".join(["python benchmarks/mesh_memory.py", *options]),
            "scene": f"examples/obstacle_mesh.toml, relaxed {RELAX:g}, then its Stokes flow for {args.stokes_time:g}",
            "configurations": {}}
     for name, env in CONFIGS.items():
+        if args.allocator and name not in args.allocator:
+            continue
         done = subprocess.run([sys.executable, __file__, "--worker", "--stokes-time", str(args.stokes_time)],
                               env=dict(os.environ, **env), capture_output=True, text=True, check=True)
         result = json.loads(done.stdout.strip().splitlines()[-1])
@@ -86,7 +94,7 @@ def main() -> None:
         print(f"{name:<18} flow phase {result['flow_cpu_seconds']:.1f} CPU s; resident MB (cache budget used, "
               "MiB) at t = " + ", ".join(f"{t:g}: {m:.0f} ({c:.0f})" for t, m, c in rss[1::2]), flush=True)
     RESULTS.mkdir(exist_ok=True)
-    (RESULTS / "mesh_memory.json").write_text(json.dumps(out, indent=1) + "\n")
+    (RESULTS / args.output).write_text(json.dumps(out, indent=1) + "\n")
 
 
 if __name__ == "__main__":
