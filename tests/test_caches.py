@@ -67,7 +67,7 @@ def test_sizes_are_measured_or_refused():
 
 def test_row_shift_phases_are_kept_for_the_current_runs_only():
     # windows regroup as a shear carries particles past each other; a run of windows left
-    # is rarely met again, and kept until the budget was full such runs reached 85 MiB
+    # is rarely met again, and kept by LRU alone such runs reached 85 MiB
     from femphase.domains.grid.advection import RowShift, row_runs
     from femphase.run.simulation import Simulation
     from femphase.scene import scene_from_dict
