@@ -387,8 +387,6 @@ def _ensure(scene: Scene, directory: Path, fresh: Callable[[], None] | None = No
     status, _ = run_status(directory, sum(p.n_steps for p in scene.phases))
     if status == "done":
         return
-
-
     if status in ("failed", "pending") and fresh is not None:
         fresh()
         status = "interrupted"
