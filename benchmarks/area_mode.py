@@ -1,0 +1,132 @@
+"""What the area-mode ceiling costs and buys: the adaptive scheme with the area term's
+rank-one mode explicit (the default, substeps below 1.5/c) against the mode linearly implicit
+in the predictor (``numerics.area_implicit``: no ceiling, the estimate alone sets the step).
+
+    OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 python benchmarks/area_mode.py
+
+Variants of the adaptive scheme (dt = 10):
+
+* ``explicit``: the default;
+* ``implicit``: ``area_implicit = true``, Sherman–Morrison with w = A⁻¹M_Lφ (one more solve
+  per substep, :meth:`femphase.timestepping.sav2.RelaxedSAV2.rank_one_predictor`);
+* ``solve-free``: the same with w replaced by φ/(1/τ + J0 S), A⁻¹ without its stiffness
+  part (a prototype defined here, not in femphase: no solve, a response ρ ≥ 1 too large by
+  1.7–4 % at substeps 2.5–10 on the lattice).
+
+Cases and errors in time, against time-converged references at the same h = 1:
+
+* ``disc``, ``pair``, ``lattice``: ``benchmarks/tolerance.py``'s (its cached references);
+* ``random``: ``benchmarks/random_precision.py``'s 200 time units of shear of the relaxed
+  random packing at γ̇ = 0.1083 and 1 (largest r error relative to max r, substeps);
+* ``stiff``: one disc of R = 8 with μ × 10 (a 10× faster area mode) in a 40 × 40 channel
+  sheared at u = 2y/40 for 30 time units (max |φ − φ_ref| and the relative area error
+  against sav2 at dt = 0.05 in double precision).
+
+CPU seconds of this process for each run. Writes ``results/area_mode.json`` and prints a table.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import numpy as np
+import random_precision
+import tolerance
+import work_precision as wp
+
+from femphase.run.simulation import Simulation
+from femphase.run.trackers import FrameRecorder
+from femphase.scene import scene_from_dict
+from femphase.timestepping.sav2 import RelaxedSAV2
+
+RESULT = Path(__file__).parent / "results" / "area_mode.json"
+VARIANTS = {"explicit": {}, "implicit": {"area_implicit": True}, "solve-free": {"area_implicit": True}}
+TOLERANCES = {"disc": (0.1, 0.03), "pair": (0.1, 0.03, 0.01, 1e-3, 1e-4), "lattice": (0.1, 0.05, 0.03),
+              "random": (0.1, 0.05, 0.03), "stiff": (0.1, 0.01)}
+EXACT_PREDICTOR = RelaxedSAV2.rank_one_predictor
+
+
+def solve_free_predictor(self, explicit, fields, dt, stabilisation):
+    """rank_one_predictor with w = φ/(1/dt + J0 S) instead of A⁻¹M_Lφ (module docstring)."""
+    phi, layout, j0 = fields.phi, fields.layout, self.stepper.mobility
+    coefficient = j0 * self.reacting.rank_one_coefficient(fields)
+    w = phi / (1.0 / dt + j0 * stabilisation)
+    weighted = layout.mass * phi
+    change = layout.reduce(np.add, weighted * (explicit - phi))
+    shift = coefficient * change / (1.0 + coefficient * layout.reduce(np.add, weighted * w))
+    return explicit - fields.on_positions(shift) * w
+
+
+def stiff_scene(numerics: dict, dt: float):
+    return scene_from_dict({
+        "name": "stiff disc", "domain": {"Lx": 40.0, "Ly": 40.0, "h": 1.0}, "model": {"mu": 200.0},
+        "particles": {"layout": "single", "centres": [[20.0, 20.0]], "initial_radius": 8.0},
+        "numerics": numerics, "output": {"fields": False, "checkpoint": False},
+        "phases": [{"name": "shear", "duration": 30.0, "dt": dt, "frame_interval": 30.0,
+                    "flow": {"type": "shear", "rate": 2.0}}]})
+
+
+def stiff_run(numerics: dict, dt: float) -> tuple[np.ndarray, float, float]:
+    """(φ at t = 30, its area ∫φ², CPU seconds)."""
+    scene = stiff_scene(numerics, dt)
+    state = scene.initial_state()
+    started = time.process_time()
+    Simulation(scene).run(state, [FrameRecorder()])
+    phi = state.global_field(0)
+    return phi, float(scene.domain.operators.lumped_mass @ phi**2), time.process_time() - started
+
+
+def measure(case: str, numerics: dict, refs: dict, random_state) -> dict:
+    if case == "disc":
+        areas, cpu = tolerance.disc_areas(numerics, 10.0)
+        return {"error": float(np.abs(np.subtract(areas, refs["disc"]["area"])).max()), "cpu_s": cpu}
+    if case == "pair":
+        separation, cpu = tolerance.pair_separation(numerics, 10.0)
+        return {"error": abs(separation - refs["pair"]["separation"]), "cpu_s": cpu}
+    if case == "lattice":
+        point = wp.run(wp.Point("lattice", "fem", 1.0, 10.0, {"scheme": "adaptive", **numerics}))
+        errors = wp.lattice_errors(point, refs["lattice"]["result"])
+        return {"error": errors["elongation"], "period_error": errors["period"], "cpu_s": point.seconds}
+    if case == "random":
+        scene, relaxed, references = random_state
+        out = {}
+        for rate, reference in references.items():
+            run = random_precision.shear(scene, relaxed, rate, 200.0, random_precision.FRAME, scheme="adaptive",
+                                         **numerics)
+            out[f"{rate:g}"] = {"error": random_precision.errors(run, reference)["max"], "substeps": run["substeps"],
+                                "cpu_s": run["seconds"]}
+        return out
+    phi, area, cpu = stiff_run(numerics, 10.0)
+    reference, reference_area = refs["stiff"]
+    return {"error": float(np.abs(phi - reference).max()), "area_error": abs(area / reference_area - 1.0),
+            "cpu_s": cpu}
+
+
+def main() -> None:
+    refs = tolerance.references(["disc", "pair", "lattice"])
+    phi, area, _ = stiff_run({"scheme": "sav2", "precision": "double"}, 0.05)
+    refs["stiff"] = (phi, area)
+    scene, _, relaxed, _ = common.relaxed_random_packing()
+    random_state = (scene, relaxed, {rate: random_precision.shear(scene, relaxed, rate, 200.0,
+                                                                  random_precision.REFERENCE_DT, scheme="sav2")
+                                     for rate in (0.1083, 1.0)})
+    result = {"command": "python benchmarks/area_mode.py", "cases": {}}
+    for case, tolerances in TOLERANCES.items():
+        rows = []
+        for variant, options in VARIANTS.items():
+            RelaxedSAV2.rank_one_predictor = solve_free_predictor if variant == "solve-free" else EXACT_PREDICTOR
+            for tolerance_t in tolerances:
+                rows.append({"variant": variant, "tolerance_t": tolerance_t,
+                             **measure(case, {"tolerance_t": tolerance_t, **options}, refs, random_state)})
+                print(json.dumps({"case": case, **rows[-1]}), flush=True)
+        result["cases"][case] = rows
+    RelaxedSAV2.rank_one_predictor = EXACT_PREDICTOR
+    RESULT.parent.mkdir(exist_ok=True)
+    RESULT.write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
