@@ -74,6 +74,7 @@ another worker; a lock per run keeps two processes out of one run directory.
 from __future__ import annotations
 
 import fcntl
+import gc
 import hashlib
 import itertools
 import json
@@ -431,6 +432,13 @@ def _outcome(action: Callable[[], None]) -> dict:
         status, error = "failed", str(exc)
     except Exception as exc:  # a bug in one run must not stop the others: report it in the index
         status, error = "failed", f"internal error ({type(exc).__name__}: {exc})"
+    finally:
+        # A finished run is cyclic garbage (its domain's cache budget holds advections that
+        # hold the domain), which Python's collector, triggered by counts of container
+        # allocations that numpy work hardly makes, left for later: on the straight mesh
+        # each run of a worker kept ~175 MB more resident than the last. Collected here,
+        # before the worker's next task.
+        gc.collect()
     return {"status": status, "error": error, "seconds": wallclock.perf_counter() - started,
             "cpu_seconds": wallclock.process_time() - cpu}
 

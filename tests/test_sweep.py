@@ -197,6 +197,34 @@ def test_two_workers_asking_for_one_relaxation_compute_it_once(tmp_path):
     assert [s["step"] for s in segments(target)] == [20]  # computed by one, skipped by the other
 
 
+def test_a_task_leaves_no_cyclic_garbage_for_the_workers_next_task():
+    # a run's domain and its caches reference each other; a worker must not carry one run's
+    # cycle into the next (measured on the straight mesh: ~175 MB more resident per run)
+    import gc
+    import weakref
+
+    from femphase.sweep import _outcome
+
+    class Node:
+        pass
+
+    finalised = []
+
+    def action():
+        node = Node()
+        node.self = node  # a cycle: only the cyclic collector frees it
+        weakref.finalize(node, finalised.append, True)
+
+    enabled = gc.isenabled()
+    gc.disable()  # no automatic collection may free it instead
+    try:
+        assert _outcome(action)["status"] == "done"
+        assert finalised == [True]
+    finally:
+        if enabled:
+            gc.enable()
+
+
 def test_a_worker_killed_mid_run_is_replaced_and_its_run_resumed(tmp_path, client, serial):
     path, out = write(tmp_path), tmp_path / "out"
     result: dict = {}
