@@ -138,3 +138,67 @@ def test_a_truncated_checkpoint_is_one_message_and_nothing_is_touched(scene, tmp
 def test_resume_needs_a_checkpoint(scene, tmp_path, capsys):
     assert _run(scene, tmp_path / "empty", "--resume") == 2
     assert "checkpoint.h5" in capsys.readouterr().err
+
+
+MESH_SCENE = """
+name = "tiny mesh"
+[domain]
+kind = "mesh"
+mesh = "a/c.vtu"
+[particles]
+layout = "list"
+centres = [[10.0, 10.0]]
+initial_radius = 5.0
+[[phases]]
+name = "relax"
+duration = 20.0
+dt = 2.0
+frame_interval = 10.0
+"""
+
+
+def _channel_mesh(path: Path, seed: int) -> None:
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_domain(path, *delaunay_channel(20.0, edge_for_spacing(1.0), lambda x: 0.0 * x, lambda x: 0.0 * x + 20.0,
+                                         seed=seed))
+
+
+def _renumbered(source: Path, target: Path) -> None:
+    """``source``'s mesh with its nodes in reverse order (cells and tagged facets renumbered)."""
+    import meshio
+    import numpy as np
+
+    mesh = meshio.read(source)
+    order = np.arange(len(mesh.points))[::-1]
+    new_index = np.empty_like(order)
+    new_index[order] = np.arange(order.size)
+    cells = [meshio.CellBlock(block.type, new_index[block.data]) for block in mesh.cells]
+    target.parent.mkdir(parents=True, exist_ok=True)
+    meshio.write(target, meshio.Mesh(mesh.points[order], cells, cell_data=mesh.cell_data))
+
+
+def test_a_moved_mesh_file_resumes_and_another_mesh_is_refused(tmp_path, capsys):
+    # the mesh's path may change on resume (a run directory or sweep moved); its content may
+    # not: the checkpoint's mesh checksum refuses another mesh
+    scene = tmp_path / "scene.toml"
+    scene.write_text(MESH_SCENE)
+    _channel_mesh(tmp_path / "a" / "c.vtu", seed=1)
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.0.duration=10") == 0
+    (tmp_path / "b").mkdir()
+    (tmp_path / "b" / "c.vtu").write_bytes((tmp_path / "a" / "c.vtu").read_bytes())
+    (tmp_path / "a" / "c.vtu").unlink()
+    _renumbered(tmp_path / "b" / "c.vtu", tmp_path / "other" / "c.vtu")  # the same h, Lx, Ly: only the checksum differs
+    before = _snapshot(run)
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "domain.mesh=\"other/c.vtu\"") == 2
+    message = capsys.readouterr().err
+    assert "mesh_checksum" in message and "Traceback" not in message, message
+    assert _snapshot(run) == before
+    assert _run(scene, run, "--resume", "--set", "domain.mesh=\"b/c.vtu\"") == 0
+    assert read_csv(run / "global.csv")["time"][-1] == 20.0
+    changes = json.loads((run / "run.json").read_text())["segments"][1]["changes"]
+    assert any(change.startswith("domain.mesh: ") and change.endswith("b/c.vtu'") for change in changes), changes

@@ -245,13 +245,19 @@ def _cell(value) -> str:
 
 #: Scene tables a resumed run must keep (any change would make the state meaningless).
 FROZEN_TABLES = ("model", "domain", "particles")
+#: Keys of those tables that may change on resume: the mesh file's path, which changes when
+#: a run directory or a sweep moves to another folder or machine. Its content may not: the
+#: checkpoint records the mesh's checksum, and :func:`femphase.io.checkpoints.load_checkpoint`
+#: refuses another mesh, naming it.
+MOVABLE = {("domain", "mesh")}
 
 
 def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, list[str]]:
     """Where a run saved at ``time`` by a scene ``saved`` (its resolved dict) continues under
     ``scene``: (phase, steps done in it, the changes as "key: old → new").
 
-    Compatible changes: numerics (but the diagonals), output cadence and fields, the dt,
+    Compatible changes: the mesh file's path (:data:`MOVABLE`; not its content), numerics
+    (but the diagonals), output cadence and fields, the dt,
     duration and frame interval of the phase under way (the time already spent in it must be
     a whole number of new steps and within the new duration), anything of later phases,
     longer or additional phases (extending a finished run). Refused, with a SceneError naming
@@ -261,7 +267,9 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
     for table in FROZEN_TABLES:
         old, new = saved.get(table, {}), scene.get(table, {})
         for key in sorted(set(old) | set(new)):
-            if old.get(key) != new.get(key):
+            if old.get(key) != new.get(key) and (table, key) in MOVABLE:
+                changes.append(f"{table}.{key}: {old.get(key)!r} → {new.get(key)!r}")
+            elif old.get(key) != new.get(key):
                 raise SceneError(f"{table}.{key}", new.get(key), f"{old.get(key)!r} as in the checkpoint: a resumed run "
                                  f"cannot change its {table} (start a new run directory instead)")
     for table, frozen in (("numerics", ("diagonals",)), ("output", ("observables",))):
