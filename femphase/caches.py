@@ -11,9 +11,9 @@ the structured channel's window keys are few and small).
 An entry is measured when it is put (:func:`nbytes_of`). What it computes lazily afterwards
 is not counted until it is put again, and two kinds of entry are never put again: a
 layout's per-position arrays made on first use (dofs, masses, cells) and a tensor basis's
-single-precision copies. The budget undercounts those by their size.
-Dropping an entry only forgets it: whoever holds it keeps using it, and a cache asked for it
-again rebuilds it. An entry larger than the whole budget is kept alone.
+single-precision copies. The budget undercounts those by their size. Dropping an entry
+only forgets it: whoever holds it keeps using it, and a cache asked for it again rebuilds
+it. An entry larger than the whole budget is kept alone.
 """
 
 from __future__ import annotations

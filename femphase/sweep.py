@@ -435,9 +435,8 @@ def _outcome(action: Callable[[], None]) -> dict:
     finally:
         # A finished run is cyclic garbage (its domain's cache budget holds advections that
         # hold the domain), which Python's collector, triggered by counts of container
-        # allocations that numpy work hardly makes, left for later: on the straight mesh
-        # each run of a worker kept ~175 MB more resident than the last. Collected here,
-        # before the worker's next task.
+        # allocations that numpy work hardly makes, may leave for many tasks: uncollected,
+        # each run of a worker on the straight mesh holds ~175 MB more than the last.
         gc.collect()
     return {"status": status, "error": error, "seconds": wallclock.perf_counter() - started,
             "cpu_seconds": wallclock.process_time() - cpu}

@@ -257,12 +257,12 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
     ``scene``: (phase, steps done in it, the changes as "key: old → new").
 
     Compatible changes: the mesh file's path (:data:`MOVABLE`; not its content), numerics
-    (but the diagonals), output cadence and fields, the dt,
-    duration and frame interval of the phase under way (the time already spent in it must be
-    a whole number of new steps and within the new duration), anything of later phases,
-    longer or additional phases (extending a finished run). Refused, with a SceneError naming
-    the key: the model, domain and particles, numerics.diagonals, output.observables, and the
-    duration or flow of phases already done or the flow of the phase under way."""
+    (but the diagonals), output cadence and fields, the dt, duration and frame interval of
+    the phase under way (the time already spent in it must be a whole number of new steps
+    and within the new duration), anything of later phases, longer or additional phases
+    (extending a finished run). Refused, with a SceneError naming the key: the model, domain
+    and particles, numerics.diagonals, output.observables, and the duration or flow of
+    phases already done or the flow of the phase under way."""
     changes = []
     for table in FROZEN_TABLES:
         old, new = saved.get(table, {}), scene.get(table, {})
