@@ -11,7 +11,7 @@ Variants of the adaptive scheme (dt = 10):
   per substep, :meth:`femphase.timestepping.sav2.RelaxedSAV2.rank_one_predictor`);
 * ``solve-free``: the same with w replaced by φ/(1/τ + J0 S), A⁻¹ without its stiffness
   part (a prototype defined here, not in femphase: no solve, a response ρ ≥ 1 too large by
-  1.7–4 % at substeps 2.5–10 on the lattice).
+  1.7–4 % at substeps 2.5–10 on the lattice, docs/decisions/0022-area-mode-ceiling-kept.md).
 
 Cases and errors in time, against time-converged references at the same h = 1:
 
