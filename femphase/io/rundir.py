@@ -267,11 +267,12 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
     for table in FROZEN_TABLES:
         old, new = saved.get(table, {}), scene.get(table, {})
         for key in sorted(set(old) | set(new)):
-            if old.get(key) != new.get(key) and (table, key) in MOVABLE:
-                changes.append(f"{table}.{key}: {old.get(key)!r} → {new.get(key)!r}")
-            elif old.get(key) != new.get(key):
-                raise SceneError(f"{table}.{key}", new.get(key), f"{old.get(key)!r} as in the checkpoint: a resumed run "
-                                 f"cannot change its {table} (start a new run directory instead)")
+            if old.get(key) == new.get(key):
+                continue
+            if (table, key) not in MOVABLE:
+                raise SceneError(f"{table}.{key}", new.get(key), f"{old.get(key)!r} as in the checkpoint: a resumed "
+                                 f"run cannot change its {table} (start a new run directory instead)")
+            changes.append(f"{table}.{key}: {old.get(key)!r} → {new.get(key)!r}")
     for table, frozen in (("numerics", ("diagonals",)), ("output", ("observables",))):
         old, new = saved.get(table, {}), scene.get(table, {})
         for key in sorted(set(old) | set(new)):
