@@ -142,6 +142,16 @@ class Numerics:
     #: per-box LU): 1e-6 moves centroids by 6e-5 and areas by 2.4e-4 for 0.7× the CPU of 1e-10,
     #: 1e-5 by 1e-3 and 6e-3 (benchmarks/mesh_parity.py, docs/decisions/0016-mesh-window-solves.md).
     KRYLOV_FRACTION = 1e-5
+    #: The same for the solve of the second-order steps' predictor, the linearly implicit half
+    #: step whose result φ̄ enters the step only through the explicit forces g(φ̄), times J0 dt,
+    #: and the error estimate (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`): at 1e-2 of
+    #: the substep's tolerance its error is a hundredth of what the estimate may be. Measured on
+    #: examples/straight_mesh.toml (relaxation 400, then 1200 time units of its Stokes flow
+    #: at dt = 10, against solves to 1e-10): centroids moved by 3.1e-4 (3.6e-6 with the
+    #: predictor at KRYLOV_FRACTION), where substeps of 2.5 instead of 3.33 move them by 4e-2
+    #: within 300 time units, for 30 % fewer CG iterations under flow
+    #: (docs/decisions/0023-loose-predictor-solves.md).
+    PREDICTOR_KRYLOV_FRACTION = 1e-2
 
     #: ``tolerance_t``'s share in phases without flow (:meth:`substep_tolerance`). There the
     #: relaxation's fast early stretch (discs growing to their area) carries the time error,
@@ -179,6 +189,15 @@ class Numerics:
         default), so the solves are as accurate as the step needs and no more."""
         if self.scheme == "adaptive":
             return max(self.tolerance, self.KRYLOV_FRACTION * self.tolerance_t)
+        return self.tolerance
+
+    def predictor_krylov_tolerance(self, still: bool) -> float:
+        """:attr:`krylov_tolerance` for the predictor's solve: under the adaptive scheme
+        PREDICTOR_KRYLOV_FRACTION of the local error it allows per substep
+        (:meth:`substep_tolerance`; at the default 1e-3 under flow, 1e-4 without), at
+        fixed dt ``tolerance``."""
+        if self.scheme == "adaptive":
+            return max(self.tolerance, self.PREDICTOR_KRYLOV_FRACTION * self.substep_tolerance(still))
         return self.tolerance
 
     def __post_init__(self) -> None:

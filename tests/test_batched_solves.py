@@ -112,12 +112,32 @@ def test_batched_solves_agree_with_per_window_lu_within_their_tolerance(monkeypa
     differences = {}
     for fraction in (1e-4, 1e-6, 1e-8):
         monkeypatch.setattr(Numerics, "KRYLOV_FRACTION", fraction)
+        monkeypatch.setattr(Numerics, "PREDICTOR_KRYLOV_FRACTION", fraction)
         batched, step = relaxing_run(Numerics())
         assert step.batched and not step._solvers  # nothing kept per window
         differences[fraction] = np.abs(batched.flat()[1] - direct.flat()[1]).max()
     # the difference follows the Krylov tolerance (fraction × tolerance_t 0.1), far below it
     assert differences[1e-8] < differences[1e-6] < differences[1e-4] < 1e-3
     assert differences[1e-8] < 1e-7
+
+
+def test_the_predictors_looser_solve_saves_iterations_and_moves_the_step_far_less_than_its_tolerance(
+        monkeypatch):
+    """The predictor's solve stops at PREDICTOR_KRYLOV_FRACTION of the substep's tolerance
+    (Numerics.predictor_krylov_tolerance): fewer CG iterations than at the other solves'
+    tolerance, and fields that differ from those by less than that looser tolerance."""
+    numerics = Numerics()
+    still = numerics.substep_tolerance(True)
+    assert numerics.predictor_krylov_tolerance(True) == pytest.approx(Numerics.PREDICTOR_KRYLOV_FRACTION * still)
+    assert numerics.predictor_krylov_tolerance(True) > 10 * numerics.krylov_tolerance
+    assert Numerics(scheme="sav2").predictor_krylov_tolerance(False) == Numerics(scheme="sav2").tolerance
+    looser = numerics.predictor_krylov_tolerance(True)
+    loose, loose_step = relaxing_run(numerics)
+    monkeypatch.setattr(Numerics, "PREDICTOR_KRYLOV_FRACTION", Numerics.KRYLOV_FRACTION)
+    tight, tight_step = relaxing_run(Numerics())
+    assert loose_step.krylov_iterations < tight_step.krylov_iterations
+    difference = np.abs(loose.flat()[1] - tight.flat()[1]).max()
+    assert 0.0 < difference < looser
 
 
 def test_the_grid_can_batch_its_solves_too():

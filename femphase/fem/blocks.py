@@ -97,31 +97,32 @@ class BlockPattern:
 
 def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.ndarray, rhs: np.ndarray,
                        guess: np.ndarray, tolerance: float, maxiter: int = 1000) -> tuple[np.ndarray, int]:
-    """Solve A x = rhs for a symmetric positive definite A (``apply``: x ↦ A x) by CG with
-    the Jacobi preconditioner ``diagonal``, from ``guess``. Stops when the preconditioned
-    residual's max-norm, max|D⁻¹ r|, is at most ``tolerance`` times max|D⁻¹ rhs|: for a
-    mass-dominated A, D⁻¹r is the solution's error up to the condition number, in the
-    solution's units. Returns (x, iterations); raises KrylovError after ``maxiter``."""
+    """Solve A x = rhs for a real symmetric positive definite A (``apply``: x ↦ A x) by CG
+    with the Jacobi preconditioner ``diagonal``, from ``guess``. Stops when the
+    preconditioned residual's max-norm, max|D⁻¹ r|, is at most ``tolerance`` times
+    max|D⁻¹ rhs|: for a mass-dominated A, D⁻¹r is the solution's error up to the condition
+    number, in the solution's units. The vector updates run compiled, one pass each
+    (:func:`femphase.fem.kernels.cg_update`). Returns (x, iterations); raises KrylovError
+    after ``maxiter``."""
+    from femphase.fem import kernels  # numba loads only where windows are solved at once
+
     x = np.array(guess, dtype=np.result_type(rhs, guess), copy=True)
-    inverse = 1.0 / diagonal
+    inverse = (1.0 / diagonal).astype(x.dtype, copy=False)
     goal = tolerance * max(float(np.max(np.abs(inverse * rhs))), np.finfo(float).tiny)
-    r = rhs - apply(x)
+    r = (rhs - apply(x)).astype(x.dtype, copy=False)
     z = inverse * r
-    if np.max(np.abs(z)) <= goal:
+    largest = float(np.max(np.abs(z)))
+    if largest <= goal:
         return x, 0
-    p = z.copy()
-    rz = np.vdot(r, z).real
+    p = z
+    rz = float(np.dot(r, z))
     for iteration in range(1, maxiter + 1):
         q = apply(p)
-        alpha = rz / np.vdot(p, q).real
-        x += alpha * p
-        r -= alpha * q
-        z = inverse * r
-        if np.max(np.abs(z)) <= goal:
+        largest, next_rz = kernels.cg_update(x, r, p, q, inverse, rz / float(np.dot(p, q)))
+        if largest <= goal:
             return x, iteration
-        rz, previous = np.vdot(r, z).real, rz
-        p *= rz / previous
-        p += z
+        kernels.cg_direction(p, r, inverse, next_rz / rz)
+        rz = next_rz
     raise KrylovError(f"CG did not reach the relative residual {tolerance:g} in {maxiter} iterations "
-                      f"(max |D⁻¹r| {np.max(np.abs(z)):.3g}, goal {goal:.3g}): the windows' systems are "
+                      f"(max |D⁻¹r| {largest:.3g}, goal {goal:.3g}): the windows' systems are "
                       "not mass-dominated; lower the phase's dt")

@@ -1,5 +1,6 @@
 """Compiled loops for the block-diagonal window matrices (numba), built at almost every
-substep on a mesh as boxes follow their particles.
+substep on a mesh as boxes follow their particles, and for the vector updates of the CG
+that solves them.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the domains' kernels;
 imported only where windows are solved all at once (:mod:`femphase.fem.blocks`).
@@ -10,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["principal_block_entries", "principal_block_rows"]
+__all__ = ["cg_direction", "cg_update", "principal_block_entries", "principal_block_rows"]
 
 
 @numba.njit(inline="always", boundscheck=False)
@@ -70,3 +71,30 @@ def principal_block_entries(indptr: np.ndarray, indices: np.ndarray, node_index:
                     source[q] = k
                     at += 1
         _map_window(slot, node_index, start, stop, False)
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def cg_update(x: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, inverse: np.ndarray,
+              alpha: float) -> tuple[float, float]:
+    """One CG iteration's updates in one pass, in place: x += α p, r −= α q; returns
+    (max |D⁻¹r|, rᵀD⁻¹r) of the new r (``inverse`` = D⁻¹, the Jacobi preconditioner; real
+    vectors; sums in double). numpy took seven passes and two temporaries for these, as
+    long as the sparse product itself (0.5 against 0.6 ms on 10⁵ positions)."""
+    largest = 0.0
+    rz = 0.0
+    for i in range(x.size):
+        x[i] += alpha * p[i]
+        residual = r[i] - alpha * q[i]
+        r[i] = residual
+        z = inverse[i] * residual
+        rz += residual * z
+        if abs(z) > largest:
+            largest = abs(z)
+    return largest, rz
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def cg_direction(p: np.ndarray, r: np.ndarray, inverse: np.ndarray, beta: float) -> None:
+    """The next CG search direction in place: p ← D⁻¹r + β p."""
+    for i in range(p.size):
+        p[i] = inverse[i] * r[i] + beta * p[i]

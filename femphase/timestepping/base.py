@@ -112,9 +112,11 @@ class StepperProtocol(Protocol):
         """s(x, y, t) at every position, or None."""
 
     def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-              stabilisation: float, guess: np.ndarray | None = None) -> np.ndarray:
+              stabilisation: float, guess: np.ndarray | None = None,
+              tolerance: float | None = None) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous; ``guess``
-        (default ``previous``) starts iterative solvers."""
+        (default ``previous``) starts iterative solvers, ``tolerance`` (default
+        ``numerics.krylov_tolerance``) stops the batched Krylov solves."""
 
 
 class TimeScheme(ABC):

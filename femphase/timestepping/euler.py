@@ -63,11 +63,13 @@ class LinearlyImplicitEuler(TimeScheme):
 
 def linearly_implicit_step(stepper: StepperProtocol, phi: np.ndarray, layout: Layout, radii: np.ndarray, dt: float,
                            stabilisation: float, source_time: float,
-                           fields: WindowedFields | None = None, energy: "FreeEnergy | None" = None) -> np.ndarray:
+                           fields: WindowedFields | None = None, energy: "FreeEnergy | None" = None,
+                           tolerance: float | None = None) -> np.ndarray:
     """One linearly implicit Euler relaxation step of ``dt`` (module docstring), the source
     taken at ``source_time``: (G/dt + J0 S M_L + J0 D K) φ¹ = (G/dt + J0 S M_L) φ⁰ − J0 M_L g(φ⁰)
     + M_L s. ``fields``: φ⁰ as WindowedFields, if the caller has them (shares their cached
-    sums); ``energy``: whose g (the stepper's unless given; D is always the stepper's)."""
+    sums); ``energy``: whose g (the stepper's unless given; D is always the stepper's);
+    ``tolerance``: the batched Krylov solve's (default ``numerics.krylov_tolerance``)."""
     j0 = stepper.mobility
     nodal = (energy or stepper.energy).explicit_derivative(fields or WindowedFields(phi, layout, radii))
     nodal *= -j0
@@ -76,4 +78,4 @@ def linearly_implicit_step(stepper: StepperProtocol, phi: np.ndarray, layout: La
     source = stepper.source_term(layout, source_time)
     if source is not None:
         nodal += source
-    return stepper.solve(nodal, phi, layout, 1.0 / dt, stabilisation)
+    return stepper.solve(nodal, phi, layout, 1.0 / dt, stabilisation, tolerance=tolerance)

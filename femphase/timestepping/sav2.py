@@ -197,8 +197,10 @@ class RelaxedSAV2(TimeScheme):
 
         Both variants evaluate the explicit part g = δE1/δφ at a predicted midpoint φ̄ (one
         linearly implicit Euler step of dt/2 from φ⁰; with ``numerics.area_implicit`` the
-        area term's rank-one mode implicit in it, :meth:`rank_one_predictor`) and treat the
-        gradient term by Crank–Nicolson, with L = D M_L⁻¹K:
+        area term's rank-one mode implicit in it, :meth:`rank_one_predictor`; a batched Krylov
+        solve stops at ``numerics.predictor_krylov_tolerance()``, as φ̄ enters the step only
+        through g and the estimate) and treat the gradient term by Crank–Nicolson, with
+        L = D M_L⁻¹K:
 
         * with r (no flow): relaxed SAV-CN (RSAV-CN). With V(φ) = √(E1(φ) + C) and
           b = g(φ̄)/V(φ̄),
@@ -261,7 +263,8 @@ class RelaxedSAV2(TimeScheme):
         fields = WindowedFields(phi, layout, radii)
         stabilisation = self.predictor_stabilisation(dt)
         midpoint = linearly_implicit_step(self.stepper, phi, layout, radii, 0.5 * dt, stabilisation,
-                                          time + 0.5 * dt, fields, self.reacting)
+                                          time + 0.5 * dt, fields, self.reacting,
+                                          self.stepper.numerics.predictor_krylov_tolerance(self.stepper.flow.is_still))
         if self.implicit_rank_one:
             midpoint = self.rank_one_predictor(midpoint, fields, 0.5 * dt, stabilisation)
         return midpoint, WindowedFields(midpoint, layout, radii)

@@ -124,10 +124,12 @@ class Stepper:
         return self._systems.setdefault((shift, stabilisation), build)
 
     def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-              stabilisation: float, guess: np.ndarray | None = None) -> np.ndarray:
+              stabilisation: float, guess: np.ndarray | None = None,
+              tolerance: float | None = None) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order). ``guess`` (default ``previous``) starts the
-        iterative solvers (batched CG, AMG); the others are exact."""
+        iterative solvers (batched CG, AMG); the others are exact. ``tolerance`` (default
+        ``numerics.krylov_tolerance``) stops the batched CG."""
         lumped = self.lumped
         if lumped:  # M_L (nodal_rhs + shift·previous), in place
             rhs = previous * shift
@@ -137,7 +139,8 @@ class Stepper:
             rhs = layout.mass * nodal_rhs
         if self.batched:
             return self._solve_batched(rhs, previous, layout, shift, stabilisation,
-                                       previous if guess is None else guess)
+                                       previous if guess is None else guess,
+                                       self.numerics.krylov_tolerance if tolerance is None else tolerance)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
@@ -151,9 +154,9 @@ class Stepper:
         return out
 
     def _solve_batched(self, rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-                       stabilisation: float, guess: np.ndarray) -> np.ndarray:
+                       stabilisation: float, guess: np.ndarray, tolerance: float) -> np.ndarray:
         """All windows at once: Jacobi-preconditioned CG on the block-diagonal matrix of the
-        windows' systems, started from ``guess``."""
+        windows' systems, started from ``guess``, to the relative ``tolerance``."""
         stiffness = self.domain.window_operator(layout, "stiffness")
         lumped_part = (shift if self.lumped else 0.0) + self.mobility * stabilisation
         weight = lumped_part * layout.mass
@@ -169,7 +172,7 @@ class Stepper:
 
             def apply(x: np.ndarray) -> np.ndarray:
                 return shift * (mass @ x) + weight * x + b * (stiffness @ x)
-        solution, iterations = conjugate_gradient(apply, diagonal, rhs, guess, self.numerics.krylov_tolerance)
+        solution, iterations = conjugate_gradient(apply, diagonal, rhs, guess, tolerance)
         self.krylov_iterations += iterations
         return solution.astype(previous.dtype, copy=False)
 

@@ -1,0 +1,124 @@
+"""What the batched CG's tolerances cost and change on a mesh: the predictor's looser solve.
+
+examples/straight_mesh.toml (N = 100, seed 1, dt = 10, default adaptive scheme) relaxed for
+``--relax`` time units, then ``--flow`` time units of its Stokes flow (U = 0.1), once per
+variant, each in its own child process:
+
+* ``exact``: every batched solve to 1e-10 (the reference);
+* ``default``: the window solves at ``Numerics.KRYLOV_FRACTION`` · tolerance, the predictor's
+  at ``Numerics.PREDICTOR_KRYLOV_FRACTION`` · tolerance (``predictor_krylov_tolerance``);
+* ``tight_predictor``: the predictor's solve at KRYLOV_FRACTION of the substep's tolerance
+  (under flow the solves before PREDICTOR_KRYLOV_FRACTION; without flow ten times tighter);
+* ``dt_2.5``: the default with the flow phase's dt = 2.5 (substeps 2.5 instead of 3.33): a
+  lower bound on the default's time error, the scale the solves' errors are set against.
+
+For each: CG iterations and CPU seconds per phase, and against ``exact`` the largest
+difference in φ, in a centroid and in an area (relative) at the end. Iterations and
+differences do not depend on the machine's load; CPU seconds do (one run per variant).
+
+    python benchmarks/krylov_tolerance.py [--relax 400] [--flow 1200]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import common  # noqa: F401  (pins BLAS threads, for the children too)
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULT = Path(__file__).parent / "results" / "krylov_tolerance.json"
+VARIANTS = ("exact", "default", "tight_predictor", "dt_2.5")
+
+
+def child(variant: str, relax: float, flow: float, output: Path) -> dict:
+    """Run ``variant`` in this process; its fields, centroids and areas go to ``output`` (.npz)."""
+    from femphase.config import Numerics
+    from femphase.run.simulation import Simulation
+    from femphase.scene import load_scene
+
+    if variant == "exact":
+        Numerics.KRYLOV_FRACTION = Numerics.PREDICTOR_KRYLOV_FRACTION = 1e-9  # → tolerance, 1e-10
+    elif variant == "tight_predictor":
+        Numerics.PREDICTOR_KRYLOV_FRACTION = Numerics.KRYLOV_FRACTION
+    flow_dt = 2.5 if variant == "dt_2.5" else 10.0
+    scene = load_scene(ROOT / "examples" / "straight_mesh.toml", [
+        "phases.0.dt=10.0", f"phases.1.dt={flow_dt}", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+        "output.fields=false"])
+    simulation = Simulation(scene)
+    state = scene.initial_state()
+    cpu, iterations = [], []
+    for phase in scene.phases:
+        stepper = simulation.stepper(phase, state.radii)
+        stepper.scheme.start_phase(state)
+        started = time.process_time()
+        stepper.step(state, phase.n_steps)
+        cpu.append(time.process_time() - started)
+        iterations.append(int(stepper.krylov_iterations))
+    layout, phi = state.flat()
+    fields = np.zeros((len(layout.windows), stepper.domain.n_dofs))
+    fields[layout.owner, layout.node_index] = phi
+    areas, centroids, _ = stepper.domain.shape_moments(layout, phi)
+    np.savez(output, fields=fields, centroids=centroids, areas=areas)
+    return {"variant": variant, "cpu_s": cpu, "cg_iterations": iterations,
+            "positions": int(phi.size), "period": float(stepper.domain.period)}
+
+
+def differences(reference: Path, other: Path, period: float) -> dict:
+    """Largest differences of ``other`` from ``reference``: φ, centroid (periodic in x), area."""
+    a, b = np.load(reference), np.load(other)
+    shift = b["centroids"] - a["centroids"]
+    shift[:, 0] = (shift[:, 0] + 0.5 * period) % period - 0.5 * period
+    return {"max_phi": float(np.abs(a["fields"] - b["fields"]).max()),
+            "max_centroid": float(np.abs(shift).max()),
+            "max_relative_area": float(np.max(np.abs(b["areas"] - a["areas"]) / a["areas"]))}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--relax", type=float, default=400.0, help="time units of relaxation (default 400)")
+    parser.add_argument("--flow", type=float, default=1200.0, help="time units of flow (default 1200)")
+    parser.add_argument("--child", choices=VARIANTS, help=argparse.SUPPRESS)
+    parser.add_argument("--fields", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--output", type=Path, default=RESULT)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child, args.relax, args.flow, args.fields)))
+        return
+    scratch = args.output.parent / "krylov_tolerance_fields"
+    scratch.mkdir(parents=True, exist_ok=True)
+    runs = {}
+    try:
+        for variant in VARIANTS:
+            fields = scratch / f"{variant}.npz"
+            out = subprocess.run([sys.executable, __file__, "--child", variant, "--relax", str(args.relax),
+                                  "--flow", str(args.flow), "--fields", str(fields)],
+                                 capture_output=True, text=True, cwd=ROOT)
+            if out.returncode != 0:
+                raise SystemExit(f"{variant} failed:\n{out.stderr[-3000:]}")
+            runs[variant] = json.loads(out.stdout.strip().splitlines()[-1])
+            print(json.dumps(runs[variant]), flush=True)
+        for variant in VARIANTS[1:]:
+            runs[variant]["against_exact"] = differences(scratch / "exact.npz", scratch / f"{variant}.npz",
+                                                         runs[variant]["period"])
+    finally:
+        for variant in VARIANTS:
+            (scratch / f"{variant}.npz").unlink(missing_ok=True)
+        scratch.rmdir()
+    result = {"relax": args.relax, "flow": args.flow, "runs": runs, "load_average": common.load_average(),
+              "command": f"python benchmarks/krylov_tolerance.py --relax {args.relax:g} --flow {args.flow:g}"}
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    for variant in VARIANTS[1:]:
+        d, run = runs[variant]["against_exact"], runs[variant]
+        print(f"{variant}: CG iterations {run['cg_iterations']}, against exact solves: φ {d['max_phi']:.2g}, "
+              f"centroid {d['max_centroid']:.2g}, area {d['max_relative_area']:.2g}")
+
+
+if __name__ == "__main__":
+    main()
