@@ -49,7 +49,7 @@ DIR, the sweep directory:
 **Shared relaxations.** Runs whose scenes agree on everything but their phases after the
 first (the same model, domain, particles incl. the seed, numerics, output and first phase)
 start from one run of the first phase alone, ``shared/<hash>/`` (hash of that one-phase
-scene), computed once under a file lock; each run copies its outputs and checkpoint and
+scene, a mesh file in it by its content), computed once under a file lock; each run copies its outputs and checkpoint and
 continues with ``resume=True``. The outputs are bit-identical to running the whole scene
 (``tests/test_sweep.py``): a resumed run continues exactly (:mod:`femphase.io.rundir`).
 Scenes with one phase, or with ``output.checkpoint = false``, are never shared, nor is a
@@ -272,9 +272,21 @@ def _run(scene: Path, overrides: dict, values: dict, labels: dict[str, str]) -> 
     relaxation = None
     # a relaxation is shared through its checkpoint, and only makes sense before other phases
     if len(validated.phases) > 1 and validated.output.checkpoint:
-        text = json.dumps(_relaxation(validated).to_dict(), sort_keys=True, default=jsonable)
-        relaxation = hashlib.sha256(text.encode()).hexdigest()[:16]
+        relaxation = _relaxation_hash(validated)
     return Run(run_id, values, data, sum(p.n_steps for p in validated.phases), relaxation)
+
+
+def _relaxation_hash(scene: Scene) -> str:
+    """The name of the scene's shared relaxation: a hash of its first phase's scene, where a
+    mesh file counts by its content (:func:`~femphase.domains.mesh.domain.mesh_checksum`),
+    not by its absolute path, so that a sweep moved with its checkout finds its relaxations
+    (runs already branched from them resume either way, :mod:`femphase.io.rundir`)."""
+    description = _relaxation(scene).to_dict()
+    if description["domain"].get("mesh"):
+        from femphase.domains.mesh.domain import mesh_checksum
+
+        description["domain"]["mesh"] = mesh_checksum(scene.domain.mesh)
+    return hashlib.sha256(json.dumps(description, sort_keys=True, default=jsonable).encode()).hexdigest()[:16]
 
 
 def _source(error: SceneError, sources: dict) -> str | None:

@@ -137,6 +137,28 @@ def test_run_ids_labels_zip_and_sharing(tmp_path):
     assert all(run.shared is None for run in zipped.runs)  # their first phases differ
 
 
+def test_a_shared_relaxation_on_a_mesh_is_named_by_the_meshs_content_not_its_path(tmp_path):
+    from test_rundir import MESH_SCENE, _channel_mesh, _renumbered
+
+    scene = MESH_SCENE + ('[[phases]]\nname = "shear"\nduration = 4.0\ndt = 2.0\nframe_interval = 2.0\n'
+                          'flow = { type = "shear", rate = 0.1 }\n')
+    sweep = '[sweep]\nscene = "mesh.toml"\n[axes]\n"phases.1.flow.rate" = [0.1, 0.2]\n'
+    names = {}
+    for folder in ("first", "moved", "renumbered"):
+        (tmp_path / folder).mkdir()
+        (tmp_path / folder / "mesh.toml").write_text(scene)
+        (tmp_path / folder / "sweep.toml").write_text(sweep)
+    _channel_mesh(tmp_path / "first" / "a" / "c.vtu", seed=1)
+    (tmp_path / "moved" / "a").mkdir()
+    (tmp_path / "moved" / "a" / "c.vtu").write_bytes((tmp_path / "first" / "a" / "c.vtu").read_bytes())
+    _renumbered(tmp_path / "first" / "a" / "c.vtu", tmp_path / "renumbered" / "a" / "c.vtu")
+    for folder in ("first", "moved", "renumbered"):
+        runs = load_sweep(tmp_path / folder / "sweep.toml").runs
+        assert runs[0].shared == runs[1].shared is not None
+        names[folder] = runs[0].shared
+    assert names["first"] == names["moved"] != names["renumbered"]
+
+
 def test_branched_runs_equal_serial_runs_and_a_rerun_skips_done_runs(tmp_path, client, serial):
     path, out = write(tmp_path), tmp_path / "out"
     index = run_sweep(path, out, client)
