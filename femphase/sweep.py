@@ -418,17 +418,19 @@ def _clear(directory: Path) -> None:
 
 
 def _branch(shared: Path, directory: Path) -> None:
-    """Start ``directory`` as a copy of the shared relaxation: every output, the checkpoint
-    last (a kill mid-copy leaves no checkpoint, so the copy is redone)."""
+    """Start ``directory`` as a copy of the shared relaxation: every output, each file
+    through a temporary name (whoever reads run.json meanwhile, the sweep's index or a
+    user's monitor, sees no half-copied file), the checkpoint last (a kill mid-copy leaves
+    no checkpoint, so the copy is redone)."""
     _clear(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    for name in OUTPUTS:
+    for name in (*(name for name in OUTPUTS if name != CHECKPOINT), CHECKPOINT):
         source = shared / name
-        if name == CHECKPOINT or not source.exists():
-            continue
-        (shutil.copytree if source.is_dir() else shutil.copy2)(source, directory / name)
-    shutil.copy2(shared / CHECKPOINT, directory / f".{CHECKPOINT}.tmp")
-    os.replace(directory / f".{CHECKPOINT}.tmp", directory / CHECKPOINT)
+        if source.is_dir():
+            shutil.copytree(source, directory / name)
+        elif source.exists() or name == CHECKPOINT:
+            shutil.copy2(source, directory / f".{name}.tmp")
+            os.replace(directory / f".{name}.tmp", directory / name)
 
 
 def _outcome(action: Callable[[], None]) -> dict:
