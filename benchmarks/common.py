@@ -40,6 +40,24 @@ def relaxed_random_packing(dt: float | None = None, **numerics):
     return scene, simulation, state, time.process_time() - started
 
 
+def run_phases(scene):
+    """(state, CPU seconds per phase, batched CG iterations per phase, the last phase's
+    stepper): every phase of ``scene`` from its initial state, each in one stepper call
+    (the adaptive scheme merges its steps) with its scheme started as ``Simulation.run``
+    starts a phase; CPU is the process clock around the call."""
+    simulation = Simulation(scene)
+    state = scene.initial_state()
+    cpu, iterations = [], []
+    for phase in scene.phases:
+        stepper = simulation.stepper(phase, state.radii)
+        stepper.scheme.start_phase(state)
+        started = time.process_time()
+        stepper.step(state, phase.n_steps)
+        cpu.append(time.process_time() - started)
+        iterations.append(int(getattr(stepper, "krylov_iterations", 0)))
+    return state, cpu, iterations, stepper
+
+
 def random_shear_stepper(scene, simulation, state, rate: float):
     """(stepper, phase): ``scene``'s shear phase (examples/random.toml's second) at ``rate``
     on ``state``, its scheme started as ``Simulation.run`` starts a phase."""

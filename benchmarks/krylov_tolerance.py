@@ -25,10 +25,9 @@ import argparse
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
-import common  # noqa: F401  (pins BLAS threads, for the children too)
+import common  # pins BLAS threads (for the children too); run_phases
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -39,7 +38,6 @@ VARIANTS = ("exact", "default", "tight_predictor", "dt_2.5")
 def child(variant: str, relax: float, flow: float, output: Path) -> dict:
     """Run ``variant`` in this process; its fields, centroids and areas go to ``output`` (.npz)."""
     from femphase.config import Numerics
-    from femphase.run.simulation import Simulation
     from femphase.scene import load_scene
 
     if variant == "exact":
@@ -50,16 +48,7 @@ def child(variant: str, relax: float, flow: float, output: Path) -> dict:
     scene = load_scene(ROOT / "examples" / "straight_mesh.toml", [
         "phases.0.dt=10.0", f"phases.1.dt={flow_dt}", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
         "output.fields=false"])
-    simulation = Simulation(scene)
-    state = scene.initial_state()
-    cpu, iterations = [], []
-    for phase in scene.phases:
-        stepper = simulation.stepper(phase, state.radii)
-        stepper.scheme.start_phase(state)
-        started = time.process_time()
-        stepper.step(state, phase.n_steps)
-        cpu.append(time.process_time() - started)
-        iterations.append(int(stepper.krylov_iterations))
+    state, cpu, iterations, stepper = common.run_phases(scene)
     layout, phi = state.flat()
     fields = np.zeros((len(layout.windows), stepper.domain.n_dofs))
     fields[layout.owner, layout.node_index] = phi

@@ -13,7 +13,7 @@ alternate, ``--repeats`` times, and the ratios are mesh/grid within the same run
   and a complex LU per window for the advection) as a third kind, with ``--direct``.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \\
-        python benchmarks/mesh_parity.py --relax 400 --flow 400 --repeats 2 --direct
+        python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 2 --direct
 """
 
 from __future__ import annotations
@@ -24,8 +24,9 @@ import os
 import resource
 import subprocess
 import sys
-import time
 from pathlib import Path
+
+import common  # pins BLAS threads; run_phases
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "mesh_parity.json"
@@ -40,7 +41,6 @@ THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREA
 
 def child(kind: str, relax: float, flow: float, velocity: float) -> dict:
     """Run one kind in this process; its CPU per time unit under flow and peak memory."""
-    from femphase.run.simulation import Simulation
     from femphase.scene import load_scene
 
     path, sets, flow_type = SCENES[kind]
@@ -48,25 +48,16 @@ def child(kind: str, relax: float, flow: float, velocity: float) -> dict:
     flow_table = f'{{type = "{flow_type}", {velocity_key} = {velocity}}}'
     scene = load_scene(ROOT / path, [*sets, f"phases.0.duration={relax}", f"phases.1.duration={flow}",
                                       f"phases.1.flow={flow_table}", "output.fields=false"])
-    simulation = Simulation(scene)
-    state = scene.initial_state()
-    cpu = []
-    for phase in scene.phases:
-        stepper = simulation.stepper(phase, state.radii)
-        stepper.scheme.start_phase(state)
-        started = time.process_time()
-        stepper.step(state, phase.n_steps)
-        cpu.append(time.process_time() - started)
-        iterations = getattr(stepper, "krylov_iterations", 0)
+    state, cpu, iterations, _ = common.run_phases(scene)
     return {"kind": kind, "relax_cpu_s": cpu[0], "flow_cpu_s": cpu[1], "flow_ms_per_time_unit": 1e3 * cpu[1] / flow,
-            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "window_cg_iterations": iterations,
+            "peak_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024, "window_cg_iterations": iterations[-1],
             "positions": int(sum(f.size for f in state.fields))}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--relax", type=float, default=400.0, help="time units of relaxation (default 400)")
-    parser.add_argument("--flow", type=float, default=400.0, help="time units of flow (default 400)")
+    parser.add_argument("--flow", type=float, default=1600.0, help="time units of flow (default 1600)")
     parser.add_argument("--velocity", type=float, default=0.1, help="centre-line velocity U (default 0.1)")
     parser.add_argument("--repeats", type=int, default=1, help="alternations of the kinds (default 1)")
     parser.add_argument("--direct", action="store_true", help="also the mesh with per-box LU solvers")
