@@ -96,11 +96,17 @@ def _protocol_beside(data: dict) -> str:
             f"of {data['trees']['old']['commit']} beside it")
 
 
+def _span(values: list[float], digits: int) -> str:
+    """min–max of ``values`` to ``digits`` decimals, one number where they round alike."""
+    low, high = f"{min(values):.{digits}f}", f"{max(values):.{digits}f}"
+    return low if low == high else f"{low}–{high}"
+
+
 def _mesh_parity(data: dict) -> str:
     ratios = data["ratios_to_grid"]["mesh"]
     cpu, memory = ratios["flow_cpu_per_time_unit"], ratios["peak_memory"]
-    return (f"CPU per time unit under flow {min(cpu):.1f}–{max(cpu):.1f}× the grid's, "
-            f"peak memory {min(memory):.2f}–{max(memory):.2f}×")
+    return (f"CPU per time unit under flow {_span(cpu, 1)}× the grid's in each of {len(cpu)} repeats, "
+            f"peak memory {_span(memory, 2)}×")
 
 
 ROWS = (
