@@ -147,9 +147,9 @@ class Numerics:
     #: and the error estimate (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`): at 1e-2 of
     #: the substep's tolerance its error is a hundredth of what the estimate may be. Measured on
     #: examples/straight_mesh.toml (relaxation 400, then 1200 time units of its Stokes flow
-    #: at dt = 10, against solves to 1e-10): centroids moved by 3.1e-4 (3.6e-6 with the
-    #: predictor at KRYLOV_FRACTION), where substeps of 2.5 instead of 3.33 move them by 4e-2
-    #: within 300 time units, for 30 % fewer CG iterations under flow
+    #: at dt = 10, against solves to 1e-10; benchmarks/krylov_tolerance.py): centroids moved by
+    #: 3.4e-4 (8.4e-6 with the predictor at KRYLOV_FRACTION), where substeps of 2.5 instead of
+    #: 3.33 move them by 0.16, for 30 % fewer CG iterations under flow
     #: (docs/decisions/0023-loose-predictor-solves.md).
     PREDICTOR_KRYLOV_FRACTION = 1e-2
 

@@ -49,8 +49,8 @@ DIR, the sweep directory:
 **Shared relaxations.** Runs whose scenes agree on everything but their phases after the
 first (the same model, domain, particles incl. the seed, numerics, output and first phase)
 start from one run of the first phase alone, ``shared/<hash>/`` (hash of that one-phase
-scene, a mesh file in it by its content), computed once under a file lock; each run copies its outputs and checkpoint and
-continues with ``resume=True``. The outputs are bit-identical to running the whole scene
+scene, a mesh file in it by its content), computed once under a file lock; each run copies
+its outputs and checkpoint and continues with ``resume=True``. The outputs are bit-identical to running the whole scene
 (``tests/test_sweep.py``): a resumed run continues exactly (:mod:`femphase.io.rundir`).
 Scenes with one phase, or with ``output.checkpoint = false``, are never shared, nor is a
 first phase no other run has.
@@ -424,12 +424,12 @@ def _branch(shared: Path, directory: Path) -> None:
     no checkpoint, so the copy is redone)."""
     _clear(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    for name in (*(name for name in OUTPUTS if name != CHECKPOINT), CHECKPOINT):
-        source = shared / name
-        if source.is_dir():
-            shutil.copytree(source, directory / name)
-        elif source.exists() or name == CHECKPOINT:
-            shutil.copy2(source, directory / f".{name}.tmp")
+    outputs = [name for name in OUTPUTS if name != CHECKPOINT and (shared / name).exists()]
+    for name in (*outputs, CHECKPOINT):
+        if (shared / name).is_dir():
+            shutil.copytree(shared / name, directory / name)
+        else:
+            shutil.copy2(shared / name, directory / f".{name}.tmp")
             os.replace(directory / f".{name}.tmp", directory / name)
 
 
