@@ -172,6 +172,10 @@ class Cache:
         self.budget._release(self._ident, key)
         return self._values.pop(key, default)
 
+    def items(self) -> list[tuple[Hashable, Any]]:
+        """(key, value) of every entry, without marking any as used."""
+        return list(self._values.items())
+
     def retain(self, keys) -> None:
         """Drop every entry whose key is not in ``keys`` (a set)."""
         for key in [key for key in self._values if key not in keys]:

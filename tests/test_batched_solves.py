@@ -181,3 +181,16 @@ def test_energies_on_meshes_use_the_layouts_block_diagonal_stiffness_within_the_
                                                              layout.offsets[:-1], layout.offsets[1:])])
         np.testing.assert_array_equal(product, expected)
         assert len(domain._stiffness_blocks) == 0 and domain.caches.used <= domain.caches.limit
+
+
+def test_a_new_layout_drops_every_block_kept_for_the_ones_before():
+    # the window solves keep a system per substep size: kept under names no later layout
+    # asks for, they stayed until the budget dropped them (100 MB more on a mesh run)
+    domain = straight(40.0, 40.0)
+    step = Stepper(domain, PARAMS, Numerics(solver="batched"), 1.0)
+    for shift in range(3):
+        layout, phi = discs(domain, [[12.0 + shift, 14.0], [27.0 + shift, 26.0]]).flat()
+        for dt in (1.0 + shift, 2.0 + shift):  # substep sizes differ from layout to layout
+            step.solve(phi, phi, layout, 1.0 / dt, 0.0)
+        kept = domain._layout_blocks.items()  # the map, two systems and their diagonals
+        assert len(kept) == 5 and all(entry[0] is layout for _, entry in kept)

@@ -211,6 +211,45 @@ def test_the_compiled_extents_are_numpys_masked_reductions():
     assert np.isnan(ours[1]).all() and np.isfinite(ours[[0, 2]]).all()
 
 
+def test_boxes_near_a_bound_are_refitted_only_together_with_one_that_must_be():
+    from femphase.domains.mesh.boxes import BoxPolicy
+
+    policy = BoxPolicy.for_spacing(1.0)
+    assert policy.early == BoxPolicy.EARLY_SPACINGS
+    lazy = BoxPolicy(policy.threshold, policy.margin, policy.room, policy.slack, policy.lookahead, 0.0)
+    extent = (0.0, 100.0, 0.0, 60.0)
+    boxes = [Box(10.0 * i, 30.0, 10.0, 50.0) for i in range(3)]
+    comfortable = policy.margin + policy.early + 1.0  # farther than ``early`` from both bounds
+    steps = np.zeros((3, 2))
+
+    def extents(margins_left):  # occupied extents, from each box's x0; y well inside
+        return np.array([[m, 30.0 - comfortable, 10.0 + comfortable, 50.0 - comfortable] for m in margins_left])
+
+    near = policy.margin + 0.5 * policy.early  # inside bounds, within ``early`` of the lower one
+    # nothing must be refitted: the box near its bound stays (no new layout for it alone)
+    assert not policy.misfits(extents([comfortable, near, comfortable]), boxes, extent, steps).any()
+    # one must: the near one comes with it, the comfortable one does not
+    fits = extents([policy.margin - 0.1, near, comfortable])
+    assert policy.misfits(fits, boxes, extent, steps).tolist() == [True, True, False]
+    assert lazy.misfits(fits, boxes, extent, steps).tolist() == [True, False, False]
+    # refitted early or not, a box leaves at least ``margin`` around its particle
+    refitted = policy.cover((40.0, 60.0), (20.0, 30.0), extent)
+    assert refitted.x0 <= 40.0 - policy.margin and refitted.x0 + refitted.width >= 60.0 + policy.margin
+
+
+def test_windows_solved_all_at_once_refit_without_room_for_motion():
+    # the room a call's refit leaves ahead of a moving particle is for solvers kept per
+    # window; batched windows have none, and the substeps' refits would take it back
+    domain = straight(60.0, 30.0)
+    state = discs(domain, [[15.0, 15.0], [45.0, 15.0]])
+    flow = poiseuille(1.0, domain.y_range[1])
+    for solver, room in (("batched", False), ("direct", True)):
+        step = stepper(domain, state, dt=10.0, flow=flow, solver=solver)
+        layout, phi = state.flat()
+        moved = step.refit(layout, phi, state.time)[0].windows
+        assert (moved != step.refit(layout, phi)[0].windows) == room, solver
+
+
 def test_stokes_flow_carries_a_particle_at_its_local_velocity():
     # a constricted channel: the particle speeds up into the throat and slows after it
     bump = lambda x: 6 * (1 + np.cos(2 * np.pi * (x - 20) / 40)) / 2  # noqa: E731

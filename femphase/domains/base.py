@@ -250,6 +250,9 @@ class Domain(ABC):
         operators one name may stand for (compared by identity and held with the entry: e.g.
         the advection matrix's data, which changes with the flow)."""
         kept = self._layout_blocks.get(name)
+        if kept is not None and kept[0] is not layout:
+            # a new layout: what earlier ones kept under any name serves none that comes
+            self._layout_blocks.retain({key for key, entry in self._layout_blocks.items() if entry[0] is layout})
         if kept is None or kept[0] is not layout or kept[1] is not tag:
             value = build()
             kept = self._layout_blocks.put(name, (layout, tag, value), nbytes_of(value))
@@ -261,20 +264,23 @@ class Domain(ABC):
         return self.per_layout(layout, "pattern",
                                lambda: BlockPattern(self.block_pattern, layout.node_index, layout.offsets))
 
+    def window_matrix(self, layout: Layout, name: Hashable, aligned: np.ndarray) -> sp.csr_matrix:
+        """The block-diagonal matrix of every window's principal submatrix of a full-domain
+        matrix given by its entries ``aligned`` to :attr:`block_pattern` (:meth:`aligned`),
+        kept under ``name`` for the last layout asked."""
+        return self.per_layout(layout, name, lambda: self.window_blocks(layout).block(aligned), tag=aligned)
+
     def window_operator(self, layout: Layout, name: str) -> sp.csr_matrix:
         """The block-diagonal matrix of every window's principal submatrix of the P1
         operator ``name`` ("mass" or "stiffness"), for the last layout asked."""
-        return self.per_layout(layout, name, lambda: self.window_blocks(layout).block(self._operator_data[name]))
+        return self.window_matrix(layout, name, self._operator_data[name])
 
-    def window_diagonal(self, layout: Layout, name: str) -> np.ndarray:
-        """The diagonal of :meth:`window_operator`: a principal submatrix's diagonal is the full
-        matrix's at its dofs, so one gather (kept with the layout's blocks: a Krylov solve's
-        Jacobi preconditioner needs it at every call)."""
-        return self.per_layout(layout, (name, "diagonal"), lambda: self._operator_diagonals[name][layout.node_index])
-
-    @cached_property
-    def _operator_diagonals(self) -> dict[str, np.ndarray]:
-        return {"mass": self.operators.mass.diagonal(), "stiffness": self.operators.stiffness.diagonal()}
+    def window_diagonal(self, layout: Layout, name: Hashable, diagonal: np.ndarray) -> np.ndarray:
+        """The diagonal of :meth:`window_matrix` from the full matrix's ``diagonal``: a
+        principal submatrix's diagonal is the full matrix's at its dofs, so one gather (kept
+        under ``name`` with the layout's blocks: a Krylov solve's Jacobi preconditioner
+        needs it at every call)."""
+        return self.per_layout(layout, name, lambda: diagonal[layout.node_index], tag=diagonal)
 
     @cached_property
     def _stiffness_blocks(self):

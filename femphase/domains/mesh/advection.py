@@ -220,8 +220,7 @@ class GalerkinRK4(GalerkinAdvection):
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
         self._step_from(time)
         aligned = self._per_flow("aligned", lambda: self.domain.aligned(self.advection))
-        advection = self.domain.per_layout(layout, "advection",
-                                           lambda: self.domain.window_blocks(layout).block(aligned), tag=aligned)
+        advection = self.domain.window_matrix(layout, "advection", aligned)
         mass, inverse_lumped = self.domain.window_operator(layout, "mass"), 1.0 / layout.mass
 
         def rate(x: np.ndarray) -> np.ndarray:

@@ -1,5 +1,5 @@
-"""Compiled loops over a mesh's window fields (numba), for the refits that come at almost
-every substep as boxes follow their particles.
+"""Compiled loops over a mesh's window fields and boxes (numba), for the refits that come at
+almost every substep as boxes follow their particles.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the structured
 channel's (:mod:`femphase.domains.grid.kernels`); imported only where a mesh scene refits.
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["occupied_extents"]
+__all__ = ["dofs_in_strips", "occupied_extents"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -39,3 +39,28 @@ def occupied_extents(phi: np.ndarray, node_index: np.ndarray, offsets: np.ndarra
         if low_x <= high_x:
             out[window, 0], out[window, 1], out[window, 2], out[window, 3] = low_x, high_x, low_y, high_y
     return out
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def dofs_in_strips(order: np.ndarray, keys: np.ndarray, strips: np.ndarray, span: float, y_low: float,
+                   pad: float, x: np.ndarray, y: np.ndarray, x0: float, width: float, y0: float, y1: float,
+                   period: float) -> np.ndarray:
+    """The dofs inside the box x0 + [0, width] (mod ``period``) × [y0, y1], sorted, tested
+    among the dofs of ``strips``: ``order`` holds the dofs sorted by ``keys`` = strip · span
+    + (y − y_low) (:meth:`~femphase.domains.mesh.domain.MeshDomain._dofs_inside`), ``pad`` the
+    keys' rounding. The test is :meth:`~femphase.domains.mesh.boxes.Box.contains`'s, to the
+    bit."""
+    begins = np.searchsorted(keys, strips * span + (y0 - y_low) - pad, side="left")
+    ends = np.searchsorted(keys, strips * span + (y1 - y_low) + pad, side="right")
+    total = 0
+    for s in range(strips.size):
+        total += max(ends[s] - begins[s], 0)
+    out = np.empty(total, dtype=order.dtype)
+    count = 0
+    for s in range(strips.size):
+        for k in range(begins[s], ends[s]):
+            dof = order[k]
+            if (x[dof] - x0) % period <= width and y[dof] >= y0 and y[dof] <= y1:
+                out[count] = dof
+                count += 1
+    return np.sort(out[:count])
