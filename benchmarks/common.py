@@ -7,6 +7,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"
 
 import re  # noqa: E402
+import numpy as np  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -56,6 +57,27 @@ def run_phases(scene):
         cpu.append(time.process_time() - started)
         iterations.append(int(getattr(stepper, "krylov_iterations", 0)))
     return state, cpu, iterations, stepper
+
+
+def save_end_state(state, stepper, output: Path) -> None:
+    """Every particle's field on the whole domain (zero outside its window), its centroid and
+    its area at the end of a run, to ``output`` (.npz), for :func:`differences`."""
+    layout, phi = state.flat()
+    fields = np.zeros((len(layout.windows), stepper.domain.n_dofs))
+    fields[layout.owner, layout.node_index] = phi
+    areas, centroids, _ = stepper.domain.shape_moments(layout, phi)
+    np.savez(output, fields=fields, centroids=centroids, areas=areas)
+
+
+def differences(reference: Path, other: Path, period: float) -> dict:
+    """Largest differences of ``other`` from ``reference`` (:func:`save_end_state`): φ,
+    centroid (periodic in x), area (relative)."""
+    a, b = np.load(reference), np.load(other)
+    shift = b["centroids"] - a["centroids"]
+    shift[:, 0] = (shift[:, 0] + 0.5 * period) % period - 0.5 * period
+    return {"max_phi": float(np.abs(a["fields"] - b["fields"]).max()),
+            "max_centroid": float(np.abs(shift).max()),
+            "max_relative_area": float(np.max(np.abs(b["areas"] - a["areas"]) / a["areas"]))}
 
 
 def random_shear_stepper(scene, simulation, state, rate: float):

@@ -27,8 +27,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import common  # pins BLAS threads (for the children too); run_phases
-import numpy as np
+import common  # pins BLAS threads (for the children too); run_phases, differences
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "krylov_tolerance.json"
@@ -49,23 +48,9 @@ def child(variant: str, relax: float, flow: float, output: Path) -> dict:
         "phases.0.dt=10.0", f"phases.1.dt={flow_dt}", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
         "output.fields=false"])
     state, cpu, iterations, stepper = common.run_phases(scene)
-    layout, phi = state.flat()
-    fields = np.zeros((len(layout.windows), stepper.domain.n_dofs))
-    fields[layout.owner, layout.node_index] = phi
-    areas, centroids, _ = stepper.domain.shape_moments(layout, phi)
-    np.savez(output, fields=fields, centroids=centroids, areas=areas)
+    common.save_end_state(state, stepper, output)
     return {"variant": variant, "cpu_s": cpu, "cg_iterations": iterations,
-            "positions": int(phi.size), "period": float(stepper.domain.period)}
-
-
-def differences(reference: Path, other: Path, period: float) -> dict:
-    """Largest differences of ``other`` from ``reference``: φ, centroid (periodic in x), area."""
-    a, b = np.load(reference), np.load(other)
-    shift = b["centroids"] - a["centroids"]
-    shift[:, 0] = (shift[:, 0] + 0.5 * period) % period - 0.5 * period
-    return {"max_phi": float(np.abs(a["fields"] - b["fields"]).max()),
-            "max_centroid": float(np.abs(shift).max()),
-            "max_relative_area": float(np.max(np.abs(b["areas"] - a["areas"]) / a["areas"]))}
+            "positions": int(sum(field.size for field in state.fields)), "period": float(stepper.domain.period)}
 
 
 def main() -> None:
@@ -93,7 +78,7 @@ def main() -> None:
             runs[variant] = json.loads(out.stdout.strip().splitlines()[-1])
             print(json.dumps(runs[variant]), flush=True)
         for variant in VARIANTS[1:]:
-            runs[variant]["against_exact"] = differences(scratch / "exact.npz", scratch / f"{variant}.npz",
+            runs[variant]["against_exact"] = common.differences(scratch / "exact.npz", scratch / f"{variant}.npz",
                                                          runs[variant]["period"])
     finally:
         for variant in VARIANTS:

@@ -5,7 +5,7 @@ block-diagonal matrices of the current layout, advections per substep size. Each
 :class:`Cache` drawn from the domain's one :class:`ByteBudget` (``domain.caches``, sized by
 ``numerics.cache_mib``). The budget counts every entry's bytes and, when their sum passes
 its limit, drops the least recently used entry of any cache, so memory is bounded by one
-number whatever mix of caches a scene uses (a mesh's boxes change at almost every substep;
+number whatever mix of caches a scene uses (a mesh's boxes change every few substeps;
 the structured channel's window keys are few and small).
 
 An entry is measured when it is put (:func:`nbytes_of`). What it computes lazily afterwards

@@ -65,7 +65,7 @@ class BoxPolicy:
 
     Why ``early``: with windows solved all at once (:mod:`femphase.fem.blocks`) a new
     layout costs the same whether one box changed or many, and with 100 particles drifting
-    one box or another outgrew its bounds at almost every substep. Refitting early cannot
+    one box or another outgrows its bounds at almost every substep. Refitting early cannot
     leave less than ``margin`` between a particle and its box's edge.
     """
 

@@ -1,5 +1,5 @@
 """Compiled loops over a mesh's window fields and boxes (numba), for the refits that come at
-almost every substep as boxes follow their particles.
+every substep as boxes follow their particles.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the structured
 channel's (:mod:`femphase.domains.grid.kernels`); imported only where a mesh scene refits.
