@@ -6,11 +6,16 @@ import os
 for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ[_name] = "1"
 
+import argparse  # noqa: E402
+import json  # noqa: E402
 import re  # noqa: E402
-import numpy as np  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
+
+import numpy as np  # noqa: E402
 
 from femphase.scene import load_scene, scene_from_dict  # noqa: E402
 from femphase.run.simulation import Simulation  # noqa: E402
@@ -78,6 +83,50 @@ def differences(reference: Path, other: Path, period: float) -> dict:
     return {"max_phi": float(np.abs(a["fields"] - b["fields"]).max()),
             "max_centroid": float(np.abs(shift).max()),
             "max_relative_area": float(np.max(np.abs(b["areas"] - a["areas"]) / a["areas"]))}
+
+
+def variant_arguments(description: str, variants: tuple[str, ...], flow: float, result: Path) -> argparse.Namespace:
+    """The command line of a script that runs ``variants`` of a mesh run in child processes
+    (:func:`variant_runs`): ``--relax``, ``--flow`` (default ``flow``), ``--output``."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--relax", type=float, default=400.0, help="time units of relaxation (default 400)")
+    parser.add_argument("--flow", type=float, default=flow, help=f"time units of flow (default {flow:g})")
+    parser.add_argument("--child", choices=variants, help=argparse.SUPPRESS)
+    parser.add_argument("--fields", type=Path, help=argparse.SUPPRESS)
+    parser.add_argument("--output", type=Path, default=result)
+    return parser.parse_args()
+
+
+def variant_runs(script: str, variants: tuple[str, ...], args: argparse.Namespace, against: str) -> dict:
+    """Run every variant of ``script`` in its own child process (``--child VARIANT``, which
+    prints its record as the last line of JSON and saves its end state with
+    :func:`save_end_state`), compare every variant after the first with the first under
+    ``against`` (:func:`differences`), write the result with its command to ``args.output``
+    and return it."""
+    scratch = args.output.parent / f"{Path(script).stem}_fields"
+    scratch.mkdir(parents=True, exist_ok=True)
+    runs = {}
+    try:
+        for variant in variants:
+            out = subprocess.run([sys.executable, script, "--child", variant, "--relax", str(args.relax),
+                                  "--flow", str(args.flow), "--fields", str(scratch / f"{variant}.npz")],
+                                 capture_output=True, text=True, cwd=Path(script).resolve().parents[1])
+            if out.returncode != 0:
+                raise SystemExit(f"{variant} failed:\n{out.stderr[-3000:]}")
+            runs[variant] = json.loads(out.stdout.strip().splitlines()[-1])
+            print(json.dumps(runs[variant]), flush=True)
+        for variant in variants[1:]:
+            runs[variant][against] = differences(scratch / f"{variants[0]}.npz", scratch / f"{variant}.npz",
+                                                 runs[variant]["period"])
+    finally:
+        for variant in variants:
+            (scratch / f"{variant}.npz").unlink(missing_ok=True)
+        scratch.rmdir()
+    result = {"relax": args.relax, "flow": args.flow, "runs": runs, "load_average": load_average(),
+              "command": f"python benchmarks/{Path(script).name} --relax {args.relax:g} --flow {args.flow:g}"}
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    return result
 
 
 def random_shear_stepper(scene, simulation, state, rate: float):

@@ -21,10 +21,7 @@ seconds do (one run per variant).
 
 from __future__ import annotations
 
-import argparse
 import json
-import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -89,40 +86,11 @@ def child(variant: str, relax: float, flow: float, output: Path) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--relax", type=float, default=400.0, help="time units of relaxation (default 400)")
-    parser.add_argument("--flow", type=float, default=800.0, help="time units of flow (default 800)")
-    parser.add_argument("--child", choices=VARIANTS, help=argparse.SUPPRESS)
-    parser.add_argument("--fields", type=Path, help=argparse.SUPPRESS)
-    parser.add_argument("--output", type=Path, default=RESULT)
-    args = parser.parse_args()
+    args = common.variant_arguments(__doc__, VARIANTS, 800.0, RESULT)
     if args.child:
         print(json.dumps(child(args.child, args.relax, args.flow, args.fields)))
         return
-    scratch = args.output.parent / "mesh_layouts_fields"
-    scratch.mkdir(parents=True, exist_ok=True)
-    runs = {}
-    try:
-        for variant in VARIANTS:
-            fields = scratch / f"{variant}.npz"
-            out = subprocess.run([sys.executable, __file__, "--child", variant, "--relax", str(args.relax),
-                                  "--flow", str(args.flow), "--fields", str(fields)],
-                                 capture_output=True, text=True, cwd=ROOT)
-            if out.returncode != 0:
-                raise SystemExit(f"{variant} failed:\n{out.stderr[-3000:]}")
-            runs[variant] = json.loads(out.stdout.strip().splitlines()[-1])
-            print(json.dumps(runs[variant]), flush=True)
-        for variant in VARIANTS[1:]:
-            runs[variant]["against_room"] = common.differences(scratch / "room.npz", scratch / f"{variant}.npz",
-                                                               runs[variant]["period"])
-    finally:
-        for variant in VARIANTS:
-            (scratch / f"{variant}.npz").unlink(missing_ok=True)
-        scratch.rmdir()
-    result = {"relax": args.relax, "flow": args.flow, "runs": runs, "load_average": common.load_average(),
-              "command": f"python benchmarks/mesh_layouts.py --relax {args.relax:g} --flow {args.flow:g}"}
-    args.output.parent.mkdir(parents=True, exist_ok=True)
-    args.output.write_text(json.dumps(result, indent=1) + "\n")
+    runs = common.variant_runs(__file__, VARIANTS, args, "against_room")["runs"]
     for variant in VARIANTS:
         relaxation, flowing = runs[variant]["phases"]
         d = runs[variant].get("against_room")
