@@ -232,6 +232,10 @@ def test_boxes_near_a_bound_are_refitted_only_together_with_one_that_must_be():
     fits = extents([policy.margin - 0.1, near, comfortable])
     assert policy.misfits(fits, boxes, extent, steps).tolist() == [True, True, False]
     assert lazy.misfits(fits, boxes, extent, steps).tolist() == [True, False, False]
+    # a box over the whole period is always re-examined, but brings no other with it
+    whole = [Box(0.0, 100.0, 10.0, 50.0)] + boxes[1:]
+    assert policy.misfits(extents([comfortable, near, comfortable]), whole, extent, steps).tolist() == [
+        True, False, False]
     # refitted early or not, a box leaves at least ``margin`` around its particle
     refitted = policy.cover((40.0, 60.0), (20.0, 30.0), extent)
     assert refitted.x0 <= 40.0 - policy.margin and refitted.x0 + refitted.width >= 60.0 + policy.margin

@@ -150,7 +150,9 @@ class BoxPolicy:
             return (bad | full) & occupied
 
         bad = outside(0.0)
-        return outside(self.early) if self.early > 0 and bad.any() else bad
+        # a box over the whole period is re-examined at every refit and mostly stays: only a
+        # box that must change brings the others near their bounds with it
+        return outside(self.early) if self.early > 0 and (bad & ~full).any() else bad
 
 
 def circular_extent(x: np.ndarray, period: float) -> tuple[float, float]:
