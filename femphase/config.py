@@ -49,9 +49,9 @@ class Numerics:
                     preconditioned Krylov on all windows at once, :mod:`femphase.fem.blocks`).
                     "auto": on meshes "batched"; on the structured channel tensor where it
                     applies, else LU up to DIRECT_MAX_DOFS, else AMG
-    tolerance       relative residual of the Krylov solves ("amg": 2-norm; "batched" and the
-                    meshes' advection: max|D⁻¹r| against max|D⁻¹b|, D the diagonal; under
-                    the adaptive scheme these use at least 1e-5 · tolerance_t,
+    tolerance       relative residual of the Krylov solves ("amg": 2-norm; "batched":
+                    max|D⁻¹r| against max|D⁻¹b|, D the diagonal; under the adaptive scheme
+                    the batched solves use at least 1e-4 · tolerance_t,
                     :attr:`Numerics.krylov_tolerance`)
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
                     dimensionless) in phases with flow, and STILL_FRACTION of it (a tenth) in
@@ -137,19 +137,22 @@ class Numerics:
     cache_mib: float = 256.0
 
     #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of
-    #: ``tolerance_t``: their error then stays 10⁵ below the local error the scheme allows
-    #: per substep. Measured on examples/straight_mesh.toml (600 time units at dt = 10, against
-    #: per-box LU): 1e-6 moves centroids by 6e-5 and areas by 2.4e-4 for 0.7× the CPU of 1e-10,
-    #: 1e-5 by 1e-3 and 6e-3 (benchmarks/mesh_parity.py, docs/decisions/0016-mesh-window-solves.md).
-    KRYLOV_FRACTION = 1e-5
+    #: ``tolerance_t``: their error then stays 10⁴ below the local error the scheme allows
+    #: per substep under flow. Measured on examples/straight_mesh.toml (relaxation 400, then
+    #: 1200 time units of its Stokes flow at dt = 10, against solves to 1e-10): at 1e-4
+    #: centroids moved by 4.4e-4 and areas by 5.8e-4 (relative), at 1e-5 by 3.4e-4 and 5.7e-4
+    #: (both mostly the predictor's looser solve), at 1e-3 by 2.0e-3 and 6.5e-4, where
+    #: substeps of 2.5 instead of 3.33 move them by 0.16 and 2.2e-2; CG iterations 4041 + 3822
+    #: at 1e-4 against 4874 + 4316 at 1e-5 (docs/decisions/0024-boxes-refitted-together.md).
+    KRYLOV_FRACTION = 1e-4
     #: The same for the solve of the second-order steps' predictor, the linearly implicit half
     #: step whose result φ̄ enters the step only through the explicit forces g(φ̄), times J0 dt,
     #: and the error estimate (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`): at 1e-2 of
     #: the substep's tolerance its error is a hundredth of what the estimate may be. Measured on
     #: examples/straight_mesh.toml (relaxation 400, then 1200 time units of its Stokes flow
     #: at dt = 10, against solves to 1e-10; benchmarks/krylov_tolerance.py): centroids moved by
-    #: 3.4e-4 (8.4e-6 with the predictor at KRYLOV_FRACTION), where substeps of 2.5 instead of
-    #: 3.33 move them by 0.16, for 30 % fewer CG iterations under flow
+    #: 4.4e-4 (1.8e-4 with the predictor at 1e-5 of the substep's tolerance), where substeps
+    #: of 2.5 instead of 3.33 move them by 0.16, for 32 % fewer CG iterations under flow
     #: (docs/decisions/0023-loose-predictor-solves.md).
     PREDICTOR_KRYLOV_FRACTION = 1e-2
 
@@ -183,10 +186,10 @@ class Numerics:
 
     @property
     def krylov_tolerance(self) -> float:
-        """Relative tolerance of the batched Krylov solves (window systems and the meshes'
-        advection): ``tolerance`` for schemes at fixed dt, and under the adaptive scheme
-        the larger of ``tolerance`` and KRYLOV_FRACTION · ``tolerance_t`` (1e-6 at the
-        default), so the solves are as accurate as the step needs and no more."""
+        """Relative tolerance of the batched Krylov solves of the window systems:
+        ``tolerance`` for schemes at fixed dt, and under the adaptive scheme the larger of
+        ``tolerance`` and KRYLOV_FRACTION · ``tolerance_t`` (1e-5 at the default), so the
+        solves are as accurate as the step needs and no more."""
         if self.scheme == "adaptive":
             return max(self.tolerance, self.KRYLOV_FRACTION * self.tolerance_t)
         return self.tolerance
