@@ -77,3 +77,14 @@ def test_the_cg_updates_are_the_numpy_expressions_they_replace():
     expected = z + beta * p
     block_kernels.cg_direction(p, r, inverse, beta)
     np.testing.assert_allclose(p, expected, rtol=0, atol=1e-15)
+
+
+def test_a_jacobi_correction_is_numpys_expression_to_the_bit():
+    from femphase.fem import kernels as block_kernels
+
+    rng = np.random.default_rng(4)
+    z, y, product = (rng.standard_normal(1000) for _ in range(3))
+    inverse = rng.uniform(0.5, 2.0, 1000)
+    expected = z + (y - product) * inverse
+    block_kernels.jacobi_correction(z, y, product, inverse)
+    np.testing.assert_array_equal(z, expected)

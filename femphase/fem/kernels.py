@@ -1,6 +1,6 @@
-"""Compiled loops for the block-diagonal window matrices (numba), built at almost every
-substep on a mesh as boxes follow their particles, and for the vector updates of the CG
-that solves them.
+"""Compiled loops for the block-diagonal window matrices (numba), built as boxes follow
+their particles on a mesh, and for the vector updates of the CG that solves them and of
+the explicit advection that applies them.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the domains' kernels;
 imported only where windows are solved all at once (:mod:`femphase.fem.blocks`).
@@ -11,7 +11,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["cg_direction", "cg_update", "principal_block_entries", "principal_block_rows"]
+__all__ = ["cg_direction", "cg_update", "jacobi_correction", "principal_block_entries", "principal_block_rows"]
 
 
 @numba.njit(inline="always", boundscheck=False)
@@ -98,3 +98,11 @@ def cg_direction(p: np.ndarray, r: np.ndarray, inverse: np.ndarray, beta: float)
     """The next CG search direction in place: p ← D⁻¹r + β p."""
     for i in range(p.size):
         p[i] = inverse[i] * r[i] + beta * p[i]
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def jacobi_correction(z: np.ndarray, y: np.ndarray, product: np.ndarray, inverse: np.ndarray) -> None:
+    """One Jacobi correction toward the solution of M z = y, in place: z += (y − M z) D⁻¹
+    (``product`` = M z, ``inverse`` = D⁻¹), rounded as numpy's three passes round it."""
+    for i in range(z.size):
+        z[i] += (y[i] - product[i]) * inverse[i]

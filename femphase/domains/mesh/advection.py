@@ -161,10 +161,13 @@ SPECTRAL_MARGIN = 1.25
 def corrected_inverse(y: np.ndarray, mass: sp.spmatrix, inverse_lumped: np.ndarray,
                       corrections: int = MASS_CORRECTIONS) -> np.ndarray:
     """P y = Σ_{k≤K} (I − M_L⁻¹M)^k M_L⁻¹ y: the lumped inverse with K Jacobi corrections
-    toward M⁻¹ y (``inverse_lumped`` = 1/diag M_L)."""
+    toward M⁻¹ y (``inverse_lumped`` = 1/diag M_L); each correction one sparse product and
+    one compiled pass (:func:`~femphase.fem.kernels.jacobi_correction`)."""
+    from femphase.fem import kernels  # numba loads only where windows are solved at once
+
     z = y * inverse_lumped
     for _ in range(corrections):
-        z += (y - mass @ z) * inverse_lumped
+        kernels.jacobi_correction(z, y, mass @ z, inverse_lumped)
     return z
 
 
