@@ -241,17 +241,18 @@ def test_boxes_near_a_bound_are_refitted_only_together_with_one_that_must_be():
     assert refitted.x0 <= 40.0 - policy.margin and refitted.x0 + refitted.width >= 60.0 + policy.margin
 
 
-def test_windows_solved_all_at_once_refit_without_room_for_motion():
-    # the room a call's refit leaves ahead of a moving particle is for solvers kept per
-    # window; batched windows have none, and the substeps' refits would take it back
+@pytest.mark.parametrize("solver, scheme, room", [("batched", "adaptive", False), ("batched", "sav2", True),
+                                                  ("direct", "adaptive", True)])
+def test_windows_leave_room_for_motion_unless_solved_at_once_and_refitted_between_substeps(solver, scheme, room):
+    # the room a call's refit leaves ahead of a moving particle keeps it inside its window
+    # over a step and keeps per-window solvers alive; batched windows have no solvers, and
+    # the adaptive scheme's refits between substeps would take it back
     domain = straight(60.0, 30.0)
     state = discs(domain, [[15.0, 15.0], [45.0, 15.0]])
-    flow = poiseuille(1.0, domain.y_range[1])
-    for solver, room in (("batched", False), ("direct", True)):
-        step = stepper(domain, state, dt=10.0, flow=flow, solver=solver)
-        layout, phi = state.flat()
-        moved = step.refit(layout, phi, state.time)[0].windows
-        assert (moved != step.refit(layout, phi)[0].windows) == room, solver
+    step = stepper(domain, state, dt=10.0, flow=poiseuille(1.0, domain.y_range[1]), solver=solver, scheme=scheme)
+    layout, phi = state.flat()
+    moved = step.refit(layout, phi, state.time)[0].windows
+    assert (moved != step.refit(layout, phi)[0].windows) == room
 
 
 def test_stokes_flow_carries_a_particle_at_its_local_velocity():

@@ -61,6 +61,7 @@ class AdaptiveSAV2(RelaxedSAV2):
     name = "adaptive"
     order = 2
     merges_steps = True
+    refits_substeps = True
     #: Substeps are dt/m, m in DIVISIONS (2^k and 3·2^k, k ≤ LEVELS, ascending).
     LEVELS = 12
     DIVISIONS = tuple(sorted({2**k for k in range(LEVELS + 1)} | {3 * 2**k for k in range(LEVELS + 1)}))

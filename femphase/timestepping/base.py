@@ -130,6 +130,9 @@ class TimeScheme(ABC):
     #: Whether :meth:`advance` takes a fourth argument ``steps`` and advances by that many
     #: steps at once, sharing work between them; else the stepper calls it step by step.
     merges_steps: ClassVar[bool] = False
+    #: Whether it refits the windows between its substeps (:meth:`Stepper.refit` without a
+    #: time), so that a step's motion never runs more than one substep past a refit
+    refits_substeps: ClassVar[bool] = False
     #: Whether its steps may compute in single precision under flow (``numerics.precision =
     #: "mixed"``); the finite-difference reference's stay double
     mixed_precision: ClassVar[bool] = True

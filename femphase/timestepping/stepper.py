@@ -217,12 +217,15 @@ class Stepper:
 
     def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None) -> tuple[Layout, np.ndarray]:
         """(layout, φ) after refitting the windows that no longer fit their fields; with
-        ``time``, windows leave room for the motion of a step from then (meshes with a
-        solver per window, so that their solvers last). Windows solved all at once have none
-        to keep, and the room, taken at calls and given back at the substeps' refits between
-        them, made 112 layouts where 66 came without it (examples/straight_mesh.toml, 800
-        time units of flow)."""
-        motion = None if time is None or self.batched else (lambda: self._motion(layout, phi, time))
+        ``time``, windows leave room for the motion of a step from then (meshes), so that a
+        particle stays inside its window over the step and a window's solvers last. Windows
+        solved all at once under a scheme that refits between its substeps
+        (:attr:`~femphase.timestepping.base.TimeScheme.refits_substeps`) get none: they have
+        no solvers to keep, each substep starts from a refit, and the room, taken at calls
+        and given back at the substeps' refits, made 112 layouts where 66 came without it
+        (examples/straight_mesh.toml, 800 time units of flow)."""
+        roomless = self.batched and self.scheme.refits_substeps
+        motion = None if time is None or roomless else (lambda: self._motion(layout, phi, time))
         return self.domain.refit(layout, phi, self.policy, motion)
 
     def _motion(self, layout: Layout, phi: np.ndarray, time: float) -> np.ndarray:
