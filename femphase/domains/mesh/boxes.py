@@ -79,8 +79,9 @@ class BoxPolicy:
 
     #: ``early`` in spacings: on examples/straight_mesh.toml under flow (400 time units of
     #: relaxation, 800 of flow at max_velocity 0.1) new layouts came at 276 of 281 refits
-    #: with none, 84 at one lattice unit, 66 at two and at three (no fewer at more: a
-    #: refitted box has ``room``, one spacing, to its nearest bound); dofs did not grow.
+    #: with none, 75 at one spacing, 65 at two, 66 at three (no fewer at more: a refitted
+    #: box has ``room``, one spacing, to its nearest bound); dofs did not grow
+    #: (benchmarks/mesh_layouts.py).
     EARLY_SPACINGS = 2.0
 
     @classmethod
