@@ -241,6 +241,14 @@ def test_boxes_near_a_bound_are_refitted_only_together_with_one_that_must_be():
     assert refitted.x0 <= 40.0 - policy.margin and refitted.x0 + refitted.width >= 60.0 + policy.margin
 
 
+@pytest.mark.parametrize("solver, together", [("auto", True), ("batched", True), ("direct", False)])
+def test_boxes_are_refitted_together_only_where_windows_are_solved_at_once(solver, together):
+    # a box refitted early is free when all windows are solved at once, and one more
+    # factorisation when each window has its own
+    policy = straight(60.0, 30.0).window_policy(Numerics(solver=solver))
+    assert (policy.early > 0) == together
+
+
 @pytest.mark.parametrize("solver, scheme, room", [("batched", "adaptive", False), ("batched", "sav2", True),
                                                   ("direct", "adaptive", True)])
 def test_windows_leave_room_for_motion_unless_solved_at_once_and_refitted_between_substeps(solver, scheme, room):

@@ -264,8 +264,10 @@ class MeshDomain(Domain):
         return (self.x0, self.period, low, high)
 
     def window_policy(self, numerics: Numerics) -> BoxPolicy:
+        # boxes refitted together serve the windows solved all at once: a layout costs the
+        # same however many boxes change, a factorisation per box does not
         return BoxPolicy.for_spacing(self.median_edge, threshold=numerics.threshold, margin=numerics.margin,
-                                     enabled=numerics.windows)
+                                     enabled=numerics.windows, together=self.solves_batched(numerics))
 
     def full_window(self) -> Box:
         low, high = self.y_range
