@@ -11,7 +11,11 @@ Variants of the adaptive scheme (dt = 10):
   per substep, :meth:`femphase.timestepping.sav2.RelaxedSAV2.rank_one_predictor`);
 * ``solve-free``: the same with w replaced by φ/(1/τ + J0 S), A⁻¹ without its stiffness
   part (a prototype defined here, not in femphase: no solve, a response ρ ≥ 1 too large by
-  1.7–4 % at substeps 2.5–10 on the lattice, docs/decisions/0022-area-mode-ceiling-kept.md).
+  1.7–4 % at substeps 2.5–10 on the lattice, docs/decisions/0022-area-mode-ceiling-kept.md);
+* ``split``: under flow the area term split off the midpoint step with the repulsion and
+  integrated exactly (a prototype defined here, :func:`area_flow`; no rank-one mode is left
+  in the step, so no ceiling; without flow nothing is split and it is the default;
+  docs/decisions/0025-area-term-split-not-kept.md).
 
 Cases and errors in time, against time-converged references at the same h = 1:
 
@@ -22,11 +26,16 @@ Cases and errors in time, against time-converged references at the same h = 1:
   sheared at u = 2y/40 for 30 time units (max |φ − φ_ref| and the relative area error
   against sav2 at dt = 0.05 in double precision).
 
-CPU seconds of this process for each run. Writes ``results/area_mode.json`` and prints a table.
+CPU seconds of this process for each run. Writes ``results/area_mode.json`` (``--output``)
+and prints a row per run; ``--variants`` and ``--cases`` choose a part, e.g.
+
+    python benchmarks/area_mode.py --variants explicit split --cases lattice random stiff \
+        --output area_split.json
 """
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from pathlib import Path
@@ -37,16 +46,18 @@ import random_precision
 import tolerance
 import work_precision as wp
 
+from femphase.model.energy import AreaTerm, FreeEnergy, WindowedFields
 from femphase.run.simulation import Simulation
 from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
 from femphase.timestepping.sav2 import RelaxedSAV2
 
 RESULT = Path(__file__).parent / "results" / "area_mode.json"
-VARIANTS = {"explicit": {}, "implicit": {"area_implicit": True}, "solve-free": {"area_implicit": True}}
+VARIANTS = {"explicit": {}, "implicit": {"area_implicit": True}, "solve-free": {"area_implicit": True}, "split": {}}
 TOLERANCES = {"disc": (0.1, 0.03), "pair": (0.1, 0.03, 0.01, 1e-3, 1e-4), "lattice": (0.1, 0.05, 0.03),
               "random": (0.1, 0.05, 0.03), "stiff": (0.1, 0.01)}
 EXACT_PREDICTOR = RelaxedSAV2.rank_one_predictor
+SPLIT_DECAY, DECAY = FreeEnergy.split_decay, RelaxedSAV2.decay
 
 
 def solve_free_predictor(self, explicit, fields, dt, stabilisation):
@@ -105,27 +116,80 @@ def measure(case: str, numerics: dict, refs: dict, random_state) -> dict:
             "cpu_s": cpu}
 
 
+def split_with_area(self):
+    """FreeEnergy.split_decay with the area term among the split-off terms (``split``)."""
+    decaying = tuple(t for t in self.terms if t.decays or isinstance(t, AreaTerm))
+    return FreeEnergy([t for t in self.terms if t not in decaying]), decaying
+
+
+def area_flow(phi, layout, radii, area: AreaTerm, mobility: float, dt: float):
+    """φ after ``dt`` of the area term alone, exactly: ∂tφ_i = J0 (4μ/πR_i²)(1 − a_i) φ_i scales
+    each field uniformly, and its area ratio a_i = (M_L φ_i)ᵀφ_i/πR_i² follows the logistic
+    equation da/dt = k a (1 − a), k = 8 J0 μ/πR_i², so a(dt) = 1/(1 + (1/a − 1) e^{−k dt}) and
+    φ_i ← φ_i √(a(dt)/a)."""
+    fields = WindowedFields(phi, layout, radii)
+    ratio = fields.area_ratio
+    rate = 8.0 * mobility * area.area_stiffness / (np.pi * fields.radius**2)
+    after = 1.0 / (1.0 + (1.0 / ratio - 1.0) * np.exp(-rate * dt))
+    return phi * fields.on_positions(np.sqrt(after / ratio).astype(phi.dtype))
+
+
+def decay_with_area(self, phi, layout, radii, dt):
+    """RelaxedSAV2.decay with the area term's exact flow over dt/2 before and after the
+    other decay terms' (Strang; ``split``)."""
+    areas = [t for t in self.decaying if isinstance(t, AreaTerm)]
+    if not areas or dt == 0.0:
+        return DECAY(self, phi, layout, radii, dt)
+    phi = area_flow(phi, layout, radii, areas[0], self.stepper.mobility, 0.5 * dt)
+    everything, self.decaying = self.decaying, tuple(t for t in self.decaying if t not in areas)
+    try:
+        phi = DECAY(self, phi, layout, radii, dt) if self.decaying else phi
+    finally:
+        self.decaying = everything
+    return area_flow(phi, layout, radii, areas[0], self.stepper.mobility, 0.5 * dt)
+
+
+def use_variant(variant: str) -> None:
+    """Patch femphase for ``variant``'s prototypes (none for the others)."""
+    RelaxedSAV2.rank_one_predictor = solve_free_predictor if variant == "solve-free" else EXACT_PREDICTOR
+    FreeEnergy.split_decay = split_with_area if variant == "split" else SPLIT_DECAY
+    RelaxedSAV2.decay = decay_with_area if variant == "split" else DECAY
+
+
 def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--variants", nargs="+", choices=list(VARIANTS), default=list(VARIANTS)[:3])
+    parser.add_argument("--cases", nargs="+", choices=list(TOLERANCES), default=list(TOLERANCES))
+    parser.add_argument("--output", default=RESULT.name, help="file name in results/ (default area_mode.json)")
+    args = parser.parse_args()
     refs = tolerance.references(["disc", "pair", "lattice"])
     phi, area, _ = stiff_run({"scheme": "sav2", "precision": "double"}, 0.05)
     refs["stiff"] = (phi, area)
-    scene, _, relaxed, _ = common.relaxed_random_packing()
-    random_state = (scene, relaxed, {rate: random_precision.shear(scene, relaxed, rate, 200.0,
-                                                                  random_precision.REFERENCE_DT, scheme="sav2")
-                                     for rate in (0.1083, 1.0)})
-    result = {"command": "python benchmarks/area_mode.py", "cases": {}}
-    for case, tolerances in TOLERANCES.items():
+    random_state = None
+    if "random" in args.cases:
+        scene, _, relaxed, _ = common.relaxed_random_packing()
+        random_state = (scene, relaxed, {rate: random_precision.shear(scene, relaxed, rate, 200.0,
+                                                                      random_precision.REFERENCE_DT, scheme="sav2")
+                                         for rate in (0.1083, 1.0)})
+    command = "python benchmarks/area_mode.py" + "".join(
+        f" --{name} {' '.join(value)}" for name, value in (("variants", args.variants), ("cases", args.cases))
+        if value != parser.get_default(name))
+    if args.output != RESULT.name:
+        command += f" --output {args.output}"
+    result = {"command": command, "variants": args.variants, "cases": {}}
+    for case in args.cases:
         rows = []
-        for variant, options in VARIANTS.items():
-            RelaxedSAV2.rank_one_predictor = solve_free_predictor if variant == "solve-free" else EXACT_PREDICTOR
-            for tolerance_t in tolerances:
+        for variant in args.variants:
+            use_variant(variant)
+            options = VARIANTS[variant]
+            for tolerance_t in TOLERANCES[case]:
                 rows.append({"variant": variant, "tolerance_t": tolerance_t,
                              **measure(case, {"tolerance_t": tolerance_t, **options}, refs, random_state)})
                 print(json.dumps({"case": case, **rows[-1]}), flush=True)
         result["cases"][case] = rows
-    RelaxedSAV2.rank_one_predictor = EXACT_PREDICTOR
+    use_variant("explicit")
     RESULT.parent.mkdir(exist_ok=True)
-    RESULT.write_text(json.dumps(result, indent=1) + "\n")
+    (RESULT.parent / args.output).write_text(json.dumps(result, indent=1) + "\n")
 
 
 if __name__ == "__main__":
