@@ -64,7 +64,8 @@ removed value) or a changed base scene is refused: start a new DIR. A second ``f
 sweep`` on a DIR in use is refused.
 
 **Execution.** Every run is one Dask task (a shared relaxation one more, which its runs
-depend on). By default a ``LocalCluster`` of ``--workers`` processes (default: the number
+depend on), started in the sweep file's order (relaxations first), so that a sweep stopped
+early has its first values done. By default a ``LocalCluster`` of ``--workers`` processes (default: the number
 of cores), one thread each, BLAS pinned to one thread; ``--scheduler ADDRESS`` uses a
 running cluster instead (e.g. on SLURM with dask-jobqueue: ``docs/sweeps.md``). A worker
 that dies (killed, out of memory) is replaced and its run resumed from its checkpoint on
@@ -570,17 +571,22 @@ def _submit(sweep: Sweep, directory: Path, todo: list[Run], statuses: dict, clie
 
     token = uuid.uuid4().hex[:8]  # task keys unique to this call
     base_dir = str(sweep.base_dir)
+    # Dask runs higher priorities first: relaxations, then runs in the sweep file's order, so
+    # that a sweep stopped early has its first values done (by default Dask picks among the
+    # runs whose relaxation is ready in no set order)
+    priority = itertools.count(2 * len(todo), -1)
     relaxations = {}
     for run in todo:
         if run.shared and run.shared not in relaxations:
             relaxations[run.shared] = client.submit(
                 _execute_shared, run.data, base_dir, str(directory / "shared" / run.shared),
-                key=f"femphase-relaxation-{run.shared}-{token}", pure=False)
+                key=f"femphase-relaxation-{run.shared}-{token}", pure=False, priority=next(priority))
     futures = {}
     for run in todo:
         shared = str(directory / "shared" / run.shared) if run.shared else None
         future = client.submit(_execute_run, run.data, base_dir, str(directory / "runs" / run.id), shared,
-                               relaxations.get(run.shared), key=f"femphase-run-{run.id}-{token}", pure=False)
+                               relaxations.get(run.shared), key=f"femphase-run-{run.id}-{token}", pure=False,
+                               priority=next(priority))
         futures[future] = run
     finished = 0
     try:

@@ -247,6 +247,17 @@ def test_a_task_leaves_no_cyclic_garbage_for_the_workers_next_task():
             gc.enable()
 
 
+def test_runs_start_in_the_sweep_files_order(tmp_path):
+    # one worker runs one task at a time: the runs finish in the order they started
+    cluster = distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=":0",
+                                       env=WORKER_ENV)
+    lines = []
+    with cluster, distributed.Client(cluster) as one_worker:
+        run_sweep(write(tmp_path), tmp_path / "out", one_worker, log=lines.append)
+    finished = [line.split("] ")[1].split(":")[0] for line in lines if line.startswith("femphase sweep: [")]
+    assert finished == IDS
+
+
 def test_a_worker_killed_mid_run_is_replaced_and_its_run_resumed(tmp_path, client, serial):
     path, out = write(tmp_path), tmp_path / "out"
     result: dict = {}
