@@ -136,6 +136,10 @@ ROWS = (
         "benchmarks/results/protocol_obstacle.json", _protocol_beside,
         "python benchmarks/protocol.py --old TREE --scene obstacle_mesh.toml --rates none "
         "--output protocol_obstacle.json"),
+    Row("the same protocol, one run alone on the machine", "benchmarks/results/protocol_obstacle_idle.json",
+        lambda d: (f"{d['runs']['None']['new']['cpu_s'] / 60:.1f} CPU-min, peak "
+                   f"{d['runs']['None']['new']['peak_mb']:.0f} MB"),
+        "python benchmarks/protocol.py --scene obstacle_mesh.toml --rates none --output protocol_obstacle_idle.json"),
     Row("meshed obstacle channel (examples/obstacle_mesh.toml, dt = 10), memory under flow",
         "benchmarks/results/mesh_memory.json", _mesh_memory, "python benchmarks/mesh_memory.py --stokes-time 4000"),
 )
