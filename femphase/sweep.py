@@ -65,8 +65,9 @@ sweep`` on a DIR in use is refused.
 
 **Execution.** Every run is one Dask task (a shared relaxation one more, which its runs
 depend on), started in the sweep file's order (relaxations first) on one worker, and
-roughly so on several (each worker keeps the order among the runs Dask gave it). By default a ``LocalCluster`` of ``--workers`` processes (default: the number
-of cores), one thread each, BLAS pinned to one thread; ``--scheduler ADDRESS`` uses a
+roughly so on several (each worker keeps the order among the runs Dask gave it). By
+default a ``LocalCluster`` of ``--workers`` processes (default: the number of cores), one
+thread each, BLAS pinned to one thread; ``--scheduler ADDRESS`` uses a
 running cluster instead (e.g. on SLURM with dask-jobqueue: ``docs/sweeps.md``). A worker
 that dies (killed, out of memory) is replaced and its run resumed from its checkpoint on
 another worker; a lock per run keeps two processes out of one run directory.
