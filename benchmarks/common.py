@@ -14,6 +14,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 from dataclasses import replace  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Callable  # noqa: E402
 
 import numpy as np  # noqa: E402
 
@@ -95,6 +96,19 @@ def variant_arguments(description: str, variants: tuple[str, ...], flow: float, 
     parser.add_argument("--fields", type=Path, help=argparse.SUPPRESS)
     parser.add_argument("--output", type=Path, default=result)
     return parser.parse_args()
+
+
+def variant_main(script: str, description: str, variants: tuple[str, ...], flow: float, result: Path,
+                 child: Callable[[str, float, float, Path], dict], against: str) -> dict | None:
+    """The body of a variant script's ``main()``: parse its command line
+    (:func:`variant_arguments`); in a child process run ``child(variant, relax, flow,
+    fields)`` and print its record, returning None; otherwise run every variant
+    (:func:`variant_runs`) and return the records by variant."""
+    args = variant_arguments(description, variants, flow, result)
+    if args.child:
+        print(json.dumps(child(args.child, args.relax, args.flow, args.fields)))
+        return None
+    return variant_runs(script, variants, args, against)["runs"]
 
 
 def variant_runs(script: str, variants: tuple[str, ...], args: argparse.Namespace, against: str) -> dict:

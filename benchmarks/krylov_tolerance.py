@@ -21,7 +21,6 @@ differences do not depend on the machine's load; CPU seconds do (one run per var
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import common  # pins BLAS threads (for the children too); run_phases, differences
@@ -51,11 +50,9 @@ def child(variant: str, relax: float, flow: float, output: Path) -> dict:
 
 
 def main() -> None:
-    args = common.variant_arguments(__doc__, VARIANTS, 1200.0, RESULT)
-    if args.child:
-        print(json.dumps(child(args.child, args.relax, args.flow, args.fields)))
+    runs = common.variant_main(__file__, __doc__, VARIANTS, 1200.0, RESULT, child, "against_exact")
+    if runs is None:
         return
-    runs = common.variant_runs(__file__, VARIANTS, args, "against_exact")["runs"]
     for variant in VARIANTS[1:]:
         d, run = runs[variant]["against_exact"], runs[variant]
         print(f"{variant}: CG iterations {run['cg_iterations']}, against exact solves: φ {d['max_phi']:.2g}, "

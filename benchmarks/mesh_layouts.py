@@ -21,7 +21,6 @@ seconds do (one run per variant).
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -86,11 +85,9 @@ def child(variant: str, relax: float, flow: float, output: Path) -> dict:
 
 
 def main() -> None:
-    args = common.variant_arguments(__doc__, VARIANTS, 800.0, RESULT)
-    if args.child:
-        print(json.dumps(child(args.child, args.relax, args.flow, args.fields)))
+    runs = common.variant_main(__file__, __doc__, VARIANTS, 800.0, RESULT, child, "against_room")
+    if runs is None:
         return
-    runs = common.variant_runs(__file__, VARIANTS, args, "against_room")["runs"]
     for variant in VARIANTS:
         relaxation, flowing = runs[variant]["phases"]
         d = runs[variant].get("against_room")
