@@ -1,5 +1,5 @@
-"""The meshes' explicit Galerkin advection (femphase.domains.mesh.advection.GalerkinRK4): its
-corrected mass inverse, its frequency estimate, its agreement with the Galerkin–Padé step it
+"""The meshes' explicit Galerkin advection (femphase.domains.mesh.advection.GalerkinRungeKutta):
+its order in time, its corrected mass inverse, its frequency estimate, its agreement with the Galerkin–Padé step it
 replaces in batched runs, and its stability at large steps."""
 
 import itertools
@@ -18,7 +18,7 @@ from femphase.domains.mesh.advection import (
     COURANT,
     SPECTRAL_MARGIN,
     GalerkinPade,
-    GalerkinRK4,
+    GalerkinRungeKutta,
     advection_matrix,
     corrected_inverse,
     spectral_radius,
@@ -37,6 +37,26 @@ def sheared():
         step.step(state)
     layout, phi = state.flat()
     return domain, layout, phi, poiseuille(1.0, 40.0)
+
+
+@pytest.mark.parametrize("stages", [3, 4])
+def test_the_explicit_step_has_the_order_of_its_stages(sheared, monkeypatch, stages):
+    """Against the same step at 64 substeps, halving the substep divides the error by 2^s:
+    the Taylor polynomial of s terms is the step of every s-stage Runge–Kutta method of
+    order s on this linear equation."""
+    domain, layout, phi, flow = sheared
+    monkeypatch.setattr(advection_module, "STAGES", stages)
+    explicit = GalerkinRungeKutta(domain, flow, 1.0, Numerics())
+    assert explicit.stages == stages
+    assert explicit.frequency * 1.0 / 4 < 0.5  # the coarsest level well inside the asymptotic range
+
+    def advected(substeps: int) -> np.ndarray:
+        monkeypatch.setattr(GalerkinRungeKutta, "substeps", substeps)
+        return explicit.advect(phi, layout, 0.0)[0]
+
+    reference = advected(64)
+    errors = [np.abs(advected(n) - reference).max() for n in (4, 8)]
+    assert np.log2(errors[0] / errors[1]) == pytest.approx(stages, abs=0.3)
 
 
 def test_each_correction_brings_the_inverse_closer_to_the_consistent_mass(sheared):
@@ -71,17 +91,17 @@ def test_the_frequency_estimate_is_the_largest_eigenvalue():
 def test_the_explicit_step_agrees_with_the_pade_step(sheared, monkeypatch):
     """Both are Galerkin in space; they differ by the corrected inverse (spatial, O(h⁴) on
     smooth modes) and by their time errors. Against a converged Padé reference (32 steps),
-    the explicit step's difference is the inverse's, the same at one RK4 substep as at 8."""
+    the explicit step's difference is the inverse's, the same at one Runge–Kutta substep as at 8."""
     domain, layout, phi, flow = sheared
     dt = 3.3
     reference = phi.copy()
     pade = GalerkinPade(domain, flow, dt / 32, Numerics(solver="direct"))
     for _ in range(32):
         reference, _ = pade.advect(reference, layout, 0.0)
-    explicit = GalerkinRK4(domain, flow, dt, Numerics())
+    explicit = GalerkinRungeKutta(domain, flow, dt, Numerics())
     assert explicit.substeps == max(1, int(np.ceil(SPECTRAL_MARGIN * explicit.frequency * dt / COURANT)))
     one, _ = explicit.advect(phi, layout, 0.0)
-    monkeypatch.setattr(GalerkinRK4, "substeps", 8)
+    monkeypatch.setattr(GalerkinRungeKutta, "substeps", 8)
     eight, _ = explicit.advect(phi, layout, 0.0)
     moved = np.abs(reference - phi).max()
     assert np.abs(one - reference).max() < 0.05 * moved
@@ -89,7 +109,7 @@ def test_the_explicit_step_agrees_with_the_pade_step(sheared, monkeypatch):
 
 
 def test_large_steps_subcycle_and_stay_bounded():
-    # uniform flow u = 1, one step of dt = 10 (~20 RK4 substeps) against ten Padé steps of 1:
+    # uniform flow u = 1, one step of dt = 10 (~20 Runge–Kutta substeps) against ten Padé steps of 1:
     # the disc moves by 10 and keeps its area; its field's excursions below 0 and above its
     # plateau are Galerkin's dispersion, the same in both (without the double well that
     # otherwise holds the profile)
@@ -101,7 +121,7 @@ def test_large_steps_subcycle_and_stay_bounded():
         relax.step(state)
     start = shape_observables(state)
     layout, phi = state.flat()
-    advection = GalerkinRK4(domain, uniform, 10.0, Numerics())
+    advection = GalerkinRungeKutta(domain, uniform, 10.0, Numerics())
     assert advection.substeps >= advection.frequency * 10.0 > 10
     moved, layout = advection.advect(phi, layout, 0.0)
     pade, reference = GalerkinPade(domain, uniform, 1.0, Numerics(solver="direct")), phi
@@ -124,13 +144,13 @@ def test_advections_of_one_flow_share_its_matrix_and_frequency(sheared, monkeypa
                         lambda *args: assembled.append(args) or advection_matrix(*args))
     monkeypatch.setattr(advection_module, "spectral_radius",
                         lambda *args: estimated.append(args) or spectral_radius(*args))
-    short, long = GalerkinRK4(domain, flow, 1.0, Numerics()), GalerkinRK4(domain, flow, 4.0, Numerics())
+    short, long = GalerkinRungeKutta(domain, flow, 1.0, Numerics()), GalerkinRungeKutta(domain, flow, 4.0, Numerics())
     short.advect(phi, layout, 0.0)
     long.advect(phi, layout, 0.0)
     assert len(assembled) == 1 and len(estimated) == 1
     assert long.frequency == short.frequency and long.substeps >= short.substeps
     other = poiseuille(0.5, 40.0)
-    halved = GalerkinRK4(domain, other, 1.0, Numerics())
+    halved = GalerkinRungeKutta(domain, other, 1.0, Numerics())
     assert halved.frequency == pytest.approx(0.5 * short.frequency, rel=0.05)
     assert len(assembled) == 2 and len(estimated) == 2
 

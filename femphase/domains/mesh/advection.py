@@ -7,17 +7,19 @@ Courant number) as large as the model's own diffusivity at the paper's u ~ 1, h 
 has none, and the resolved interface held to its tanh profile by the double well does not
 oscillate at cell Péclet numbers above 2. Two steps in time:
 
-* **explicit** (:class:`GalerkinRK4`, with the batched window solves, the meshes' default):
-  classical RK4 on φ' = −P C φ, P = Σ_{k≤K} (I − M_L⁻¹M)^k M_L⁻¹ the lumped mass inverse
-  with K = :data:`MASS_CORRECTIONS` Jacobi corrections, subcycled so that ω h ≤
-  :data:`COURANT` (ω the spectral radius of P C). No system is solved; each RK4 stage costs
-  K + 1 sparse products. P is symmetric positive definite (the polynomial Σ(1 − s)^k is
-  positive on the spectrum [1/4, 1] of M_L⁻¹M for P1 triangles), so P C is skew in the P⁻¹
-  inner product: its eigenvalues are imaginary, and RK4 is stable on the imaginary axis up to
-  2√2. K trades accuracy against products: the lumped inverse (K = 0) is second order in
-  phase, and each correction brings P closer to M⁻¹ on the smooth modes that carry a
-  particle (a disc translating at u = 1 on a Delaunay mesh at h = 1 lags by 2.4 %, 0.38 %,
-  0.17 %, 0.13 % at K = 0, 1, 2, 3; with M⁻¹ exactly, 0.10 %);
+* **explicit** (:class:`GalerkinRungeKutta`, with the batched window solves, the meshes'
+  default): an explicit Runge–Kutta step of s = :data:`STAGES` stages and order s on
+  φ' = −P C φ, P = Σ_{k≤K} (I − M_L⁻¹M)^k M_L⁻¹ the lumped mass inverse with K =
+  :data:`MASS_CORRECTIONS` Jacobi corrections, subcycled so that ω h ≤ :data:`COURANT` (ω
+  the spectral radius of P C). No system is solved; each stage costs K + 1 sparse products.
+  P is symmetric positive definite (the polynomial Σ(1 − s)^k is positive on the spectrum
+  [1/4, 1] of M_L⁻¹M for P1 triangles), so P C is skew in the P⁻¹ inner product: its
+  eigenvalues are imaginary, and the step is stable on the imaginary axis up to √3 (three
+  stages) or 2√2 (four). K trades accuracy against products: the lumped inverse (K = 0) is
+  second order in phase, and each correction brings P closer to M⁻¹ on the smooth modes that
+  carry a particle (a disc translating at u = 1 on a Delaunay mesh at h = 1 lags by 2.4 %,
+  0.38 %, 0.17 %, 0.13 % at K = 0, 1, 2, 3; with M⁻¹ exactly, 0.10 %; verification/README.md,
+  "Advection on meshes");
 * **Galerkin–Padé** (:class:`GalerkinPade`, with ``numerics.solver`` "direct" or "amg"): the
   (2,2) Padé approximant of the exact propagator exp(−dt M⁻¹C),
 
@@ -49,8 +51,8 @@ from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow
 
-__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "GalerkinAdvection", "GalerkinPade",
-           "GalerkinRK4", "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius"]
+__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "GalerkinAdvection",
+           "GalerkinPade", "GalerkinRungeKutta", "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius"]
 
 
 @BilinearForm
@@ -147,12 +149,19 @@ class GalerkinPade(GalerkinAdvection):
         return out, layout
 
 
-#: K, the Jacobi corrections of the lumped mass inverse in :class:`GalerkinRK4` (module
+#: K, the Jacobi corrections of the lumped mass inverse in :class:`GalerkinRungeKutta` (module
 #: docstring: 0.17 % lag of a translating disc at K = 2 against 0.10 % with M⁻¹ exactly).
 MASS_CORRECTIONS = 2
-#: The largest ω h of an RK4 substep, ω the spectral radius of P C: RK4 is stable on the
-#: imaginary axis up to 2√2, and at 1 its time error stays below the spatial one (a disc
-#: translating at u = 1: elongation +0.004 at ω h ≤ 1 against +0.010 at ≤ 2).
+#: s, the stages and order of :class:`GalerkinRungeKutta`'s step. Three: a translating disc
+#: lags as at four (0.17 %) and stretches by +0.0045 instead of +0.0037 (dt = 1), for three
+#: quarters of the products, 0.87× the CPU of flow on examples/straight_mesh.toml
+#: (docs/decisions/0026-three-stage-mesh-advection.md). Both are time errors far below the
+#: spatial ones; the fourth-order step's extra accuracy is not needed.
+STAGES = 3
+#: The largest ω h of a substep, ω the spectral radius of P C: the step is stable on the
+#: imaginary axis up to √3 (three stages), and at 1 its time error stays below the spatial one
+#: (a disc translating at u = 1, four stages: elongation +0.004 at ω h ≤ 1 against +0.010
+#: at ≤ 2; three stages: +0.0045 at ≤ 1).
 COURANT = 1.0
 #: Margin on the power-iteration estimate of ω (:func:`spectral_radius`).
 SPECTRAL_MARGIN = 1.25
@@ -190,25 +199,26 @@ def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterat
     return estimate
 
 
-class GalerkinRK4(GalerkinAdvection):
-    """Galerkin advection with explicit RK4 and a corrected lumped mass inverse (module
-    docstring), on all windows at once: per layout the block-diagonal matrices of the windows'
+class GalerkinRungeKutta(GalerkinAdvection):
+    """Galerkin advection with an explicit Runge–Kutta step and a corrected lumped mass
+    inverse (module docstring), on all windows at once: per layout the block-diagonal matrices of the windows'
     principal submatrices of C and M (:mod:`femphase.fem.blocks`), nothing per window.
     C, its entries aligned to the block pattern, its block-diagonal form on the current
     layout and ω are the flow's, shared by every dt. ``numerics`` is taken for the
     advections' common signature; no setting of it applies."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
-        #: K (module docstring), read from :data:`MASS_CORRECTIONS` when built (so a study
-        #: can set it, verification/mesh_advection.py)
+        #: K and s (module docstring), read from :data:`MASS_CORRECTIONS` and :data:`STAGES`
+        #: when built (so a study can set them, verification/mesh_advection.py)
         self.corrections = MASS_CORRECTIONS
+        self.stages = STAGES
         super().__init__(domain, flow, dt)
 
     @property
     def frequency(self) -> float:
         """ω, the spectral radius of P C on the whole mesh (1/time units). The windows' P C are
-        not estimated on their own: the margin and ω h ≤ 1 against RK4's limit 2√2 leave
-        them room."""
+        not estimated on their own: the margin and ω h ≤ 1 against the step's limit (√3 at
+        three stages) leave them room."""
         ops = self.domain.operators
         inverse_lumped = 1.0 / ops.lumped_mass
         advection = self.advection
@@ -217,7 +227,7 @@ class GalerkinRK4(GalerkinAdvection):
 
     @property
     def substeps(self) -> int:
-        """RK4 substeps per step of dt."""
+        """Runge–Kutta substeps per step of dt."""
         return max(1, int(np.ceil(SPECTRAL_MARGIN * self.frequency * self.dt / COURANT)))
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
@@ -226,21 +236,16 @@ class GalerkinRK4(GalerkinAdvection):
         advection = self.domain.window_matrix(layout, "advection", aligned)
         mass, inverse_lumped = self.domain.window_operator(layout, "mass"), 1.0 / layout.mass
 
-        def rate(x: np.ndarray) -> np.ndarray:
-            out = corrected_inverse(advection @ x, mass, inverse_lumped, self.corrections)
-            out *= -1.0
-            return out
-
         substeps = self.substeps
         h = self.dt / substeps
         x = phi.astype(np.float64)
         for _ in range(substeps):
-            k = rate(x)
-            total = k.copy()
-            k = rate(x + (0.5 * h) * k)
-            total += 2.0 * k
-            k = rate(x + (0.5 * h) * k)
-            total += 2.0 * k
-            total += rate(x + h * k)
-            x += (h / 6.0) * total
+            # Σ_{k≤s} (−hPC)^k/k! x by Horner: on a linear, autonomous equation every
+            # Runge–Kutta method of s stages and order s is this polynomial, at s products
+            y = x
+            for k in range(self.stages, 0, -1):
+                y = corrected_inverse(advection @ y, mass, inverse_lumped, self.corrections)
+                y *= -h / k
+                y += x
+            x = y
         return x.astype(phi.dtype, copy=False), layout

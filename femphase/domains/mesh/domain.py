@@ -41,7 +41,7 @@ from skfem import MeshTri
 from femphase.config import Numerics
 from femphase.domains.base import DOMAINS, Domain
 from femphase.domains.layout import Layout
-from femphase.domains.mesh.advection import GalerkinPade, GalerkinRK4
+from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
 from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
 from femphase.errors import SceneError
 from femphase.fem.meshfiles import read_meshio
@@ -384,11 +384,11 @@ class MeshDomain(Domain):
         return [Box(*map(float, row)) for row in array]
 
     # -- fast paths and flows ---------------------------------------------------------------
-    def advection(self, flow: Flow, dt: float, numerics: Numerics) -> GalerkinRK4 | GalerkinPade:
-        """Explicit RK4 with the batched window solves, Galerkin–Padé with per-window
+    def advection(self, flow: Flow, dt: float, numerics: Numerics) -> GalerkinRungeKutta | GalerkinPade:
+        """Explicit Runge–Kutta with the batched window solves, Galerkin–Padé with per-window
         factorisations (:mod:`femphase.domains.mesh.advection`)."""
         if self.solves_batched(numerics):
-            return GalerkinRK4(self, flow, dt, numerics)
+            return GalerkinRungeKutta(self, flow, dt, numerics)
         return GalerkinPade(self, flow, dt, numerics)
 
     def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
