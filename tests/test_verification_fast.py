@@ -135,7 +135,7 @@ def test_grid_and_mesh_read_an_ellipses_elongation_to_second_order():
     angles = rng.uniform(-0.5 * np.pi, 0.5 * np.pi, 6)
 
     def read(path, *assignments):
-        scene = shape_bias._scene(path, assignments)
+        scene = shape_bias.example_scene(path, assignments)
         state = shape_bias.ellipses(scene, centres, angles, 0.2)
         return shape_observables(state).elongation.mean()
 

@@ -58,7 +58,8 @@ DOMAINS = {
 }
 
 
-def _scene(path: str, assignments: tuple[str, ...]):
+def example_scene(path: str, assignments: tuple[str, ...]):
+    """The scene of examples/``path`` with ``assignments``, its resolution warning silenced."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ResolutionWarning)  # coarse h is the point here
         return load_scene(EXAMPLES / path, list(assignments))
@@ -72,9 +73,7 @@ def ellipses(scene, centres: np.ndarray, angles: np.ndarray, aspect: float) -> S
     windows, fields = [], []
     for (cx, cy), angle in zip(centres, angles):
         window = domain.disc_window((cx, cy), a + 3.0 * WIDTH, policy)
-        x, y = domain.window_coordinates(window)
-        dx = np.mod(x - cx + 0.5 * domain.period, domain.period) - 0.5 * domain.period
-        dy = y - cy
+        dx, dy = domain.offsets(window, (cx, cy))
         along = np.cos(angle) * dx + np.sin(angle) * dy
         across = -np.sin(angle) * dx + np.cos(angle) * dy
         windows.append(window)
@@ -89,8 +88,8 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
     centres = np.column_stack([rng.uniform(0.0, 70.0, n), rng.uniform(20.0, 220.0, n)])
     angles = rng.uniform(-0.5 * np.pi, 0.5 * np.pi, n)
     reference_h = 0.25 if quick else 0.125
-    reference = _scene("random.toml", (f"domain.h={reference_h}",))
-    scenes = {name: _scene(*spec) for name, spec in DOMAINS.items()}
+    reference = example_scene("random.toml", (f"domain.h={reference_h}",))
+    scenes = {name: example_scene(*spec) for name, spec in DOMAINS.items()}
     rows = []
     for aspect in ASPECTS:
         exact = shape_observables(ellipses(reference, centres, angles, aspect)).elongation

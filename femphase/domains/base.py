@@ -180,12 +180,16 @@ class Domain(ABC):
         circular mean over the period) and shape tensor −∫∇φ∇φᵀ (N, 2, 2)."""
 
     # -- derived --------------------------------------------------------------------------
+    def offsets(self, window: Hashable, centre: tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """x and y of a window's dofs relative to ``centre`` (lengths, storage order), x by the
+        minimum image over the period."""
+        x, y = self.window_coordinates(window)
+        return np.mod(x - centre[0] + 0.5 * self.period, self.period) - 0.5 * self.period, y - centre[1]
+
     def disc_field(self, window: Hashable, centre: tuple[float, float], radius: float, width: float) -> np.ndarray:
         """The equilibrium profile (1 + tanh((radius − d)/λ))/2 of a disc on ``window``; d is
         the distance to ``centre`` with the minimum image in x."""
-        x, y = self.window_coordinates(window)
-        dx = np.mod(x - centre[0] + 0.5 * self.period, self.period) - 0.5 * self.period
-        return interface_profile(radius - np.hypot(dx, y - centre[1]), width)
+        return interface_profile(radius - np.hypot(*self.offsets(window, centre)), width)
 
     @cached_property
     def _circle(self) -> np.ndarray:

@@ -52,7 +52,8 @@ from femphase.fem.solvers import make_solver
 from femphase.flows import Flow
 
 __all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "GalerkinAdvection",
-           "GalerkinPade", "GalerkinRungeKutta", "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius"]
+           "GalerkinPade", "GalerkinRungeKutta", "advection_matrix", "corrected_inverse", "skew_advection",
+           "spectral_radius"]
 
 
 @BilinearForm
@@ -201,8 +202,9 @@ def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterat
 
 class GalerkinRungeKutta(GalerkinAdvection):
     """Galerkin advection with an explicit Runge–Kutta step and a corrected lumped mass
-    inverse (module docstring), on all windows at once: per layout the block-diagonal matrices of the windows'
-    principal submatrices of C and M (:mod:`femphase.fem.blocks`), nothing per window.
+    inverse (module docstring), on all windows at once: per layout the block-diagonal
+    matrices of the windows' principal submatrices of C and M (:mod:`femphase.fem.blocks`),
+    nothing per window.
     C, its entries aligned to the block pattern, its block-diagonal form on the current
     layout and ω are the flow's, shared by every dt. ``numerics`` is taken for the
     advections' common signature; no setting of it applies."""
