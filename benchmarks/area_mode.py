@@ -15,7 +15,10 @@ Variants of the adaptive scheme (dt = 10):
 * ``split``: under flow the area term split off the midpoint step with the repulsion and
   integrated exactly (a prototype defined here, :func:`area_flow`; no rank-one mode is left
   in the step, so no ceiling; without flow nothing is split and it is the default;
-  docs/decisions/0025-area-term-split-not-kept.md).
+  docs/decisions/0025-area-term-split-not-kept.md);
+* ``exponential``: no ceiling, and the midpoint step's area force taken at an effective area
+  ratio that moves the rank-one mode by e^(−z), z = c·h, instead of the explicit midpoint
+  rule's 1 − z + z²/2 (a prototype defined here, :func:`exponential_predictor`; no solve).
 
 Cases and errors in time, against time-converged references at the same h = 1:
 
@@ -50,14 +53,16 @@ from femphase.model.energy import AreaTerm, FreeEnergy, WindowedFields
 from femphase.run.simulation import Simulation
 from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
+from femphase.timestepping.adaptive import AdaptiveSAV2
 from femphase.timestepping.sav2 import RelaxedSAV2
 
 RESULT = Path(__file__).parent / "results" / "area_mode.json"
-VARIANTS = {"explicit": {}, "implicit": {"area_implicit": True}, "solve-free": {"area_implicit": True}, "split": {}}
+VARIANTS = {"explicit": {}, "implicit": {"area_implicit": True}, "solve-free": {"area_implicit": True}, "split": {}, "exponential": {}}
 TOLERANCES = {"disc": (0.1, 0.03), "pair": (0.1, 0.03, 0.01, 1e-3, 1e-4), "lattice": (0.1, 0.05, 0.03),
               "random": (0.1, 0.05, 0.03), "stiff": (0.1, 0.01)}
 EXACT_PREDICTOR = RelaxedSAV2.rank_one_predictor
 SPLIT_DECAY, DECAY = FreeEnergy.split_decay, RelaxedSAV2.decay
+PREDICTOR, LARGEST_SUBSTEP = RelaxedSAV2._predictor, AdaptiveSAV2.largest_substep
 
 
 def solve_free_predictor(self, explicit, fields, dt, stabilisation):
@@ -80,14 +85,15 @@ def stiff_scene(numerics: dict, dt: float):
                     "flow": {"type": "shear", "rate": 2.0}}]})
 
 
-def stiff_run(numerics: dict, dt: float) -> tuple[np.ndarray, float, float]:
-    """(φ at t = 30, its area ∫φ², CPU seconds)."""
+def stiff_run(numerics: dict, dt: float) -> tuple[np.ndarray, float, float, int]:
+    """(φ at t = 30, its area ∫φ², CPU seconds, accepted substeps (0 for fixed-dt schemes))."""
     scene = stiff_scene(numerics, dt)
     state = scene.initial_state()
     started = time.process_time()
     Simulation(scene).run(state, [FrameRecorder()])
     phi = state.global_field(0)
-    return phi, float(scene.domain.operators.lumped_mass @ phi**2), time.process_time() - started
+    substeps = int(state.memory.get("adaptive_counts", [0])[0])
+    return phi, float(scene.domain.operators.lumped_mass @ phi**2), time.process_time() - started, substeps
 
 
 def measure(case: str, numerics: dict, refs: dict, random_state) -> dict:
@@ -110,10 +116,10 @@ def measure(case: str, numerics: dict, refs: dict, random_state) -> dict:
             out[f"{rate:g}"] = {"error": random_precision.errors(run, reference)["max"], "substeps": run["substeps"],
                                 "cpu_s": run["seconds"]}
         return out
-    phi, area, cpu = stiff_run(numerics, 10.0)
+    phi, area, cpu, substeps = stiff_run(numerics, 10.0)
     reference, reference_area = refs["stiff"]
     return {"error": float(np.abs(phi - reference).max()), "area_error": abs(area / reference_area - 1.0),
-            "cpu_s": cpu}
+            "substeps": substeps, "cpu_s": cpu}
 
 
 def split_with_area(self):
@@ -149,11 +155,33 @@ def decay_with_area(self, phi, layout, radii, dt):
     return area_flow(phi, layout, radii, areas[0], self.stepper.mobility, 0.5 * dt)
 
 
+def exponential_predictor(self, phi, layout, time, radii, dt):
+    """RelaxedSAV2._predictor whose φ̄ carries an effective area ratio for the step's area
+    force (``exponential``). Per particle, e = a − 1 obeys de/dt = −c e + N near a steady
+    state, c = J0 β_i (M_L φ_i)ᵀφ_i the rank-one mode's rate and N what the other terms do to
+    the area. The exponential midpoint rule gives e¹ = e^(−z) e⁰ + h φ1(−z) N, z = c h,
+    φ1(−z) = (1 − e^(−z))/z; the midpoint step gives e¹ = e⁰ + h (N − c e_used), so
+    e_used = e⁰ + (1 − φ1(−z)) (N/c − e⁰). The predictor's Euler half step, with the
+    stabilisation S that damps every mode by 1 + J0 S h/2, gives N/c − e⁰ = 2 Δ/z with
+    Δ = (ē − e⁰)(1 + J0 S h/2). Without the other terms e¹ = e^(−z) e⁰ at any z, and a
+    steady state (N = c e⁰) stays steady; as z → 0, e_used → ē, the explicit rule."""
+    midpoint, middle = PREDICTOR(self, phi, layout, time, radii, dt)
+    start, j0 = WindowedFields(phi, layout, radii), self.stepper.mobility
+    z = j0 * self.reacting.rank_one_coefficient(start) * start.areas * dt
+    change = (middle.area_ratio - start.area_ratio) * (1.0 + 0.5 * dt * j0 * self.predictor_stabilisation(dt))
+    slowdown = np.where(z > 1e-8, -np.expm1(-z) / np.maximum(z, 1e-300), 1.0 - 0.5 * z)  # φ1(−z)
+    weight = np.where(z > 1e-8, 2.0 * (1.0 - slowdown) / np.maximum(z, 1e-300), 1.0 - z / 3.0)
+    middle.__dict__["area_ratio"] = start.area_ratio + weight * change  # the cached property's slot
+    return midpoint, middle
+
+
 def use_variant(variant: str) -> None:
     """Patch femphase for ``variant``'s prototypes (none for the others)."""
     RelaxedSAV2.rank_one_predictor = solve_free_predictor if variant == "solve-free" else EXACT_PREDICTOR
     FreeEnergy.split_decay = split_with_area if variant == "split" else SPLIT_DECAY
     RelaxedSAV2.decay = decay_with_area if variant == "split" else DECAY
+    RelaxedSAV2._predictor = exponential_predictor if variant == "exponential" else PREDICTOR
+    AdaptiveSAV2.largest_substep = (lambda self, *args: np.inf) if variant == "exponential" else LARGEST_SUBSTEP
 
 
 def main() -> None:
@@ -163,7 +191,7 @@ def main() -> None:
     parser.add_argument("--output", default=RESULT.name, help="file name in results/ (default area_mode.json)")
     args = parser.parse_args()
     refs = tolerance.references(["disc", "pair", "lattice"])
-    phi, area, _ = stiff_run({"scheme": "sav2", "precision": "double"}, 0.05)
+    phi, area, *_ = stiff_run({"scheme": "sav2", "precision": "double"}, 0.05)
     refs["stiff"] = (phi, area)
     random_state = None
     if "random" in args.cases:
