@@ -173,6 +173,27 @@ def test_windows_agree_with_the_full_mesh_on_an_unstructured_channel():
 
 # -- transport by the Stokes flow, large steps, obstacles -----------------------------------
 
+def test_window_shape_tensors_are_the_integral_of_the_whole_fields():
+    """The compiled window pass gives −∫∇φ∇φᵀ of each field on the whole mesh, computed
+    here by the element gradient matrices, for discs inside, across the periodic seam and
+    elongated, in single and double precision."""
+    domain = straight(30.0, 24.0)
+    state = discs(domain, [[15.0, 12.0], [1.0, 8.0], [22.0, 15.0]], initial_radius=6.0)
+    state.fields[2] = state.fields[2] * np.linspace(0.2, 1.0, state.fields[2].size)  # no longer round
+    gx, gy = domain.operators.gradient
+    area = domain.operators.element_area
+    for dtype in (np.float64, np.float32):
+        layout, phi = state.flat()
+        tensors = domain.shape_moments(layout, phi.astype(dtype))[2]
+        for i, field in enumerate(state.global_fields()):
+            dx, dy = gx @ field, gy @ field
+            expected = -np.array([[area @ (dx * dx), area @ (dx * dy)], [area @ (dx * dy), area @ (dy * dy)]])
+            tolerance = 1e-12 if dtype == np.float64 else 1e-6  # of the tensor's scale: xy of a disc is ~0
+            assert np.abs(tensors[i] - expected).max() <= tolerance * np.abs(expected).max()
+    x = domain.coordinates[0][domain.window_dofs(state.windows[1])]
+    assert x.min() < 3.0 and x.max() > 27.0  # that window crosses the seam
+
+
 def test_a_boxs_dofs_found_by_strips_are_those_inside_it():
     # the strips only narrow the candidates; every box, across the seam, on dof
     # coordinates, past the walls or the whole period, gets exactly the dofs inside it

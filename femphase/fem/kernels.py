@@ -1,9 +1,10 @@
 """Compiled loops for the block-diagonal window matrices (numba), built as boxes follow
-their particles on a mesh, and for the vector updates of the CG that solves them and of
-the explicit advection that applies them.
+their particles on a mesh, for the vector updates of the CG that solves them and of the
+explicit advection that applies them, and for the windows' shape tensors.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the domains' kernels;
-imported only where windows are solved all at once (:mod:`femphase.fem.blocks`).
+imported only where windows are solved all at once (:mod:`femphase.fem.blocks`) or their
+shapes measured on a mesh (:func:`femphase.fem.operators.shape_tensors`).
 """
 
 from __future__ import annotations
@@ -11,7 +12,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["cg_direction", "cg_update", "jacobi_correction", "principal_block_entries", "principal_block_rows"]
+__all__ = ["cg_direction", "cg_update", "jacobi_correction", "principal_block_entries", "principal_block_rows",
+           "window_gradient_moments"]
 
 
 @numba.njit(inline="always", boundscheck=False)
@@ -106,3 +108,48 @@ def jacobi_correction(z: np.ndarray, y: np.ndarray, product: np.ndarray, inverse
     (``product`` = M z, ``inverse`` = D⁻¹), rounded as numpy's three passes round it."""
     for i in range(z.size):
         z[i] += (y[i] - product[i]) * inverse[i]
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def window_gradient_moments(indptr: np.ndarray, elements: np.ndarray, gx: np.ndarray, gy: np.ndarray,
+                            area: np.ndarray, node_index: np.ndarray, offsets: np.ndarray, phi: np.ndarray,
+                            slot: np.ndarray) -> np.ndarray:
+    """(windows, 3): ∫(∂xφ)², ∫(∂yφ)², ∫∂xφ ∂yφ of every window's P1 field, exactly (∇φ is
+    constant on each element). Window w holds positions ``offsets[w]:offsets[w + 1]``,
+    position p the value ``phi[p]`` at the dof ``node_index[p]``; the field is zero at every
+    other dof. The gradient by dof (CSC): the elements around a dof,
+    ``elements[indptr[dof]:indptr[dof + 1]]``, and its hat function's gradient on each
+    (``gx``, ``gy``); ``area`` per element. ``slot`` (n_elements,) is scratch, all −1, and
+    left so. Sums in double whatever φ's precision."""
+    n = offsets.size - 1
+    out = np.zeros((n, 3))
+    touched = np.empty(elements.size, dtype=np.int64)
+    ax = np.empty(elements.size)
+    ay = np.empty(elements.size)
+    for window in range(n):
+        count = 0
+        for p in range(offsets[window], offsets[window + 1]):
+            dof = node_index[p]
+            value = float(phi[p])
+            for k in range(indptr[dof], indptr[dof + 1]):
+                element = elements[k]
+                s = slot[element]
+                if s < 0:
+                    s = count
+                    slot[element] = s
+                    touched[s] = element
+                    ax[s] = 0.0
+                    ay[s] = 0.0
+                    count += 1
+                ax[s] += value * gx[k]
+                ay[s] += value * gy[k]
+        xx = yy = xy = 0.0
+        for s in range(count):
+            element = touched[s]
+            weight = area[element]
+            xx += weight * ax[s] * ax[s]
+            yy += weight * ay[s] * ay[s]
+            xy += weight * ax[s] * ay[s]
+            slot[element] = -1
+        out[window, 0], out[window, 1], out[window, 2] = xx, yy, xy
+    return out

@@ -34,7 +34,6 @@ from typing import Callable, Sequence
 
 import meshio
 import numpy as np
-import scipy.sparse as sp
 from scipy.spatial import cKDTree
 from skfem import MeshTri
 
@@ -394,10 +393,10 @@ class MeshDomain(Domain):
     def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Area with the nodal quadrature; shape tensor the exact integral of the P1 element
         gradients (on an irregular mesh its O(h²) bias varies with position)."""
-        fields = sp.csc_matrix((phi, (layout.node_index, layout.owner)), shape=(self.n_dofs, len(layout.windows)))
-        area = np.empty(len(layout.windows))
+        area, tensors = np.empty(len(layout.windows)), np.empty((len(layout.windows), 2, 2))
         area[layout.order] = layout.reduce(np.add, layout.mass * phi**2)
-        return area, self.centroids(layout, phi), shape_tensors(fields, self.operators)
+        tensors[layout.order] = shape_tensors(self.operators, layout.node_index, layout.offsets, phi)
+        return area, self.centroids(layout, phi), tensors
 
 
 def locate(mesh: MeshTri, points: np.ndarray, candidates: int = 12) -> np.ndarray:
