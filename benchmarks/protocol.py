@@ -103,6 +103,8 @@ def main() -> None:
     args = parser.parse_args()
     trees = {"new": ROOT} if args.old is None else {"new": ROOT, "old": args.old.resolve()}
     load = common.load_average()
+    # the code each child imports at its start: read now, as a tree's HEAD may move during the runs
+    commits = {name: _commit(tree) for name, tree in trees.items()}
     shear_time = second_phase_duration(args.duration, args.set)
     rows = {}
     with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
@@ -117,7 +119,7 @@ def main() -> None:
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps({
         "scene": f"examples/{args.scene}", "shear_time": shear_time, "sets": args.set, "runs": rows,
-        "trees": {name: {"path": str(tree), "commit": _commit(tree)} for name, tree in trees.items()},
+        "trees": {name: {"path": str(tree), "commit": commits[name]} for name, tree in trees.items()},
         "load_average": {"start": load, "end": common.load_average()},
         "command": "python benchmarks/protocol.py " + " ".join(sys.argv[1:])}, indent=2) + "\n")
 
