@@ -81,7 +81,7 @@ def test_cg_reaches_its_tolerance_on_the_window_systems(sheared, tolerance):
     matrix = (sp.diags(layout.mass / 3.3) + 0.12 * stiffness).tocsr()  # a substep of 3.3
     rhs = layout.mass * phi
     exact = spla.spsolve(matrix.tocsc(), rhs)
-    solution, iterations = conjugate_gradient(matrix.dot, matrix.diagonal(), rhs, np.zeros_like(rhs), tolerance)
+    solution, iterations, _ = conjugate_gradient(matrix.dot, matrix.diagonal(), rhs, np.zeros_like(rhs), tolerance)
     assert 0 < iterations < 60
     # the stopping rule bounds the preconditioned residual; the error is that times κ (a few)
     assert np.abs(solution - exact).max() <= 10 * tolerance * np.abs(rhs / matrix.diagonal()).max()
@@ -194,3 +194,48 @@ def test_a_new_layout_drops_every_block_kept_for_the_ones_before():
             step.solve(phi, phi, layout, 1.0 / dt, 0.0)
         kept = domain._layout_blocks.items()  # the map, two systems and their diagonals
         assert len(kept) == 5 and all(entry[0] is layout for _, entry in kept)
+
+
+def test_cg_started_with_the_product_of_its_guess_spares_that_product(sheared):
+    domain, _, layout, phi = sheared
+    system = domain.window_operator(layout, "stiffness") + sp.diags(np.full(phi.size, 2.0))
+    rhs, guess = np.cos(np.arange(phi.size)), 0.5 * phi
+    calls = []
+
+    def apply(x):
+        calls.append(1)
+        return system @ x
+
+    plain = conjugate_gradient(apply, system.diagonal(), rhs, guess, 1e-8)
+    used = len(calls)
+    spared = conjugate_gradient(apply, system.diagonal(), rhs, guess, 1e-8, guess_product=system @ guess)
+    assert len(calls) - used == used - 1  # the same iterations, one product fewer
+    assert np.array_equal(plain[0], spared[0]) and plain[1] == spared[1]
+    assert np.allclose(plain[2], rhs - system @ plain[0], atol=1e-10)  # the final residual
+
+
+@pytest.mark.parametrize("scheme, substep", [("adaptive", 10.0 / 3), ("sav2", 10.0)])
+def test_the_midpoint_solve_starts_from_the_predictors_residual(monkeypatch, scheme, substep):
+    """Under flow the midpoint solve takes A·2φ̄ from the predictor's final residual, its
+    stabilisation taken off (none at the adaptive default's substeps, some at sav2's 10),
+    instead of a product: the same fields as with the product (within the solves'
+    tolerance), where a wrong start would move the solution by itself."""
+    from femphase.flows import flow_from_spec
+    from femphase.timestepping import stepper as stepper_module
+
+    def run():
+        domain = straight(40.0, 40.0)
+        state = discs(domain, [[12.0, 14.0], [27.0, 26.0]], initial_radius=6.0)
+        step = Stepper(domain, PARAMS, Numerics(scheme=scheme, precision="double"), 10.0,
+                       flow_from_spec({"type": "shear", "rate": 0.5}, domain), state.radii)
+        assert step.batched and (step.scheme.predictor_stabilisation(substep) > 0.0) == (scheme == "sav2")
+        for _ in range(3):
+            step.step(state)
+        return state.flat()[1]
+
+    spared = run()
+    original = stepper_module.conjugate_gradient
+    monkeypatch.setattr(stepper_module, "conjugate_gradient",
+                        lambda *args, guess_product=None, **kwargs: original(*args, **kwargs))
+    multiplied = run()
+    assert 0.0 < np.abs(spared - multiplied).max() < 1e-6

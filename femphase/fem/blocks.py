@@ -96,31 +96,33 @@ class BlockPattern:
 
 
 def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.ndarray, rhs: np.ndarray,
-                       guess: np.ndarray, tolerance: float, maxiter: int = 1000) -> tuple[np.ndarray, int]:
+                       guess: np.ndarray, tolerance: float, maxiter: int = 1000,
+                       guess_product: np.ndarray | None = None) -> tuple[np.ndarray, int, np.ndarray]:
     """Solve A x = rhs for a real symmetric positive definite A (``apply``: x ↦ A x) by CG
-    with the Jacobi preconditioner ``diagonal``, from ``guess``. Stops when the
-    preconditioned residual's max-norm, max|D⁻¹ r|, is at most ``tolerance`` times
-    max|D⁻¹ rhs|: for a mass-dominated A, D⁻¹r is the solution's error up to the condition
-    number, in the solution's units. The vector updates run compiled, one pass each
-    (:func:`femphase.fem.kernels.cg_update`). Returns (x, iterations); raises KrylovError
-    after ``maxiter``."""
+    with the Jacobi preconditioner ``diagonal``, from ``guess`` (``guess_product``: A·guess,
+    where the caller knows it without a product). Stops when the preconditioned residual's
+    max-norm, max|D⁻¹ r|, is at most ``tolerance`` times max|D⁻¹ rhs|: for a mass-dominated
+    A, D⁻¹r is the solution's error up to the condition number, in the solution's units. The
+    vector updates run compiled, one pass each (:func:`femphase.fem.kernels.cg_update`).
+    Returns (x, iterations, r), r the final residual rhs − A x as CG updated it; raises
+    KrylovError after ``maxiter``."""
     from femphase.fem import kernels  # numba loads only where windows are solved at once
 
     x = np.array(guess, dtype=np.result_type(rhs, guess), copy=True)
     inverse = (1.0 / diagonal).astype(x.dtype, copy=False)
     goal = tolerance * max(float(np.max(np.abs(inverse * rhs))), np.finfo(float).tiny)
-    r = (rhs - apply(x)).astype(x.dtype, copy=False)
+    r = (rhs - (apply(x) if guess_product is None else guess_product)).astype(x.dtype, copy=False)
     z = inverse * r
     largest = float(np.max(np.abs(z)))
     if largest <= goal:
-        return x, 0
+        return x, 0, r
     p = z
     rz = float(np.dot(r, z))
     for iteration in range(1, maxiter + 1):
         q = apply(p)
         largest, next_rz = kernels.cg_update(x, r, p, q, inverse, rz / float(np.dot(p, q)))
         if largest <= goal:
-            return x, iteration
+            return x, iteration, r
         kernels.cg_direction(p, r, inverse, next_rz / rz)
         rz = next_rz
     raise KrylovError(f"CG did not reach the relative residual {tolerance:g} in {maxiter} iterations "

@@ -77,6 +77,8 @@ class Stepper:
         self.batched = domain.solves_batched(numerics)
         #: CG iterations of the batched solves so far (a diagnostic)
         self.krylov_iterations = 0
+        #: the last batched solve's right-hand side and final residual (:meth:`last_product`)
+        self._last_solve: tuple[np.ndarray, np.ndarray] | None = None
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
@@ -125,11 +127,12 @@ class Stepper:
 
     def solve(self, nodal_rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
               stabilisation: float, guess: np.ndarray | None = None,
-              tolerance: float | None = None) -> np.ndarray:
+              tolerance: float | None = None, guess_product: np.ndarray | None = None) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order). ``guess`` (default ``previous``) starts the
         iterative solvers (batched CG, AMG); the others are exact. ``tolerance`` (default
-        ``numerics.krylov_tolerance``) stops the batched CG."""
+        ``numerics.krylov_tolerance``) stops the batched CG; ``guess_product``, the system
+        times ``guess`` where the caller knows it, spares the batched CG its first product."""
         lumped = self.lumped
         if lumped:  # M_L (nodal_rhs + shift·previous), in place
             rhs = previous * shift
@@ -140,7 +143,8 @@ class Stepper:
         if self.batched:
             return self._solve_batched(rhs, previous, layout, shift, stabilisation,
                                        previous if guess is None else guess,
-                                       self.numerics.krylov_tolerance if tolerance is None else tolerance)
+                                       self.numerics.krylov_tolerance if tolerance is None else tolerance,
+                                       guess_product)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
@@ -153,8 +157,18 @@ class Stepper:
             out[start:stop].reshape(members.size, size).T[...] = solver.solve(group_rhs, start_from)
         return out
 
+    def last_product(self) -> np.ndarray:
+        """A x of the last batched solve's system and solution x, as rhs − r from its final
+        residual r (no product; the residual as CG updated it, which differs from the true
+        one by rounding). Valid until the next batched solve."""
+        if self._last_solve is None:
+            raise RuntimeError("last_product: no batched solve has run")
+        rhs, residual = self._last_solve
+        return rhs - residual
+
     def _solve_batched(self, rhs: np.ndarray, previous: np.ndarray, layout: Layout, shift: float,
-                       stabilisation: float, guess: np.ndarray, tolerance: float) -> np.ndarray:
+                       stabilisation: float, guess: np.ndarray, tolerance: float,
+                       guess_product: np.ndarray | None = None) -> np.ndarray:
         """All windows at once: Jacobi-preconditioned CG on the block-diagonal matrix of the
         windows' systems, started from ``guess``, to the relative ``tolerance``. The system's
         blocks come from the full-domain system in one gather per layout, so that an
@@ -169,8 +183,10 @@ class Stepper:
         diagonal = self.domain.window_diagonal(layout, ("system diagonal", key), full_diagonal)
         if not self.lumped:
             rhs = rhs + shift * (self.domain.window_operator(layout, "mass") @ previous)
-        solution, iterations = conjugate_gradient(system.__matmul__, diagonal, rhs, guess, tolerance)
+        solution, iterations, residual = conjugate_gradient(system.__matmul__, diagonal, rhs, guess, tolerance,
+                                                            guess_product=guess_product)
         self.krylov_iterations += iterations
+        self._last_solve = (rhs, residual)
         return solution.astype(previous.dtype, copy=False)
 
     def _solver(self, key, window, shift: float, stabilisation: float) -> tuple:
