@@ -40,8 +40,7 @@ class P1Operators:
     lumped_mass       (n_dofs,) row sums of M: the nodal quadrature weights (area per node)
     gradient          (2, n_elements, n_dofs) sparse pair: ∂x and ∂y of a P1 field per element
     element_area      (n_elements,)
-    dof_gradients     the same by dof, in CSC form: (indptr (n_dofs + 1,), elements, ∂x, ∂y),
-                      the elements around each dof and its hat function's gradient on each
+    dof_gradients     the gradient by dof (CSC): indptr, elements around each dof, ∂x and ∂y
     """
 
     mass: sp.csr_matrix
