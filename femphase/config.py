@@ -87,15 +87,17 @@ class Numerics:
                     docs/decisions/0008-merged-steps.md); results then depend on where calls
                     end, at the level of the splitting error. Other schemes step one by one;
                     trackers' ``after_step`` runs after every call
-    precision       "mixed" (default): under flow on the structured channel, each stepper
-                    call computes in single precision (float32) on a working copy of the
-                    fields: forces, tensor solves, row-shift FFTs, error estimates; the state
+    precision       "mixed" (default): under flow on the structured channel and on meshes
+                    with batched solves, each stepper call computes in single precision
+                    (float32) on a working copy of the fields: forces, tensor solves,
+                    row-shift FFTs, a mesh's CG solves and advection, error estimates; the state
                     between calls (at frames, T1 looks, every merged_steps steps), checkpoints,
                     observables and energies are double. Rounding ~1e-6 relative, against the
                     default scheme's time error of ~1e-2 (docs/decisions/0012-single-precision-flow-steps.md
                     gives the CPU saved and the errors, unchanged). Phases without flow
                     compute in double (their steps must not raise F, checked to 1e-12), and
-                    so do meshes and the finite-difference reference, and the adaptive
+                    so do meshes with per-box solvers ("direct", "amg": their LU and Padé
+                    solves are double only), the finite-difference reference and the adaptive
                     scheme's flow steps at tolerance_t below 1e-4, where single precision's
                     rounding would set the error (:attr:`Numerics.SINGLE_PRECISION_TOLERANCE`).
                     "double": everything in double, for convergence studies whose errors

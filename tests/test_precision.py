@@ -2,7 +2,9 @@
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from helpers import small_system
+from test_unstructured import PARAMS, discs, straight
 
 from femphase.config import Numerics
 from femphase.domains.grid.advection import row_phases, shift_rows
@@ -12,7 +14,7 @@ from femphase.domains.grid.windows import Window
 from femphase.domains.mesh.domain import MeshDomain
 from femphase.domains.mesh.generation import structured_channel
 from femphase.errors import SceneError
-from femphase.flows import linear_shear
+from femphase.flows import linear_shear, poiseuille
 from femphase.model.parameters import ModelParameters
 from femphase.timestepping.stepper import Stepper
 
@@ -67,8 +69,43 @@ def test_single_precision_only_where_it_applies():
                                  ("fd-heun", shear, False)):  # the FD reference stays double
         stepper = Stepper(domain, ModelParameters(), Numerics(scheme=scheme), 0.1, flow, state.radii)
         assert stepper.single_precision == single, scheme
-    mesh = MeshDomain.from_mesh(*structured_channel(40.0, 40.0, 1.0))  # LU and Padé solves: double
-    assert not Stepper(mesh, ModelParameters(), Numerics(), 1.0, shear, state.radii).single_precision
+    mesh = MeshDomain.from_mesh(*structured_channel(40.0, 40.0, 1.0))
+    # batched CG solves and explicit advection (the meshes' default) have single-precision
+    # paths; per-box LU and Padé solves are double only
+    assert Stepper(mesh, ModelParameters(), Numerics(), 1.0, shear, state.radii).single_precision
+    for solver in ("direct", "amg"):
+        assert not Stepper(mesh, ModelParameters(), Numerics(solver=solver), 1.0, shear,
+                           state.radii).single_precision
+
+
+def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
+    products = []
+    original = sp.csr_matrix.__matmul__
+
+    def counted(matrix, vector):
+        products.append((matrix.dtype, vector.dtype))
+        return original(matrix, vector)
+
+    runs = {}
+    for precision in ("mixed", "double"):
+        domain = straight(40.0, 40.0)
+        state = discs(domain, [[12.0, 14.0], [27.0, 26.0]])
+        stepper = Stepper(domain, PARAMS, Numerics(precision=precision), 10.0, poiseuille(0.5, 40.0), state.radii)
+        assert stepper.single_precision == (precision == "mixed")
+        stepper.step(state)  # the first call estimates the advection's frequency, in double
+        products.clear()
+        monkeypatch.setattr(sp.csr_matrix, "__matmul__", counted)
+        for _ in range(4):
+            stepper.step(state)
+        monkeypatch.undo()
+        kinds = {np.dtype(np.float32 if precision == "mixed" else np.float64)}
+        # every sparse product of the solves and the advection in the step's precision: a
+        # float64 operand would promote it to double
+        assert products and {np.dtype(a) for a, b in products} == kinds == {np.dtype(b) for a, b in products}
+        runs[precision] = state.global_fields()
+        assert all(field.dtype == np.float64 for field in state.fields)  # the state stays double
+    difference = np.abs(runs["mixed"] - runs["double"]).max()
+    assert 1e-9 < difference < 2e-5  # 7.5e-7 when written
 
 
 def test_an_unknown_precision_is_refused_by_name():

@@ -55,10 +55,6 @@ class Domain(ABC):
     """A periodic channel with walls and its P1 space (see the module docstring)."""
 
     kind: ClassVar[str]
-    #: whether flow steps may compute in single precision (``numerics.precision = "mixed"``):
-    #: the structured channel's, whose tensor solves and row shifts have single-precision
-    #: paths; meshes' steps are double only
-    single_precision_steps: ClassVar[bool] = False
     #: whether ``numerics.solver = "auto"`` solves all windows at once by a Krylov method on
     #: their block-diagonal matrix (:mod:`femphase.fem.blocks`) rather than one solver per
     #: window key: meshes, whose every box is its own submatrix, so a factorisation per box
@@ -210,6 +206,12 @@ class Domain(ABC):
         out[layout.order, 1] = layout.reduce(np.add, weight * y) / total
         return out
 
+    def single_precision_steps(self, numerics: Numerics) -> bool:
+        """Whether flow steps may compute in single precision (``numerics.precision =
+        "mixed"``): where every solve and advection has a single-precision path. Not here;
+        the structured channel and meshes with batched solves say so."""
+        return False
+
     def solves_batched(self, numerics: Numerics) -> bool:
         """Whether windows are solved all at once (:mod:`femphase.fem.blocks`): ``numerics.solver``
         "batched", or "auto" on a domain with :attr:`batched_solves`."""
@@ -231,8 +233,11 @@ class Domain(ABC):
         return aligned_data(matrix, self.block_pattern)
 
     @cached_property
-    def _operator_data(self) -> dict[str, np.ndarray]:
-        return {"mass": self.aligned(self.operators.mass), "stiffness": self.aligned(self.operators.stiffness)}
+    def _operator_data(self) -> dict[tuple[str, type], np.ndarray]:
+        """The P1 mass and stiffness aligned to :attr:`block_pattern`, in double and single
+        precision, by (name, dtype)."""
+        double = {"mass": self.aligned(self.operators.mass), "stiffness": self.aligned(self.operators.stiffness)}
+        return {(name, dtype): data.astype(dtype) for name, data in double.items() for dtype in (np.float64, np.float32)}
 
     #: The default of :attr:`caches`' limit (``numerics.cache_mib`` sets it for a scene).
     CACHE_BYTES = 256 * 2**20
@@ -274,10 +279,12 @@ class Domain(ABC):
         kept under ``name`` for the last layout asked."""
         return self.per_layout(layout, name, lambda: self.window_blocks(layout).block(aligned), tag=aligned)
 
-    def window_operator(self, layout: Layout, name: str) -> sp.csr_matrix:
+    def window_operator(self, layout: Layout, name: str, dtype: type = np.float64) -> sp.csr_matrix:
         """The block-diagonal matrix of every window's principal submatrix of the P1
-        operator ``name`` ("mass" or "stiffness"), for the last layout asked."""
-        return self.window_matrix(layout, name, self._operator_data[name])
+        operator ``name`` ("mass" or "stiffness") with entries of ``dtype`` (float64, or
+        float32 for single-precision steps), for the last layout asked."""
+        dtype = np.dtype(dtype).type
+        return self.window_matrix(layout, (name, dtype), self._operator_data[name, dtype])
 
     def window_diagonal(self, layout: Layout, name: Hashable, diagonal: np.ndarray) -> np.ndarray:
         """The diagonal of :meth:`window_matrix` from the full matrix's ``diagonal``: a

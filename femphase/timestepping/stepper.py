@@ -82,7 +82,7 @@ class Stepper:
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
-                                 and domain.single_precision_steps and self.scheme.mixed_precision)
+                                 and domain.single_precision_steps(numerics) and self.scheme.mixed_precision)
 
     @property
     def mobility(self) -> float:
@@ -175,14 +175,17 @@ class Stepper:
         iteration is one sparse product (the mass and stiffness blocks applied apart and
         summed were two products and five vector passes: 1.2–1.7 against 1.0–1.1 ms per
         iteration in a run of examples/straight_mesh.toml, decision record 0024)."""
+        # the system in the right-hand side's precision: float32 in single-precision steps,
+        # where a float64 matrix would promote every product to double
+        dtype = np.dtype(rhs.dtype).type
         key = (shift, stabilisation)
         matrix = self.system(shift, stabilisation)[0]
         aligned, full_diagonal = self._systems.setdefault(
-            ("aligned", key), lambda: (self.domain.aligned(matrix), matrix.diagonal()))
-        system = self.domain.window_matrix(layout, ("system", key), aligned)
+            ("aligned", key, dtype), lambda: (self.domain.aligned(matrix).astype(dtype), matrix.diagonal()))
+        system = self.domain.window_matrix(layout, ("system", key, dtype), aligned)
         diagonal = self.domain.window_diagonal(layout, ("system diagonal", key), full_diagonal)
         if not self.lumped:
-            rhs = rhs + shift * (self.domain.window_operator(layout, "mass") @ previous)
+            rhs = rhs + shift * (self.domain.window_operator(layout, "mass", dtype) @ previous)
         solution, iterations, residual = conjugate_gradient(system.__matmul__, diagonal, rhs, guess, tolerance,
                                                             guess_product=guess_product)
         self.krylov_iterations += iterations

@@ -69,7 +69,6 @@ class GridDomain(Domain):
     units; optional `mesh`, a meshio file of the same lattice's triangulation)."""
 
     kind = "grid"
-    single_precision_steps = True
 
     def __init__(self, grid: ChannelGrid, diagonals: str = "right", mesh=None) -> None:
         """``mesh``: a non-periodic MeshTri whose nodes are the grid's (e.g. read from a
@@ -133,6 +132,11 @@ class GridDomain(Domain):
         return np.stack([np.concatenate([x, x]), np.concatenate([np.zeros_like(x), np.full_like(x, self.grid.width)])])
 
     # -- windows --------------------------------------------------------------------------
+    def single_precision_steps(self, numerics: Numerics) -> bool:
+        # the tensor solves and row shifts have single-precision paths
+        # (docs/decisions/0012-single-precision-flow-steps.md)
+        return True
+
     def window_policy(self, numerics: Numerics) -> WindowPolicy:
         return WindowPolicy.for_spacing(self.grid.h, threshold=numerics.threshold, margin=numerics.margin,
                                         enabled=numerics.windows)

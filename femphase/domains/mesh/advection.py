@@ -234,13 +234,17 @@ class GalerkinRungeKutta(GalerkinAdvection):
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
         self._step_from(time)
-        aligned = self._per_flow("aligned", lambda: self.domain.aligned(self.advection))
-        advection = self.domain.window_matrix(layout, "advection", aligned)
-        mass, inverse_lumped = self.domain.window_operator(layout, "mass"), 1.0 / layout.mass
+        # in the fields' precision (float32 in single-precision steps): matrices and vectors
+        # alike, so that no product is promoted to double
+        dtype = np.dtype(phi.dtype).type
+        aligned = self._per_flow(f"aligned {dtype.__name__}", lambda: self.domain.aligned(self.advection).astype(dtype))
+        advection = self.domain.window_matrix(layout, ("advection", dtype), aligned)
+        mass = self.domain.window_operator(layout, "mass", dtype)
+        inverse_lumped = (1.0 / layout.mass).astype(dtype)
 
         substeps = self.substeps
         h = self.dt / substeps
-        x = phi.astype(np.float64)
+        x = phi
         for _ in range(substeps):
             # Σ_{k≤s} (−hPC)^k/k! x by Horner: on a linear, autonomous equation every
             # Runge–Kutta method of s stages and order s is this polynomial, at s products
@@ -250,4 +254,4 @@ class GalerkinRungeKutta(GalerkinAdvection):
                 y *= -h / k
                 y += x
             x = y
-        return x.astype(phi.dtype, copy=False), layout
+        return x, layout

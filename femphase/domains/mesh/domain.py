@@ -262,6 +262,12 @@ class MeshDomain(Domain):
         low, high = self.y_range
         return (self.x0, self.period, low, high)
 
+    def single_precision_steps(self, numerics: Numerics) -> bool:
+        # the batched CG solves and the explicit advection apply block-diagonal matrices
+        # in the fields' precision; per-box LU and Padé solves are double only
+        # (docs/decisions/0028-single-precision-mesh-steps.md)
+        return self.solves_batched(numerics)
+
     def window_policy(self, numerics: Numerics) -> BoxPolicy:
         # boxes refitted together serve the windows solved all at once: a layout costs the
         # same however many boxes change, a factorisation per box does not
@@ -355,7 +361,7 @@ class MeshDomain(Domain):
             float(self.period), float(policy.threshold))
         slot = np.empty(len(boxes), dtype=int)
         slot[layout.order] = np.arange(len(boxes))
-        scratch = np.zeros(self.n_dofs)
+        scratch = np.zeros(self.n_dofs, dtype=phi.dtype)  # a single-precision step's fields stay so
         for i in np.flatnonzero(policy.misfits(extents, boxes, self.extent, steps)):
             box = boxes[i]
             if box.width >= self.period:
