@@ -65,6 +65,24 @@ def run_phases(scene):
     return state, cpu, iterations, stepper
 
 
+STRAIGHT_MESH_SCENE = Path(__file__).parents[1] / "examples" / "straight_mesh.toml"
+
+
+def straight_mesh_variant(variant: str, relax: float, flow: float, output: Path, flow_dt: float = 10.0,
+                          sets: tuple[str, ...] = ()) -> dict:
+    """One variant of examples/straight_mesh.toml (dt = 10 unless ``flow_dt`` sets the flow
+    phase's, ``sets`` further overrides) relaxed ``relax`` and run ``flow`` time units under
+    its Stokes flow by :func:`run_phases`; its end state goes to ``output``
+    (:func:`save_end_state`). The record of a variant script's child (:func:`variant_runs`)."""
+    scene = load_scene(STRAIGHT_MESH_SCENE, ["phases.0.dt=10.0", f"phases.1.dt={flow_dt}",
+                                             f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+                                             "output.fields=false", *sets])
+    state, cpu, iterations, stepper = run_phases(scene)
+    save_end_state(state, stepper, output)
+    return {"variant": variant, "cpu_s": cpu, "cg_iterations": iterations,
+            "positions": int(sum(field.size for field in state.fields)), "period": float(stepper.domain.period)}
+
+
 def save_end_state(state, stepper, output: Path) -> None:
     """Every particle's field on the whole domain (zero outside its window), its centroid and
     its area at the end of a run, to ``output`` (.npz), for :func:`differences`."""

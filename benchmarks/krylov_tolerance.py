@@ -25,7 +25,6 @@ from pathlib import Path
 
 import common  # pins BLAS threads (for the children too); run_phases, differences
 
-ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "krylov_tolerance.json"
 VARIANTS = ("exact", "default", "tight_predictor", "dt_2.5")
 
@@ -33,20 +32,12 @@ VARIANTS = ("exact", "default", "tight_predictor", "dt_2.5")
 def child(variant: str, relax: float, flow: float, output: Path) -> dict:
     """Run ``variant`` in this process; its fields, centroids and areas go to ``output`` (.npz)."""
     from femphase.config import Numerics
-    from femphase.scene import load_scene
 
     if variant == "exact":
         Numerics.KRYLOV_FRACTION = Numerics.PREDICTOR_KRYLOV_FRACTION = 1e-9  # → tolerance, 1e-10
     elif variant == "tight_predictor":
         Numerics.PREDICTOR_KRYLOV_FRACTION = 1e-5
-    flow_dt = 2.5 if variant == "dt_2.5" else 10.0
-    scene = load_scene(ROOT / "examples" / "straight_mesh.toml", [
-        "phases.0.dt=10.0", f"phases.1.dt={flow_dt}", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
-        "output.fields=false"])
-    state, cpu, iterations, stepper = common.run_phases(scene)
-    common.save_end_state(state, stepper, output)
-    return {"variant": variant, "cpu_s": cpu, "cg_iterations": iterations,
-            "positions": int(sum(field.size for field in state.fields)), "period": float(stepper.domain.period)}
+    return common.straight_mesh_variant(variant, relax, flow, output, 2.5 if variant == "dt_2.5" else 10.0)
 
 
 def main() -> None:
