@@ -104,6 +104,15 @@ def differences(reference: Path, other: Path, period: float) -> dict:
             "max_relative_area": float(np.max(np.abs(b["areas"] - a["areas"]) / a["areas"]))}
 
 
+def print_differences(runs: dict, against: str, describe: Callable[[dict], str]) -> None:
+    """One line per variant compared ``against`` the first (:func:`variant_runs`): what
+    ``describe(record)`` says, then its largest differences in φ, a centroid and an area."""
+    for variant, run in list(runs.items())[1:]:
+        d = run[against]
+        print(f"{variant}: {describe(run)}; {against.replace('_', ' ')}: φ {d['max_phi']:.2g}, "
+              f"centroid {d['max_centroid']:.2g}, area {d['max_relative_area']:.2g}")
+
+
 def variant_arguments(description: str, variants: tuple[str, ...], flow: float, result: Path) -> argparse.Namespace:
     """The command line of a script that runs ``variants`` of a mesh run in child processes
     (:func:`variant_runs`): ``--relax``, ``--flow`` (default ``flow``), ``--output``."""

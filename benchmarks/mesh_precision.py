@@ -40,11 +40,8 @@ def main() -> None:
     runs = common.variant_main(__file__, __doc__, VARIANTS, 800.0, RESULT, child, "against_double")
     if runs is None:
         return
-    for variant in VARIANTS[1:]:
-        d, run = runs[variant]["against_double"], runs[variant]
-        print(f"{variant}: flow CPU {run['cpu_s'][1]:.2f} s (double {runs['double']['cpu_s'][1]:.2f}), "
-              f"against double: φ {d['max_phi']:.2g}, centroid {d['max_centroid']:.2g}, "
-              f"area {d['max_relative_area']:.2g}")
+    common.print_differences(runs, "against_double", lambda run: (
+        f"flow CPU {run['cpu_s'][1]:.2f} s (double {runs['double']['cpu_s'][1]:.2f})"))
 
 
 if __name__ == "__main__":
