@@ -206,6 +206,12 @@ def test_a_boxs_dofs_found_by_strips_are_those_inside_it():
     boxes += [Box(domain.x0, 40.0, 0.0, 30.0), Box(domain.x0 + 35.0, 40.0, 5.0, 9.0)]
     for box in boxes:
         np.testing.assert_array_equal(domain.window_dofs(box), np.flatnonzero(box.contains(x, y, domain.period)))
+    # all at once, as a refit finds them (duplicates among them), on a domain that has none kept
+    fresh = straight(40.0, 30.0)
+    fresh.find_window_dofs(boxes + boxes[:5])
+    assert all(box in fresh._dofs for box in boxes)
+    for box in boxes:
+        np.testing.assert_array_equal(fresh._dofs.get(box), domain.window_dofs(box))
 
 
 def test_the_compiled_extents_are_numpys_masked_reductions():

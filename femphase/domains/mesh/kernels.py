@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["dofs_in_strips", "occupied_extents"]
+__all__ = ["dofs_in_boxes", "occupied_extents"]
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -42,25 +42,45 @@ def occupied_extents(phi: np.ndarray, node_index: np.ndarray, offsets: np.ndarra
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def dofs_in_strips(order: np.ndarray, keys: np.ndarray, strips: np.ndarray, span: float, y_low: float,
-                   pad: float, x: np.ndarray, y: np.ndarray, x0: float, width: float, y0: float, y1: float,
-                   period: float) -> np.ndarray:
-    """The dofs inside the box x0 + [0, width] (mod ``period``) × [y0, y1], sorted, tested
-    among the dofs of ``strips``: ``order`` holds the dofs sorted by ``keys`` = strip · span
-    + (y − y_low) (:meth:`~femphase.domains.mesh.domain.MeshDomain._dofs_inside`), ``pad`` the
-    keys' rounding. The test is :meth:`~femphase.domains.mesh.boxes.Box.contains`'s, to the
-    bit."""
-    begins = np.searchsorted(keys, strips * span + (y0 - y_low) - pad, side="left")
-    ends = np.searchsorted(keys, strips * span + (y1 - y_low) + pad, side="right")
-    total = 0
-    for s in range(strips.size):
-        total += max(ends[s] - begins[s], 0)
-    out = np.empty(total, dtype=order.dtype)
-    count = 0
-    for s in range(strips.size):
-        for k in range(begins[s], ends[s]):
-            dof = order[k]
-            if (x[dof] - x0) % period <= width and y[dof] >= y0 and y[dof] <= y1:
-                out[count] = dof
-                count += 1
-    return np.sort(out[:count])
+def dofs_in_boxes(order: np.ndarray, keys: np.ndarray, span: float, y_low: float, pad: float, x: np.ndarray,
+                  y: np.ndarray, boxes: np.ndarray, period: float, x_origin: float, strip_width: float,
+                  count: int) -> tuple[np.ndarray, np.ndarray]:
+    """(dofs, offsets): the dofs inside each box (rows of ``boxes``: x0, width, y0, y1; x0 +
+    [0, width] mod ``period`` × [y0, y1]), sorted, box b's in ``dofs[offsets[b]:offsets[b +
+    1]]``. Tested among the dofs of the strips each box crosses, one more on each side (dofs
+    on a strip's edge, rounding), all ``count`` strips for a box within one strip of the
+    whole period: ``order`` holds the dofs sorted by ``keys`` = strip · span + (y − y_low)
+    (:meth:`~femphase.domains.mesh.domain.MeshDomain._dofs_inside`), strips of
+    ``strip_width`` from ``x_origin``, ``pad`` the keys' rounding. The test is
+    :meth:`~femphase.domains.mesh.boxes.Box.contains`'s, to the bit."""
+    n = boxes.shape[0]
+    crossed = np.zeros((n, count), dtype=np.bool_)
+    bound = 0
+    for b in range(n):
+        x0, width, y0, y1 = boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3]
+        if width >= period - strip_width:
+            crossed[b, :] = True
+        else:
+            first = int(np.floor((x0 - x_origin) / strip_width)) - 1
+            for j in range(int(np.ceil(width / strip_width)) + 3):
+                crossed[b, (first + j) % count] = True
+        for s in range(count):
+            if crossed[b, s]:
+                bound += max(np.searchsorted(keys, s * span + (y1 - y_low) + pad, side="right")
+                             - np.searchsorted(keys, s * span + (y0 - y_low) - pad, side="left"), 0)
+    dofs = np.empty(bound, dtype=order.dtype)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    filled = 0
+    for b in range(n):
+        x0, width, y0, y1 = boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3]
+        for s in range(count):
+            if crossed[b, s]:
+                for k in range(np.searchsorted(keys, s * span + (y0 - y_low) - pad, side="left"),
+                               np.searchsorted(keys, s * span + (y1 - y_low) + pad, side="right")):
+                    dof = order[k]
+                    if (x[dof] - x0) % period <= width and y[dof] >= y0 and y[dof] <= y1:
+                        dofs[filled] = dof
+                        filled += 1
+        dofs[offsets[b]:filled].sort()
+        offsets[b + 1] = filled
+    return dofs[:filled], offsets
