@@ -144,7 +144,7 @@ ROWS = (
         "benchmarks/results/stability.json", _stability, "python benchmarks/stability.py"),
     Row("the random packing on the unstructured straight mesh against the structured channel (Poiseuille, "
         "N = 100, dt = 10), same run", "benchmarks/results/mesh_parity.json", _mesh_parity,
-        "python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 2 --direct"),
+        "python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct"),
     Row("the paper's protocol on the meshed obstacle channel (examples/obstacle_mesh.toml: relax 2000 + Stokes "
         "flow 10⁵ time units, dt = 10), two trees at once on the 2 cores",
         "benchmarks/results/protocol_obstacle_single.json", _protocol_beside,
