@@ -13,7 +13,7 @@ alternate, ``--repeats`` times, and the ratios are mesh/grid within the same run
   and a complex LU per window for the advection) as a third kind, with ``--direct``.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \\
-        python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 2 --direct
+        python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct
 """
 
 from __future__ import annotations
