@@ -69,33 +69,31 @@ def dofs_in_boxes(order: np.ndarray, keys: np.ndarray, span: float, y_low: float
     ``strip_width`` from ``x_origin``, ``pad`` the keys' rounding. The test is
     :meth:`~femphase.domains.mesh.boxes.Box.contains`'s, to the bit."""
     n = boxes.shape[0]
-    crossed = np.zeros((n, count), dtype=np.bool_)
-    bound = 0
+    # the candidates of box b in strip s: order[begins[b, s]:ends[b, s]], empty where b does
+    # not cross s (a set of strips: a box over the seam names no strip twice)
+    begins = np.zeros((n, count), dtype=np.int64)
+    ends = np.zeros((n, count), dtype=np.int64)
     for b in range(n):
         x0, width, y0, y1 = boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3]
         if width >= period - strip_width:
-            crossed[b, :] = True
+            first, crossed = 0, count
         else:
-            first = int(np.floor((x0 - x_origin) / strip_width)) - 1
-            for j in range(int(np.ceil(width / strip_width)) + 3):
-                crossed[b, (first + j) % count] = True
-        for s in range(count):
-            if crossed[b, s]:
-                bound += max(np.searchsorted(keys, s * span + (y1 - y_low) + pad, side="right")
-                             - np.searchsorted(keys, s * span + (y0 - y_low) - pad, side="left"), 0)
-    dofs = np.empty(bound, dtype=order.dtype)
+            first, crossed = int(np.floor((x0 - x_origin) / strip_width)) - 1, int(np.ceil(width / strip_width)) + 3
+        for j in range(crossed):
+            s = (first + j) % count
+            begins[b, s] = np.searchsorted(keys, s * span + (y0 - y_low) - pad, side="left")
+            ends[b, s] = max(np.searchsorted(keys, s * span + (y1 - y_low) + pad, side="right"), begins[b, s])
+    dofs = np.empty(int((ends - begins).sum()), dtype=order.dtype)
     offsets = np.zeros(n + 1, dtype=np.int64)
     filled = 0
     for b in range(n):
         x0, width, y0, y1 = boxes[b, 0], boxes[b, 1], boxes[b, 2], boxes[b, 3]
         for s in range(count):
-            if crossed[b, s]:
-                for k in range(np.searchsorted(keys, s * span + (y0 - y_low) - pad, side="left"),
-                               np.searchsorted(keys, s * span + (y1 - y_low) + pad, side="right")):
-                    dof = order[k]
-                    if _local_x(x[dof], x0, period) <= width and y[dof] >= y0 and y[dof] <= y1:
-                        dofs[filled] = dof
-                        filled += 1
+            for k in range(begins[b, s], ends[b, s]):
+                dof = order[k]
+                if _local_x(x[dof], x0, period) <= width and y[dof] >= y0 and y[dof] <= y1:
+                    dofs[filled] = dof
+                    filled += 1
         dofs[offsets[b]:filled].sort()
         offsets[b + 1] = filled
     return dofs[:filled], offsets
