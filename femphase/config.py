@@ -51,8 +51,8 @@ class Numerics:
                     applies, else LU up to DIRECT_MAX_DOFS, else AMG
     tolerance       relative residual of the Krylov solves ("amg": 2-norm; "batched":
                     max|D⁻¹r| against max|D⁻¹b|, D the diagonal; under the adaptive scheme
-                    the batched solves use at least 1e-4 · tolerance_t,
-                    :attr:`Numerics.krylov_tolerance`)
+                    the batched solves use at least 1e-3 of the local error allowed per
+                    substep, :meth:`Numerics.krylov_tolerance`)
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
                     dimensionless) in phases with flow, and STILL_FRACTION of it (a tenth) in
                     phases without (:meth:`Numerics.substep_tolerance`). The default, 0.1,
@@ -138,15 +138,16 @@ class Numerics:
     strict: bool = False
     cache_mib: float = 256.0
 
-    #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of
-    #: ``tolerance_t``: their error then stays 10⁴ below the local error the scheme allows
-    #: per substep under flow. Measured on examples/straight_mesh.toml (relaxation 400, then
-    #: 1200 time units of its Stokes flow at dt = 10, against solves to 1e-10): at 1e-4
-    #: centroids moved by 4.4e-4 and areas by 5.8e-4 (relative), at 1e-5 by 3.4e-4 and 5.7e-4
-    #: (both mostly the predictor's looser solve), at 1e-3 by 2.0e-3 and 6.5e-4, where
-    #: substeps of 2.5 instead of 3.33 move them by 0.16 and 2.2e-2; CG iterations 4041 + 3822
-    #: at 1e-4 against 4874 + 4316 at 1e-5 (docs/decisions/0024-boxes-refitted-together.md).
-    KRYLOV_FRACTION = 1e-4
+    #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of the
+    #: local error the scheme allows per substep (:meth:`substep_tolerance`): their error then
+    #: stays 10³ below it, and far below the time error. Measured on examples/straight_mesh.toml
+    #: (relaxation 400, then 1200 time units of its Stokes flow at dt = 10, against solves to
+    #: 1e-10; benchmarks/krylov_tolerance.py): at 1e-3 centroids moved by 7.3e-4, φ by 6.6e-4
+    #: and areas by 6.5e-4 (relative), at 1e-4 by 3.4e-4, 5.3e-4 and 5.8e-4, at 1e-2 by 0.011,
+    #: 9.0e-3 and 1.4e-3, where substeps of 2.5 instead of 3.33 move them by 0.18, 0.11 and
+    #: 2.3e-2; CG iterations 4041 + 3217 at 1e-3 against 4874 + 3823 at 1e-4
+    #: (docs/decisions/0029-mesh-solves-at-1e-3.md).
+    KRYLOV_FRACTION = 1e-3
     #: The same for the solve of the second-order steps' predictor, the linearly implicit half
     #: step whose result φ̄ enters the step only through the explicit forces g(φ̄), times J0 dt,
     #: and the error estimate (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`): at 1e-2 of
@@ -186,18 +187,18 @@ class Numerics:
         return self.precision == "mixed" and (scheme != "adaptive"
                                                or self.tolerance_t >= self.SINGLE_PRECISION_TOLERANCE)
 
-    @property
-    def krylov_tolerance(self) -> float:
+    def krylov_tolerance(self, still: bool) -> float:
         """Relative tolerance of the batched Krylov solves of the window systems:
         ``tolerance`` for schemes at fixed dt, and under the adaptive scheme the larger of
-        ``tolerance`` and KRYLOV_FRACTION · ``tolerance_t`` (1e-5 at the default), so the
+        ``tolerance`` and KRYLOV_FRACTION of the local error it allows per substep
+        (:meth:`substep_tolerance`; at the default 1e-4 under flow, 1e-5 without), so the
         solves are as accurate as the step needs and no more."""
         if self.scheme == "adaptive":
-            return max(self.tolerance, self.KRYLOV_FRACTION * self.tolerance_t)
+            return max(self.tolerance, self.KRYLOV_FRACTION * self.substep_tolerance(still))
         return self.tolerance
 
     def predictor_krylov_tolerance(self, still: bool) -> float:
-        """:attr:`krylov_tolerance` for the predictor's solve: under the adaptive scheme
+        """:meth:`krylov_tolerance` for the predictor's solve: under the adaptive scheme
         PREDICTOR_KRYLOV_FRACTION of the local error it allows per substep
         (:meth:`substep_tolerance`; at the default 1e-3 under flow, 1e-4 without), at
         fixed dt ``tolerance``."""

@@ -129,7 +129,7 @@ def test_the_predictors_looser_solve_saves_iterations_and_moves_the_step_far_les
     numerics = Numerics()
     still = numerics.substep_tolerance(True)
     assert numerics.predictor_krylov_tolerance(True) == pytest.approx(Numerics.PREDICTOR_KRYLOV_FRACTION * still)
-    assert numerics.predictor_krylov_tolerance(True) > numerics.krylov_tolerance
+    assert numerics.predictor_krylov_tolerance(True) > numerics.krylov_tolerance(True)
     assert Numerics(scheme="sav2").predictor_krylov_tolerance(False) == Numerics(scheme="sav2").tolerance
     looser = numerics.predictor_krylov_tolerance(True)
     loose, loose_step = relaxing_run(numerics)

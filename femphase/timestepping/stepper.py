@@ -131,7 +131,7 @@ class Stepper:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order). ``guess`` (default ``previous``) starts the
         iterative solvers (batched CG, AMG); the others are exact. ``tolerance`` (default
-        ``numerics.krylov_tolerance``) stops the batched CG; ``guess_product``, the system
+        ``numerics.krylov_tolerance`` of the phase) stops the batched CG; ``guess_product``, the system
         times ``guess`` where the caller knows it, spares the batched CG its first product."""
         lumped = self.lumped
         if lumped:  # M_L (nodal_rhs + shift·previous), in place
@@ -141,10 +141,10 @@ class Stepper:
         else:
             rhs = layout.mass * nodal_rhs
         if self.batched:
+            if tolerance is None:
+                tolerance = self.numerics.krylov_tolerance(self.flow.is_still)
             return self._solve_batched(rhs, previous, layout, shift, stabilisation,
-                                       previous if guess is None else guess,
-                                       self.numerics.krylov_tolerance if tolerance is None else tolerance,
-                                       guess_product)
+                                       previous if guess is None else guess, tolerance, guess_product)
         out = np.empty_like(previous)
         for group, (key, members, start, stop, size) in enumerate(layout.groups):
             solver, mass_block = self._solver(key, layout.representative(group), shift, stabilisation)
