@@ -99,7 +99,7 @@ def _protocol_beside(data: dict) -> str:
 #: time moves by a few percent from run to run on the shared machine
 OBSTACLE_ALONE_EARLIER = ("protocol_obstacle_idle.json", "protocol_obstacle_idle_repeat.json",
                           "protocol_obstacle_shapes.json", "protocol_obstacle_residual.json",
-                          "protocol_obstacle_single_alone.json")
+                          "protocol_obstacle_single_alone.json", "protocol_obstacle_box_dofs_alone.json")
 
 
 def _protocol_alone(data: dict) -> str:
@@ -147,13 +147,13 @@ ROWS = (
         "python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct"),
     Row("the paper's protocol on the meshed obstacle channel (examples/obstacle_mesh.toml: relax 2000 + Stokes "
         "flow 10⁵ time units, dt = 10), two trees at once on the 2 cores",
-        "benchmarks/results/protocol_obstacle_single.json", _protocol_beside,
+        "benchmarks/results/protocol_obstacle_solves.json", _protocol_beside,
         "python benchmarks/protocol.py --old TREE --scene obstacle_mesh.toml --rates none "
-        "--output protocol_obstacle_single.json"),
-    Row("the same protocol, one run alone on the machine", "benchmarks/results/protocol_obstacle_box_dofs_alone.json",
+        "--output protocol_obstacle_solves.json"),
+    Row("the same protocol, one run alone on the machine", "benchmarks/results/protocol_obstacle_solves_alone.json",
         _protocol_alone,
         "python benchmarks/protocol.py --scene obstacle_mesh.toml --rates none "
-        "--output protocol_obstacle_box_dofs_alone.json"),
+        "--output protocol_obstacle_solves_alone.json"),
     Row("meshed obstacle channel (examples/obstacle_mesh.toml, dt = 10), memory under flow",
         "benchmarks/results/mesh_memory.json", _mesh_memory, "python benchmarks/mesh_memory.py --stokes-time 4000"),
 )
