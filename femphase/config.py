@@ -193,17 +193,20 @@ class Numerics:
         ``tolerance`` and KRYLOV_FRACTION of the local error it allows per substep
         (:meth:`substep_tolerance`; at the default 1e-4 under flow, 1e-5 without), so the
         solves are as accurate as the step needs and no more."""
-        if self.scheme == "adaptive":
-            return max(self.tolerance, self.KRYLOV_FRACTION * self.substep_tolerance(still))
-        return self.tolerance
+        return self._substep_share(self.KRYLOV_FRACTION, still)
 
     def predictor_krylov_tolerance(self, still: bool) -> float:
         """:meth:`krylov_tolerance` for the predictor's solve: under the adaptive scheme
         PREDICTOR_KRYLOV_FRACTION of the local error it allows per substep
         (:meth:`substep_tolerance`; at the default 1e-3 under flow, 1e-4 without), at
         fixed dt ``tolerance``."""
+        return self._substep_share(self.PREDICTOR_KRYLOV_FRACTION, still)
+
+    def _substep_share(self, fraction: float, still: bool) -> float:
+        """Under the adaptive scheme the larger of ``tolerance`` and ``fraction`` of the local
+        error allowed per substep; ``tolerance`` at fixed dt."""
         if self.scheme == "adaptive":
-            return max(self.tolerance, self.PREDICTOR_KRYLOV_FRACTION * self.substep_tolerance(still))
+            return max(self.tolerance, fraction * self.substep_tolerance(still))
         return self.tolerance
 
     def __post_init__(self) -> None:

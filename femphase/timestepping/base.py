@@ -116,8 +116,8 @@ class StepperProtocol(Protocol):
               tolerance: float | None = None, guess_product: np.ndarray | None = None) -> np.ndarray:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous; ``guess``
         (default ``previous``) starts iterative solvers, ``tolerance`` (default
-        ``numerics.krylov_tolerance`` of the phase) stops the batched Krylov solves, ``guess_product`` (the
-        system times ``guess``, where known) spares them a product."""
+        ``numerics.krylov_tolerance`` of the phase) stops the batched Krylov solves,
+        ``guess_product`` (the system times ``guess``, where known) spares them a product."""
 
     def last_product(self) -> np.ndarray:
         """The last batched solve's system times its solution, from its final residual."""

@@ -69,7 +69,8 @@ def linearly_implicit_step(stepper: StepperProtocol, phi: np.ndarray, layout: La
     taken at ``source_time``: (G/dt + J0 S M_L + J0 D K) φ¹ = (G/dt + J0 S M_L) φ⁰ − J0 M_L g(φ⁰)
     + M_L s. ``fields``: φ⁰ as WindowedFields, if the caller has them (shares their cached
     sums); ``energy``: whose g (the stepper's unless given; D is always the stepper's);
-    ``tolerance``: the batched Krylov solve's (default ``numerics.krylov_tolerance`` of the phase)."""
+    ``tolerance``: the batched Krylov solve's (default ``numerics.krylov_tolerance`` of the
+    phase)."""
     j0 = stepper.mobility
     nodal = (energy or stepper.energy).explicit_derivative(fields or WindowedFields(phi, layout, radii))
     nodal *= -j0

@@ -131,8 +131,9 @@ class Stepper:
         """φ with (shift·G + J0 S M_L + J0 D K) φ = M_L nodal_rhs + shift·G previous, window by
         window (all vectors in layout order). ``guess`` (default ``previous``) starts the
         iterative solvers (batched CG, AMG); the others are exact. ``tolerance`` (default
-        ``numerics.krylov_tolerance`` of the phase) stops the batched CG; ``guess_product``, the system
-        times ``guess`` where the caller knows it, spares the batched CG its first product."""
+        ``numerics.krylov_tolerance`` of the phase) stops the batched CG; ``guess_product``,
+        the system times ``guess`` where the caller knows it, spares the batched CG its first
+        product."""
         lumped = self.lumped
         if lumped:  # M_L (nodal_rhs + shift·previous), in place
             rhs = previous * shift
