@@ -12,7 +12,8 @@ seconds of the run (process clock):
   |area − reference| at t = 10, 20, 50, 100 (lattice units²); reference sav2 at dt = 0.05;
 * ``pair``: two discs of R = 8 with centres 20 apart across a 27 × 120 channel, no flow,
   20000 time units; error: |d(t) − reference| at the last frame, d the centroid separation
-  (lattice units); reference sav2 at dt = 0.5 and 0.25, extrapolated (Richardson, order 2);
+  (lattice units); reference sav2 at dt = 0.25 and 0.125, extrapolated (Richardson, order 2),
+  with the observed order from dt = 0.5, 0.25, 0.125 beside it;
 * ``lattice``: the paper's N = 100 hexagonal lattice sheared at γ̇ = 0.1487 over one period
   (benchmarks/work_precision.py's scene and measures): the largest relative error of the
   bulk-mean r(t) and the relative period error; reference sav2 at dt = 0.125 and 0.0625 in
@@ -20,7 +21,7 @@ seconds of the run (process clock):
   0.0625 beside it (``observed_order``; 2 justifies the extrapolation: see
   docs/decisions/0018-nyquist-mode.md for a case where it was 1.4).
 
-The tightest tolerances' errors (1e-5 relative on the lattice, 5e-5 on the pair) are below
+The tightest tolerances' errors (1e-5 relative on the lattice, 2e-7 on the pair) are below
 a single sav2 run's at the smallest dt affordable, hence the extrapolated references; their
 own error (``own_error`` in the JSON, |fine − coarse|/3) is reported beside them.
 
@@ -31,7 +32,7 @@ slope near 0 means something else sets the step. The disc and the pair run witho
 where the scheme allows a tenth of ``tolerance_t`` per substep
 (:meth:`femphase.config.Numerics.substep_tolerance`). The pair's window starts at 1e-3:
 above it, its estimate at the area-mode ceiling (substep 3.33) is below the tolerance, so
-every looser tolerance runs the same substeps and gives the same error (1.25e-2). The
+every looser tolerance runs the same substeps and gives about the same error (1.45e-3). The
 lattice's starts at 1e-2: at 0.1 its substep is the ceiling's 3.33 between T1 events
 (estimate ≈ 0.37 of the tolerance, docs/design/time-schemes.md).
 
@@ -112,9 +113,10 @@ def references(cases: list[str]) -> dict:
         cached["disc"] = {"area": disc_areas({"scheme": "sav2"}, 0.05)[0], "scheme": "sav2", "dt": 0.05,
                           "area_h_0.5": disc_areas({"scheme": "sav2"}, 0.05, h=0.5)[0]}
     if "pair" in cases and "pair" not in cached:
-        coarse, fine = (pair_separation({"scheme": "sav2"}, dt)[0] for dt in (0.5, 0.25))
+        coarsest, coarse, fine = (pair_separation({"scheme": "sav2"}, dt)[0] for dt in (0.5, 0.25, 0.125))
         cached["pair"] = {"separation": extrapolated(coarse, fine), "own_error": abs(fine - coarse) / 3.0,
-                          "scheme": "sav2", "dt": [0.5, 0.25],
+                          "observed_order": float(np.log2(abs(coarsest - coarse) / abs(coarse - fine))),
+                          "scheme": "sav2", "dt": [0.5, 0.25, 0.125],
                           "separation_h_0.5": pair_separation({"scheme": "sav2"}, 1.0, h=0.5)[0]}
     if "lattice" in cases and "lattice" not in cached:
         cached["lattice"] = lattice_reference()

@@ -57,10 +57,10 @@ class Numerics:
                     dimensionless) in phases with flow, and STILL_FRACTION of it (a tenth) in
                     phases without (:meth:`Numerics.substep_tolerance`). The default, 0.1,
                     keeps the time error below the spatial error at h = 1: the lattice's
-                    r(t) within 1.2 % (h-error 12 %), a relaxing disc's area within 0.08,
-                    0.10, 0.14, 0.08 at t = 10, 20, 50, 100 (h = 1 → 0.5 differences 0.15,
+                    r(t) within 1.2 % (h-error 12 %), a relaxing disc's area within 0.06,
+                    0.07, 0.11, 0.014 at t = 10, 20, 50, 100 (h = 1 → 0.5 differences 0.15,
                     0.41, 0.31, 0.086), two discs' separation after 20000 time units within
-                    1.3e-2 (h-error ≥ 0.07) (benchmarks/README.md, "Tolerance
+                    1.5e-3 (h-error ≥ 0.07) (benchmarks/README.md, "Tolerance
                     proportionality")
     repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
                     off the explicit midpoint step (Strang) and integrates it as the pointwise
