@@ -38,7 +38,7 @@ SCENE = ROOT / "examples" / "single.toml"
 SHORT = ["phases.0.duration=20", "phases.1.duration=10", "phases.0.frame_interval=5", "phases.1.frame_interval=5",
          'numerics.scheme="euler"', "phases.0.dt=1", "phases.1.dt=1"]
 STATUS = re.compile(r" INFO (status|start|resume|phase \d+:\w+ (?:start|end)): t=(\S+) step=(\d+)/(\d+) phase=\d+:\w+ "
-                    r"ms/step=\S+ windows=1 mean_dofs=\d+ rss=\d+MB peak=\d+MB eta=\S+$")
+                    r"ms/step=\S+ (?:substep=\S+ rejected=\d+ )?windows=1 mean_dofs=\d+ rss=\d+MB peak=\d+MB eta=\S+$")
 
 
 def _run(directory: Path, *flags: str, sets=SHORT) -> int:
@@ -260,6 +260,27 @@ def test_status_log_from_python_logs_increasing_times(caplog):
     assert times[0] == 0.0 and times[-1] == 30.0 and times == sorted(times) and len(times) >= 30
     with pytest.raises(ValueError, match="interval"):
         StatusLog(-1.0)
+
+
+def test_status_lines_under_the_adaptive_scheme_count_its_substeps(caplog):
+    scene = load_scene(SCENE, ["phases.0.duration=40", "phases.1.duration=40", "phases.0.frame_interval=20",
+                               "phases.1.frame_interval=20"])  # the example's adaptive scheme, dt = 10
+    state = scene.initial_state()
+    with caplog.at_level(logging.INFO, logger="femphase"):
+        Simulation(scene).run(state, [StatusLog(interval=0.0)])
+    lines = [r.getMessage() for r in caplog.records if r.name == "femphase"]
+    assert "substep=" not in lines[0]  # nothing counted before the first step
+    accepted = rejected = 0
+    previous = 0.0
+    for line in lines[1:]:
+        time, substep, rejects = re.search(r"t=(\S+) .*substep=(\S+) rejected=(\d+)", line).groups()
+        if substep != "-":
+            taken = (float(time) - previous) / float(substep)
+            assert abs(taken - round(taken)) < 0.02 and 0 < float(substep) <= 10.0
+            accepted += round(taken)
+        rejected += int(rejects)
+        previous = float(time)
+    assert [accepted, rejected] == state.memory["adaptive_counts"].tolist()
 
 
 def test_status_lines_come_every_interval_of_wall_time_with_the_rate_and_eta(caplog, monkeypatch):

@@ -14,10 +14,12 @@ stderr (:func:`femphase.cli.console.console_handler`). From Python,
 
 A status line (level INFO) reads
 
-    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
+    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
 
 with t the simulated time (time units), step the steps done of the scene's total, the
-phase (index:name), the mean wall time per step since the previous line (ms), the number of
+phase (index:name), the mean wall time per step since the previous line (ms), under the
+adaptive scheme the mean accepted substep since the previous line (time units; ``-``
+when none was taken) and the substeps rejected since (absent for other schemes), the number of
 windows (one per particle) and their mean size in dofs, the resident memory of the process
 now (``rss``, /proc/self/statm; absent where there is no /proc) and its peak (``peak``,
 resource.getrusage's ru_maxrss), in MiB, and the remaining wall time if the remaining
@@ -110,8 +112,9 @@ class StatusLog(Tracker):
         dofs = sum(len(f) for f in state.fields) / max(state.n_particles, 1)
         rss, peak = memory_mib()
         parts = [f"t={state.time:.6g}", f"step={done}/{total}", f"phase={phase}",
-                 f"ms/step={1e3 * seconds_per_step:.3g}" if seconds_per_step is not None else "ms/step=-",
-                 f"windows={state.n_particles}", f"mean_dofs={dofs:.0f}"]
+                 f"ms/step={1e3 * seconds_per_step:.3g}" if seconds_per_step is not None else "ms/step=-"]
+        parts += self._substeps(state)
+        parts += [f"windows={state.n_particles}", f"mean_dofs={dofs:.0f}"]
         parts += [f"rss={rss:.0f}MB"] if rss is not None else []
         parts += [f"peak={peak:.0f}MB"] if peak is not None else []
         parts.append(f"eta={format_duration((total - done) * seconds_per_step)}" if seconds_per_step is not None
@@ -120,8 +123,20 @@ class StatusLog(Tracker):
         if steps > 0:  # the next rate is measured from here
             self._mark(state, now)
 
+    def _substeps(self, state: State) -> list[str]:
+        """``substep=`` and ``rejected=`` since the previous line, for schemes that count
+        their substeps (``adaptive``: ``State.memory["adaptive_counts"]``); none for others."""
+        counts = state.memory.get("adaptive_counts")
+        if counts is None:
+            return []
+        accepted, rejected = (int(n) for n in counts - self._since_counts)
+        substep = f"{(state.time - self._since_time) / accepted:.3g}" if accepted > 0 else "-"
+        return [f"substep={substep}", f"rejected={rejected}"]
+
     def _mark(self, state: State, now: float | None = None) -> None:
         self._since, self._since_step = wallclock.monotonic() if now is None else now, state.step
+        self._since_time = state.time
+        self._since_counts = np.array(state.memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)))
 
     def _phase(self, index: int) -> str:
         return f"{index}:{self.simulation.scene.phases[index].name}"
