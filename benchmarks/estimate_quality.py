@@ -15,6 +15,12 @@ embedded estimate to that local error at each sampled state (its median and rang
 ratio ≥ 1 means the estimate bounds the step's error; below 1 it misses part of it. All in
 double precision. Writes results/estimate_quality.json; ``--report`` rewrites the README
 section from it.
+
+``--along-shear``: the same two numbers at h = 10/3 (the default's substep) every 30 time
+units along the shear of examples/hexagonal.toml (γ̇ = 0.1487) from t = 2420 to 3560,
+through its first T1 events (the frames' ``t1_count`` beside them): does the step's error
+rise where the neighbours exchange? Writes results/estimate_along_shear.json and its README
+section.
 """
 
 from __future__ import annotations
@@ -32,7 +38,11 @@ from femphase.run.simulation import Simulation, Tracker
 from femphase.state import State
 from femphase.timestepping.stepper import Stepper
 
+ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).resolve().parent / "results" / "estimate_quality.json"
+ALONG_SHEAR_RESULT = RESULT.with_name("estimate_along_shear.json")
+#: The hexagonal example's frames sampled by ``--along-shear`` (its shear starts at t = 2000)
+ALONG_SHEAR = tuple(2000.0 + 30.0 * k for k in range(14, 53))
 #: The states sampled in each case: the frames at these times (time units)
 SAMPLES = {"disc": (10.0, 20.0, 50.0), "pair": (1000.0, 5000.0, 10000.0, 19000.0),
            "lattice": tuple(300.0 + 400.0 * k for k in range(1, 9))}
@@ -96,6 +106,38 @@ def measure(case: str, sizes: list[float]) -> dict:
     return {"rows": rows}
 
 
+def along_shear(h: float) -> dict:
+    """The estimate and the local error of one step of ``h`` at ALONG_SHEAR's states of
+    examples/hexagonal.toml, with the T1 count of each state's frame."""
+    from femphase.run.trackers import FrameRecorder
+    from femphase.scene import load_scene
+
+    scene = load_scene(ROOT / "examples" / "hexagonal.toml",
+                       ["phases.1.duration=1600", "phases.1.frame_interval=30", "output.fields=false"])
+    sampler, recorder = Sampler(ALONG_SHEAR), FrameRecorder()
+    Simulation(scene).run(scene.initial_state(), [sampler, recorder])
+    t1_counts = dict(zip(recorder.times.tolist(), recorder.series("t1_count", "global").tolist()))
+    rows = []
+    for state in sampler.states:
+        estimate, error = estimate_and_error(scene, state, h)
+        rows.append({"time": state.time, "estimate": estimate, "error": error, "t1_count": t1_counts[state.time]})
+        print(json.dumps(rows[-1]), flush=True)
+    return {"h": h, "rows": rows, "command": "python benchmarks/estimate_quality.py --along-shear"}
+
+
+def along_shear_report(result: dict) -> str:
+    rows = result["rows"]
+    errors = np.array([row["error"] for row in rows])
+    ratios = np.array([row["estimate"] / row["error"] for row in rows])
+    quiet = errors[[row["t1_count"] == rows[0]["t1_count"] for row in rows]]
+    return (f"examples/hexagonal.toml sheared at γ̇ = 0.1487, one sav2 step of h = {result['h']:.3g} from the "
+            f"frames every 30 time units at t = {rows[0]['time']:g} … {rows[-1]['time']:g} (T1 count "
+            f"{rows[0]['t1_count']:g} at the first, {rows[-1]['t1_count']:g} at the last): local error "
+            f"{errors.min():.3g}–{errors.max():.3g} ({quiet.min():.3g}–{quiet.max():.3g} before the first "
+            f"exchange), estimate / local error {ratios.min():.2f}–{ratios.max():.2f}.\n\n"
+            f"Command: `{result['command']}`.")
+
+
 def report(result: dict) -> str:
     lines = ["| case | h | estimate / local error: median (range) | local error, median |", "|---|---|---|---|"]
     for case, entry in result["cases"].items():
@@ -110,7 +152,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", type=float, nargs="+", default=[10.0 / 3.0, 10.0 / 6.0])
     parser.add_argument("--report", action="store_true", help="only rewrite the README section from the JSON")
+    parser.add_argument("--along-shear", action="store_true", help="sample the hexagonal example's shear instead")
     args = parser.parse_args()
+    if args.along_shear:
+        result = along_shear(10.0 / 3.0)
+        ALONG_SHEAR_RESULT.write_text(json.dumps(result, indent=1) + "\n")
+        common.update_readme("estimate_along_shear", along_shear_report(result))
+        return
     if args.report:
         common.update_readme("estimate_quality", report(json.loads(RESULT.read_text())))
         return
