@@ -147,9 +147,9 @@ ROWS = (
         "python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct"),
     Row("the paper's protocol on the meshed obstacle channel (examples/obstacle_mesh.toml: relax 2000 + Stokes "
         "flow 10⁵ time units, dt = 10), two trees at once on the 2 cores",
-        "benchmarks/results/protocol_obstacle_solves.json", _protocol_beside,
+        "benchmarks/results/protocol_obstacle_passes.json", _protocol_beside,
         "python benchmarks/protocol.py --old TREE --scene obstacle_mesh.toml --rates none "
-        "--output protocol_obstacle_solves.json"),
+        "--output protocol_obstacle_passes.json"),
     Row("the same protocol, one run alone on the machine", "benchmarks/results/protocol_obstacle_solves_alone.json",
         _protocol_alone,
         "python benchmarks/protocol.py --scene obstacle_mesh.toml --rates none "
