@@ -324,13 +324,15 @@ class RelaxedSAV2(TimeScheme):
         nodal = np.zeros_like(phi) if source is None else 2.0 * source
         p = stepper.solve(nodal, 2.0 * phi, layout, 2.0 / dt, 0.0)
         p -= phi
+        # what the passes share: p does not depend on b, so each pass solves for q alone
+        p_change, zero = p - phi, np.zeros_like(phi)
         new = None
-        for _ in range(self.STILL_PASSES):  # p does not depend on b: one solve per pass
+        for _ in range(self.STILL_PASSES):
             at = middle if new is None else WindowedFields(0.5 * (phi + new), layout, radii)
             b = energy.explicit_derivative(at) / np.sqrt(energy.explicit_energy(at) + self.OFFSET)
-            q = stepper.solve(2.0 * j0 * b, np.zeros_like(phi), layout, 2.0 / dt, 0.0)
+            q = stepper.solve(2.0 * j0 * b, zero, layout, 2.0 / dt, 0.0)
             weighted_b = mass * b
-            r_half = (r + 0.25 * float(weighted_b @ (p - phi))) / (1.0 + 0.25 * float(weighted_b @ q))
+            r_half = (r + 0.25 * float(weighted_b @ p_change)) / (1.0 + 0.25 * float(weighted_b @ q))
             new = p - r_half * q
         change = new - phi
         dissipation = float(mass @ (change * change)) / (j0 * dt)
