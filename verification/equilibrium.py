@@ -24,9 +24,10 @@ spacings are not yet asymptotic for the contour radius (observed order 1.6 from 
 
 Expected: order 2 in h for every quantity (second-order equilibria; A_½ from the P1 field is
 second order as well); independent of dt, since the fixed point of the no-flow step solves
-2γλ K φ + M_L g(φ) = 0 whatever dt and the stabilisation S are. (With the automatic S,
-dt = 1 and dt = 10 are even the same computation: 1/(J0 dt) + S = L/2 for every
-dt ≥ 2/(J0 L) ≈ 0.92.) Richardson extrapolation uses the three finest h (at the dt the finest
+2γλ K φ + M_L g(φ) = 0 whatever dt and the stabilisation S are, up to where each run stops.
+(With the automatic S, dt = 10 advances as dt* = 2/(J0 L) ≈ 3.0 would, L the explicit terms'
+curvature bound for one particle: 1/(J0 dt) + S = L/2 for every dt ≥ dt*; dt = 1 and 0.1 are
+below dt*, with S = 0.) Richardson extrapolation uses the three finest h (at the dt the finest
 was run with): observed order p = log2((Q_1 − Q_½)/(Q_½ − Q_¼)), limit Q_¼ + (Q_¼ − Q_½)/(2^p − 1).
 The window's truncation (the field is zero beyond its window) is measured against full-mesh
 runs at h = 1, 0.5, 0.25 (dt = 1).
