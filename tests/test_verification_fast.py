@@ -5,6 +5,7 @@ The full studies run with ``python -m verification``; these take seconds and wri
 
 from __future__ import annotations
 
+import json
 from dataclasses import replace
 
 import numpy as np
@@ -142,3 +143,24 @@ def test_grid_and_mesh_read_an_ellipses_elongation_to_second_order():
     coarse, middle, fine = (read("random.toml", f"domain.h={h}") for h in (1.0, 0.5, 0.25))
     assert np.log2((coarse - middle) / (middle - fine)) == pytest.approx(2.0, abs=0.3)
     assert abs(read("straight_mesh.toml") - fine) < abs(coarse - fine)
+
+
+# -- the command ------------------------------------------------------------------------------
+def _stored(directory):
+    return {path.name: path.read_bytes() for path in sorted(directory.iterdir()) if path.is_file()}
+
+
+def test_quick_levels_leave_the_stored_results_and_the_readme_alone(tmp_path, capsys, monkeypatch):
+    import tempfile
+
+    from verification import __main__ as command
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))  # the quick run's own directory lands here
+    stored, readme = _stored(command.RESULTS), command.README.read_bytes()
+    assert command.main(["--quick", "--only", "mms"]) == 0
+    assert command.main(["--quick", "--only", "mms", "--output", str(tmp_path / "named")]) == 0
+    assert _stored(command.RESULTS) == stored and command.README.read_bytes() == readme
+    for directory in [tmp_path / "named", *tmp_path.glob("verification-quick-*")]:
+        assert json.loads((directory / "mms.json").read_text())["quick"] is True and (directory / "mms.png").is_file()
+    temporary = [line for line in capsys.readouterr().out.splitlines() if line.startswith("results in ")]
+    assert len(temporary) == 2 and len(list(tmp_path.glob("verification-quick-*"))) == 1

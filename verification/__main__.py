@@ -1,17 +1,22 @@
 """Run every verification check and regenerate the tables of verification/README.md.
 
-    python -m verification [--quick] [--only NAME ...] [--readme-only]
+    python -m verification [--quick] [--only NAME ...] [--output DIR] [--readme-only]
 
 Checks, in order: ``mms``, ``flat_interface``, ``equilibrium`` (each ``run(quick)``),
 ``fem_vs_fd`` (``run(quick)``, skipped when it cannot be imported) and ``stokes`` (its script's
-``main()``; it has no quick mode and takes seconds). Each writes
-``verification/results/<name>.json`` and ``<name>.png``. Then every table of the README is
-rewritten from those JSON files: the text between ``<!-- BEGIN generated: NAME -->`` and
-``<!-- END generated: NAME -->`` (a check without markers gets a new section at the end);
-everything else in the README is left alone. ``--readme-only`` rewrites the tables from the
-existing JSON files without running anything.
+``main()``; it has no quick mode and takes seconds). Each writes ``<name>.json`` and
+``<name>.png`` into ``verification/results/``, the stored results, and then every table of
+the README is rewritten from those JSON files: the text between
+``<!-- BEGIN generated: NAME -->`` and ``<!-- END generated: NAME -->`` (a check without
+markers gets a new section at the end); everything else in the README is left alone.
+``--readme-only`` rewrites the tables from the stored JSON files without running anything.
 
-Exit status 1 when a check raised (the others still run and the README is still written).
+With ``--output DIR``, and with ``--quick`` (into a new temporary directory unless
+``--output`` names one), the results go there and the README is left alone: its tables
+show the stored full-level results, which coarse levels must not replace.
+
+Exit status 1 when a check raised (the others still run, and the README is still rewritten
+when the results are the stored ones).
 """
 
 from __future__ import annotations
@@ -31,6 +36,7 @@ import traceback  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 from femphase.io.files import write_json  # noqa: E402
+from verification.mms import output_directory  # noqa: E402
 from verification.readme import with_block  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
@@ -42,22 +48,19 @@ ORDER_TOLERANCE = 0.2
 
 
 # -- running ------------------------------------------------------------------------------
-def run_check(name: str, quick: bool) -> str:
-    """Run one check; returns a status line."""
+def run_check(name: str, quick: bool, output: Path = RESULTS) -> str:
+    """Run one check, its results into ``output``; returns a status line."""
     start = time.perf_counter()
     try:
         module = importlib.import_module(f"verification.{name}")
     except ImportError as exc:
         return f"skipped ({exc})"
     if name == "stokes":
-        module.main()  # a script: no run(), no quick mode
-        return f"done in {time.perf_counter() - start:.0f} s"
-    path = RESULTS / f"{name}.json"
-    before = path.stat().st_mtime_ns if path.is_file() else None
-    results = module.run(quick)
-    after = path.stat().st_mtime_ns if path.is_file() else None
-    if after == before and isinstance(results, dict):
-        write_json(path, results)  # a run() that only returns its results
+        module.main(output)  # a script: no run(), no quick mode
+    elif name == "fem_vs_fd":  # its run() returns the results, its command line writes them
+        write_json(output / f"{name}.json", module.run(quick))
+    else:
+        module.run(quick, output=output)
     return f"done in {time.perf_counter() - start:.0f} s"
 
 
@@ -257,22 +260,33 @@ def update_readme(names: tuple[str, ...] = CHECKS) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m verification", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--quick", action="store_true", help="coarse levels only")
+    parser.add_argument("--quick", action="store_true",
+                        help="coarse levels only, into a new temporary directory unless --output names one")
     parser.add_argument("--only", nargs="+", choices=CHECKS, help="run these checks only")
+    parser.add_argument("--output", type=Path, default=None,
+                        help=f"directory for the results, leaving {RESULTS} and the README alone")
     parser.add_argument("--readme-only", action="store_true", help="rewrite the README tables, run nothing")
     args = parser.parse_args(argv)
+    if args.readme_only:
+        update_readme()
+        print(f"wrote {README}")
+        return 0
+    output = output_directory(args.quick, args.output)
+    output.mkdir(parents=True, exist_ok=True)
     failed = False
-    if not args.readme_only:
-        for name in args.only or CHECKS:
-            print(f"== {name}", flush=True)
-            try:
-                print(f"== {name}: {run_check(name, args.quick)}", flush=True)
-            except Exception:  # report and go on: one failing check must not hide the others
-                traceback.print_exc()
-                print(f"== {name}: FAILED", flush=True)
-                failed = True
-    update_readme()
-    print(f"wrote {README}")
+    for name in args.only or CHECKS:
+        print(f"== {name}", flush=True)
+        try:
+            print(f"== {name}: {run_check(name, args.quick, output)}", flush=True)
+        except Exception:  # report and go on: one failing check must not hide the others
+            traceback.print_exc()
+            print(f"== {name}: FAILED", flush=True)
+            failed = True
+    if output.resolve() == RESULTS.resolve():
+        update_readme()
+        print(f"wrote {README}")
+    else:
+        print(f"results in {output}; {README} left alone (its tables are those of {RESULTS})")
     return 1 if failed else 0
 
 

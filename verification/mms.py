@@ -48,6 +48,7 @@ for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
 
 import argparse  # noqa: E402
 import json  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from dataclasses import asdict  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -298,20 +299,31 @@ def log_axes(ax, sizes) -> None:
     ax.xaxis.set_minor_formatter(NullFormatter())
 
 
+def output_directory(quick: bool, output: Path | None) -> Path:
+    """Where a verification run writes: ``output`` if given, else a new temporary directory
+    for coarse levels (``quick``: they must not replace the stored full-level results that
+    verification/README.md shows), else results/."""
+    if output is not None:
+        return Path(output)
+    return Path(tempfile.mkdtemp(prefix="verification-quick-")) if quick else RESULTS
+
+
 def command_line(name: str, run_function: Callable[[bool, Path | None], dict], headline: tuple[str, ...]) -> None:
     """``python -m verification.<name> [--quick] [--output DIR]``: run and print the headline
-    numbers."""
+    numbers (:func:`output_directory` says where the results go)."""
     parser = argparse.ArgumentParser(prog=f"python -m verification.{name}")
-    parser.add_argument("--quick", action="store_true", help="coarse levels only (seconds)")
+    parser.add_argument("--quick", action="store_true",
+                        help="coarse levels only (seconds), into a new temporary directory unless --output names one")
     parser.add_argument("--output", type=Path, default=None,
                         help=f"directory for {name}.json/.png (default {RESULTS}: the stored results)")
     args = parser.parse_args()
-    results = run_function(args.quick, args.output)
+    directory = output_directory(args.quick, args.output)
+    results = run_function(args.quick, directory)
     expected = results.get("expected", {})
     for key in headline:
         note = f"  (expected {expected[key]:g})" if key in expected else ""
         print(f"{key} = {json.dumps(results[key])}{note}")
-    print(f"wrote {(args.output or RESULTS) / name}.json and .png in {results['run_time_s']} s")
+    print(f"wrote {directory / name}.json and .png in {results['run_time_s']} s")
 
 
 if __name__ == "__main__":
