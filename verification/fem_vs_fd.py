@@ -501,11 +501,16 @@ def main(argv: list[str] | None = None) -> int:
             set_headline_order(scene)
     print(summary(result))
     if directory is not None:
-        directory.mkdir(parents=True, exist_ok=True)
-        (directory / "fem_vs_fd.json").write_text(json.dumps(result, indent=1) + "\n")
-        plot(result, directory / "fem_vs_fd.png")
+        save(result, directory)
         print(f"wrote {directory / 'fem_vs_fd.json'} and {directory / 'fem_vs_fd.png'}")
     return 0
+
+
+def save(result: dict, directory: Path) -> None:
+    """Write fem_vs_fd.json and fem_vs_fd.png of ``result`` (:func:`run`) into ``directory``."""
+    directory.mkdir(parents=True, exist_ok=True)
+    (directory / "fem_vs_fd.json").write_text(json.dumps(result, indent=1) + "\n")
+    plot(result, directory / "fem_vs_fd.png")
 
 
 if __name__ == "__main__":
