@@ -156,6 +156,11 @@ class EnergyTerm(ABC):
         implicit part): what a scalar-auxiliary-variable scheme tracks."""
         return self.energy(fields)
 
+    def implicit_energy(self, fields: WindowedFields) -> float:
+        """The energy of the implicitly treated part, (D/2) φᵀKφ: :meth:`energy` minus
+        :meth:`explicit_energy` (zero without an implicit part)."""
+        return 0.0
+
     @abstractmethod
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         """An upper bound on the Hessian of the explicit part per unit lumped mass, for fields
@@ -185,15 +190,17 @@ class InterfaceTerm(EnergyTerm):
         return 2.0 * self.tension * self.interface_width
 
     def energy(self, fields: WindowedFields) -> float:
-        lam = self.interface_width
-        return self.tension / lam * (fields.integral(double_well(fields.phi))
-                                     + lam**2 * float(fields.phi @ fields.stiffness_product))
+        return self.explicit_energy(fields) + self.implicit_energy(fields)
 
     def explicit_derivative(self, fields: WindowedFields) -> np.ndarray:
         return double_well_derivative(fields.phi, self.tension / self.interface_width)
 
     def explicit_energy(self, fields: WindowedFields) -> float:
         return self.tension / self.interface_width * fields.integral(double_well(fields.phi))
+
+    def implicit_energy(self, fields: WindowedFields) -> float:
+        # (γ/λ) λ² φᵀKφ = (D/2) φᵀKφ
+        return self.tension * self.interface_width * float(fields.phi @ fields.stiffness_product)
 
     def curvature_bound(self, smallest_radius: float, pairs: bool) -> float:
         # (γ/λ) W'' = (γ/λ) 8(1 − 6φ + 6φ²) ≤ 8γ/λ on [0, 1]
@@ -334,6 +341,10 @@ class FreeEnergy:
     def explicit_energy(self, fields: WindowedFields) -> float:
         """E1: the energy of the explicitly treated parts (F minus its implicit gradient part)."""
         return float(sum(t.explicit_energy(fields) for t in self.terms))
+
+    def implicit_energy(self, fields: WindowedFields) -> float:
+        """F − E1: the energy of the implicitly treated parts (needs ``fields.stiffness_product``)."""
+        return float(sum(t.implicit_energy(fields) for t in self.terms))
 
     def curvature_bound(self, smallest_radius: float, pairs: bool = True) -> float:
         """L: bound on the Hessian of the explicit energy per unit lumped mass."""
