@@ -60,6 +60,14 @@ def test_invalid_scene_values_name_the_key(tmp_path, assignment, key):
     assert "invalid" in str(info.value)
 
 
+def test_a_bad_option_is_named_as_an_option_and_a_bad_key_as_a_scene_key(tmp_path):
+    path = write_scene(tmp_path / "scene.toml")
+    with pytest.raises(SceneError, match=r"^option '--set' = 'model\.mu' is invalid"):
+        load_scene(path, ["model.mu"])
+    with pytest.raises(SceneError, match=r"^scene key 'model\.colour' = 3 is invalid"):
+        load_scene(path, ["model.colour=3"])
+
+
 def test_too_many_particles_is_refused_with_the_limit():
     data = {**SMALL, "particles": {"layout": "random", "N": 40}}
     with pytest.raises(SceneError, match="at most"):
