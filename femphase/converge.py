@@ -24,7 +24,9 @@ and r = s₂/s₃ the finest pair's ratio:
   levels outside the asymptotic range and would shrink the error bar;
 * error bar: Roache's grid convergence index, ``F·|f₃ − f₂|/(r^q − 1)``, with the safety
   factor F = 1.25 when p is observed and 3 when it is assumed;
-* each run's error f_k − f∞.
+* each run's error f_k − f∞;
+* for a tolerance study, the neighbouring levels whose last phase took the same substeps
+  (:func:`same_substeps`), named in every observable's note.
 
 The limit is not reported (NaN, with the reason) when the differences change sign
 (oscillatory convergence) or p ≤ 0 (divergence): the levels are not in the asymptotic
@@ -42,7 +44,8 @@ range and a finer one is needed.
 
 **Outputs** in DIR: ``convergence.csv`` (one row per observable and level: s, value,
 error against the limit, CPU seconds; and per observable the order, limit and error bar),
-``convergence.nc`` (the same as an xarray Dataset over ``observable`` × ``level``) and
+``convergence.nc`` (the same as an xarray Dataset over ``observable`` × ``level``; both
+with each level's substeps in the last phase, :func:`last_phase_substeps`) and
 ``convergence.png`` (the absolute error against s and against CPU seconds: the work–precision plot).
 """
 
@@ -53,7 +56,7 @@ import io
 import json
 import math
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from collections.abc import Callable
 
@@ -64,8 +67,8 @@ from femphase.io.files import atomic_write
 from femphase.io.reader import RunData, open_run
 from femphase.tomlio import toml_value
 
-__all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "richardson", "run_convergence",
-           "study_sweep"]
+__all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "last_phase_substeps",
+           "richardson", "run_convergence", "same_substeps", "study_sweep"]
 
 #: Refinement parameters: command-line name → (scene key, its unit). For "mesh" the values are
 #: mesh files and s is each run's effective spacing √(area / dofs).
@@ -219,15 +222,51 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
         spacing = (math.sqrt(run.domain.area / run.domain.n_dofs) if parameter == "mesh"
                    else float(entry["values"][keys[0]]))
         levels.append({"s": spacing, "run": entry["id"],
-                       "cpu_s": float(info.get("cpu_time_s", math.nan)),
+                       "cpu_s": float(info.get("cpu_time_s", math.nan)), **last_phase_substeps(info),
                        **{name: OBSERVABLES[name][0](run) for name in observables}})
     levels.sort(key=lambda level: -level["s"])
     spacings = [level["s"] for level in levels]
     formal = FORMAL_ORDER[parameter] if expected_order is None else expected_order
     estimates = {name: richardson(spacings, [level[name] for level in levels], formal) for name in observables}
+    if parameter == "tolerance_t":
+        warning = same_substeps(levels)
+        if warning:
+            estimates = {name: replace(e, note=f"{e.note}; {warning}" if e.note else warning)
+                         for name, e in estimates.items()}
     _write_tables(directory, parameter, levels, estimates)
     _plot(directory / "convergence.png", parameter, levels, estimates)
     return {"parameter": parameter, "levels": levels, "estimates": estimates}
+
+
+def last_phase_substeps(info: dict) -> dict:
+    """``substeps`` and ``rejected`` of a run's last phase from its run.json (``info``),
+    and ``mean_substep``, the phase's duration over its substeps (time units); NaN for
+    schemes that do not count substeps and for runs that did not reach the last phase."""
+    phases = info["settings"]["phases"]
+    counted = {record["phase"]: record for record in info.get("substeps", [])}
+    record = counted.get(len(phases) - 1)
+    if record is None or record["accepted"] == 0:
+        return {"substeps": math.nan, "rejected": math.nan, "mean_substep": math.nan}
+    return {"substeps": record["accepted"], "rejected": record["rejected"],
+            "mean_substep": float(phases[-1]["duration"]) / record["accepted"]}
+
+
+def same_substeps(levels: list[dict]) -> str:
+    """For a tolerance study (levels coarse to fine): a note naming the neighbouring levels
+    whose last phase took the same substeps, accepted and rejected, or "". There the
+    tolerance did not set the substep: the area-mode ceiling or the phase's dt did
+    (docs/scenes.md, ``tolerance_t``), so their difference is not that phase's time error,
+    which the tolerance controls (at most what is left of earlier phases')."""
+    pairs = [(coarse, fine) for coarse, fine in zip(levels, levels[1:])
+             if math.isfinite(coarse["substeps"]) and coarse["substeps"] == fine["substeps"]
+             and coarse["rejected"] == fine["rejected"]]
+    if not pairs:
+        return ""
+    named = ", ".join(f"{coarse['s']:g} and {fine['s']:g}" for coarse, fine in pairs)
+    finest = pairs[-1][1]
+    return (f"tolerance_t = {named} took the same substeps in the last phase ({finest['substeps']:g}, mean "
+            f"{finest['mean_substep']:.3g}): the tolerance did not set them there, so their difference is not "
+            f"its time error; refine from {finest['s']:g} down")
 
 
 def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:
@@ -236,14 +275,14 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     parameter = "spacing" if parameter == "mesh" else parameter  # a mesh study's s is each mesh's spacing
     buffer = io.StringIO()
     out = csv.writer(buffer, lineterminator="\n")
-    out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "order", "order_observed",
-                  "order_used", "limit", "error_bar", "note"])
+    out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "substeps", "rejected",
+                  "mean_substep", "order", "order_observed", "order_used", "limit", "error_bar", "note"])
     for name, estimate in estimates.items():
         unit = OBSERVABLES[name][1]
         for level, error in zip(levels, estimate.errors):
             out.writerow([name, unit, repr(level["s"]), level["run"], repr(level[name]), repr(error),
-                          f"{level['cpu_s']:.3f}", "", "", "", "", "", ""])
-        out.writerow([name, unit, "limit", "", "", "", "", repr(estimate.order), estimate.order_observed,
+                          f"{level['cpu_s']:.3f}", *_counts(level), "", "", "", "", "", ""])
+        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", repr(estimate.order), estimate.order_observed,
                       repr(estimate.order_used), repr(estimate.limit), repr(estimate.error_bar), estimate.note])
     atomic_write(directory / "convergence.csv", buffer.getvalue())
     names = list(estimates)
@@ -251,6 +290,7 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
         {"value": (("observable", "level"), [[level[n] for level in levels] for n in names]),
          "error": (("observable", "level"), [list(estimates[n].errors) for n in names]),
          "cpu_s": ("level", [level["cpu_s"] for level in levels]),
+         **{key: ("level", [float(level[key]) for level in levels]) for key in ("substeps", "rejected", "mean_substep")},
          "order": ("observable", [estimates[n].order for n in names]),
          "order_used": ("observable", [estimates[n].order_used for n in names]),
          "limit": ("observable", [estimates[n].limit for n in names]),
@@ -263,6 +303,13 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     temporary = path.with_suffix(".nc.tmp")
     dataset.to_netcdf(temporary, engine="h5netcdf")
     temporary.replace(path)
+
+
+def _counts(level: dict) -> list[str]:
+    """A level's substeps, rejected and mean substep as CSV cells (empty where not counted)."""
+    if not math.isfinite(level["substeps"]):
+        return ["", "", ""]
+    return [str(level["substeps"]), str(level["rejected"]), f"{level['mean_substep']:.6g}"]
 
 
 def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:

@@ -100,7 +100,8 @@ flow = { type = "shear", rate = 0.3 }
     straight, _ = load_checkpoint(tmp_path / "straight" / "checkpoint.h5", domain)
     resumed, _ = load_checkpoint(tmp_path / "cut" / "checkpoint.h5", domain)
     # (no r under flow: those substeps are plain IMEX midpoint steps)
-    assert straight.memory.keys() == resumed.memory.keys() == {"adaptive_counts", "adaptive_divisions", "adaptive_error"}
+    assert straight.memory.keys() == resumed.memory.keys() == {"adaptive_counts", "adaptive_phase_counts",
+                                                               "adaptive_divisions", "adaptive_error"}
     assert all(np.array_equal(straight.memory[k], resumed.memory[k]) for k in straight.memory)
 
 

@@ -98,7 +98,7 @@ def test_the_tables_hold_what_the_analysis_found_and_a_rerun_continues(study):
 
     root, result = study
     rows = (root / "study" / "convergence.csv").read_text().splitlines()
-    assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,order")
+    assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,substeps,rejected,mean_substep,order")
     assert len(rows) == 1 + 3 + 1
     dataset = xr.open_dataset(root / "study" / "convergence.nc", engine="h5netcdf")
     np.testing.assert_allclose(dataset["limit"].sel(observable="area"), result["estimates"]["area"].limit)
@@ -109,6 +109,57 @@ def test_the_tables_hold_what_the_analysis_found_and_a_rerun_continues(study):
                             log=lines.append)
     assert "3 done, 0 to run" in lines[0]
     assert again["estimates"]["area"].limit == result["estimates"]["area"].limit
+
+
+# a disc of R at rest, relaxed at the default dt, then sheared: 100 time units at γ̇ = 1
+SHEARED_DISC = DISC.replace("initial_radius = 4.0", "initial_radius = 8.0").replace("dt = 1.0", "dt = 10.0") + """
+[[phases]]
+name = "shear"
+duration = 100.0
+dt = 10.0
+frame_interval = 50.0
+flow = { type = "shear", rate = 1.0 }
+"""
+
+
+def test_a_tolerance_study_names_the_levels_whose_substeps_the_tolerance_did_not_set(tmp_path):
+    import json
+
+    from femphase.io.checkpoints import load_checkpoint
+    from femphase.scene import load_scene
+
+    scene = tmp_path / "sheared.toml"
+    scene.write_text(SHEARED_DISC)
+    result = run_convergence(scene, tmp_path / "study", "tolerance_t", [0.1, 0.03, 1e-3], ["area"], workers=1,
+                             log=lambda line: None)
+    levels = result["levels"]
+    for level in levels:  # the counts are the run's own, per phase, and add up to the scheme's total
+        directory = tmp_path / "study" / "runs" / level["run"]
+        phases = json.loads((directory / "run.json").read_text())["substeps"]
+        assert [record["name"] for record in phases] == ["relax", "shear"]
+        assert (level["substeps"], level["rejected"]) == (phases[1]["accepted"], phases[1]["rejected"])
+        assert level["mean_substep"] == pytest.approx(100.0 / phases[1]["accepted"])
+        state, _ = load_checkpoint(directory / "checkpoint.h5", load_scene(scene).domain)
+        assert state.memory["adaptive_counts"].tolist() == [sum(r["accepted"] for r in phases),
+                                                            sum(r["rejected"] for r in phases)]
+    # under shear the area-mode ceiling sets the substep at 0.1 and 0.03; 1e-3 refines it
+    assert levels[0]["substeps"] == levels[1]["substeps"] < levels[2]["substeps"]
+    note = result["estimates"]["area"].note
+    assert "tolerance_t = 0.1 and 0.03 took the same substeps" in note and "refine from 0.03 down" in note
+    header = (tmp_path / "study" / "convergence.csv").read_text().splitlines()[0]
+    assert "substeps,rejected,mean_substep" in header
+
+
+def test_levels_with_different_substeps_get_no_note():
+    from femphase.converge import same_substeps
+
+    def level(s, substeps, rejected=0):
+        return {"s": s, "substeps": substeps, "rejected": rejected, "mean_substep": 100.0 / substeps}
+
+    assert same_substeps([level(0.1, 30), level(0.01, 31), level(1e-3, 80)]) == ""
+    assert same_substeps([level(0.1, 30, 1), level(0.01, 30, 0)]) == ""  # a rejection is a different step sequence
+    assert same_substeps([level(0.1, math.nan), level(0.01, math.nan)]) == ""  # schemes that do not count
+    assert "0.1 and 0.01" in same_substeps([level(0.1, 30), level(0.01, 30), level(1e-3, 80)])
 
 
 def test_the_command_refuses_two_refined_parameters_and_unknown_observables(tmp_path):

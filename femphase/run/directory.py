@@ -87,7 +87,18 @@ class RunDirectory(Tracker):
             self.outputs.append_fields(state.time, point_data(state, output.per_particle_fields), self.simulation.domain.mesh)
         if output.checkpoint:
             self._checkpoint(state)
-        self.status.update(time=state.time, steps=state.step)
+        self.status.update(time=state.time, steps=state.step, **self._substeps(state))
+
+    def _substeps(self, state: State) -> dict:
+        """run.json's ``substeps``: per phase begun, the accepted and rejected substeps of a
+        scheme that counts them (``adaptive``: ``State.memory["adaptive_phase_counts"]``,
+        checkpointed, so a resumed run's counts continue); none for other schemes."""
+        counts = state.memory.get("adaptive_phase_counts")
+        if counts is None:
+            return {}
+        phases = self.simulation.scene.phases
+        return {"substeps": [{"phase": k, "name": phases[k].name, "accepted": int(accepted), "rejected": int(rejected)}
+                             for k, (accepted, rejected) in enumerate(counts.tolist()) if k < len(phases)]}
 
     def _checkpoint(self, state: State) -> None:
         save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {
@@ -107,7 +118,7 @@ class RunDirectory(Tracker):
                 self._checkpoint(state)  # a consistent state between two steps: keep it
             self.outputs.close()
             self.status.update(status=status, message=message, time=state.time, steps=state.step,
-                               steps_this_segment=state.step - self.first_step)
+                               steps_this_segment=state.step - self.first_step, **self._substeps(state))
         finally:  # the logger must not keep writing into this directory
             segment = self.status.data["segments"][-1]
             self.log.close(level, f"=== segment {len(self.status.data['segments'])} {status} after step {state.step} "

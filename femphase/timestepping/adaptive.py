@@ -17,7 +17,7 @@ from femphase.state import State
 from femphase.timestepping.base import SCHEMES, StepperProtocol, check_fields
 from femphase.timestepping.sav2 import RelaxedSAV2
 
-__all__ = ["AdaptiveSAV2"]
+__all__ = ["AdaptiveSAV2", "counted_in_phase"]
 
 
 @SCHEMES.register("adaptive")
@@ -201,5 +201,20 @@ class AdaptiveSAV2(RelaxedSAV2):
         memory["adaptive_divisions"] = np.array([m])
         memory["adaptive_error"] = np.array([previous_error])
         memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]
+        memory["adaptive_phase_counts"] = counted_in_phase(memory.get("adaptive_phase_counts"), state.phase,
+                                                           accepted, rejected)
         self.keep(state, r)
         return phi, layout
+
+
+def counted_in_phase(counts: np.ndarray | None, phase: int, accepted: int, rejected: int) -> np.ndarray:
+    """``State.memory["adaptive_phase_counts"]`` with ``accepted`` and ``rejected`` substeps
+    added to phase ``phase``: (phases so far, 2) int64, row k the accepted and rejected
+    substeps of phase k (the run directory's run.json reports them; ``adaptive_counts`` is
+    their sum over phases, counted since the run began)."""
+    rows = max(phase + 1, 0 if counts is None else counts.shape[0])
+    out = np.zeros((rows, 2), dtype=np.int64)
+    if counts is not None:
+        out[:counts.shape[0]] = counts
+    out[phase] += (accepted, rejected)
+    return out
