@@ -36,6 +36,13 @@ every looser tolerance runs the same substeps and gives about the same error (1.
 lattice's starts at 1e-2: at 0.1 its substep is the ceiling's 3.33 between T1 events
 (estimate ≈ 0.37 of the tolerance, docs/design/time-schemes.md).
 
+Why a slope is what it is: the mean accepted substep h̄ of the measured phase (the disc's and
+the pair's relaxation, the lattice's shear) follows the tolerance as tol^α, and the error
+follows h̄ as h̄^p, so the slope is α·p. The embedded estimate is a first-order step's local
+error, O(h²), so α ≈ 1/2 wherever the estimate sets the step; p is the observable's own
+order in the substep, which need not be the scheme's formal 2 (``substep_slope`` α and
+``order_in_substep`` p in the JSON).
+
 Also reported: the spatial error at h = 1, against which the default's time error is
 judged (the default must stay below it, ``numerics.tolerance_t`` in docs/scenes.md): the
 difference between h = 0.5 and h = 1 (a lower bound of the h = 1 error at second order,
@@ -87,23 +94,36 @@ def pair_scene(numerics: dict, dt: float, h: float = 1.0):
         "phases": [{"name": "relax", "duration": 20000.0, "dt": dt, "frame_interval": 1000.0}]})
 
 
-def simulate(scene) -> tuple[FrameRecorder, float]:
+def simulate(scene) -> tuple[FrameRecorder, float, dict]:
+    """(frames, CPU seconds, :func:`substeps` of its last phase)."""
     recorder = FrameRecorder()
+    state = scene.initial_state()
     started = time.process_time()
-    Simulation(scene).run(scene.initial_state(), [recorder])
-    return recorder, time.process_time() - started
+    Simulation(scene).run(state, [recorder])
+    return recorder, time.process_time() - started, substeps(state.memory, len(scene.phases) - 1,
+                                                               scene.phases[-1].duration)
 
 
-def disc_areas(numerics: dict, dt: float, h: float = 1.0) -> tuple[list[float], float]:
-    recorder, cpu = simulate(disc_scene(numerics, dt, h))
+def substeps(memory: dict, phase: int, duration: float) -> dict:
+    """The adaptive scheme's accepted substeps in ``phase`` and their mean size (time units),
+    from a state's memory; empty for fixed-step schemes (the references)."""
+    counts = memory.get("adaptive_phase_counts")
+    if counts is None or counts.shape[0] <= phase:
+        return {}
+    accepted = int(counts[phase, 0])
+    return {"substeps": accepted, "mean_substep": duration / accepted}
+
+
+def disc_areas(numerics: dict, dt: float, h: float = 1.0) -> tuple[list[float], float, dict]:
+    recorder, cpu, counted = simulate(disc_scene(numerics, dt, h))
     area = recorder.series("area")[:, 0]
-    return [float(area[np.argmin(np.abs(recorder.times - t))]) for t in DISC_TIMES], cpu
+    return [float(area[np.argmin(np.abs(recorder.times - t))]) for t in DISC_TIMES], cpu, counted
 
 
-def pair_separation(numerics: dict, dt: float, h: float = 1.0) -> tuple[float, float]:
-    recorder, cpu = simulate(pair_scene(numerics, dt, h))
+def pair_separation(numerics: dict, dt: float, h: float = 1.0) -> tuple[float, float, dict]:
+    recorder, cpu, counted = simulate(pair_scene(numerics, dt, h))
     y = recorder.series("y")
-    return float(y[-1, 1] - y[-1, 0]), cpu
+    return float(y[-1, 1] - y[-1, 0]), cpu, counted
 
 
 def references(cases: list[str]) -> dict:
@@ -171,13 +191,14 @@ def spatial_errors(case: str, reference: dict) -> dict:
 def measure(case: str, tolerance: float, reference: dict) -> dict:
     numerics = {"tolerance_t": tolerance}
     if case == "disc":
-        areas, cpu = disc_areas(numerics, 10.0)
+        areas, cpu, counted = disc_areas(numerics, 10.0)
         errors = np.abs(np.subtract(areas, reference["area"]))
-        return {"error": float(errors.max()), "errors_at": dict(zip(map(str, DISC_TIMES), errors.tolist())), "cpu_s": cpu}
+        return {"error": float(errors.max()), "errors_at": dict(zip(map(str, DISC_TIMES), errors.tolist())),
+                "cpu_s": cpu, **counted}
     if case == "pair":
-        separation, cpu = pair_separation(numerics, 10.0)
+        separation, cpu, counted = pair_separation(numerics, 10.0)
         error = abs(separation - reference["separation"])
-        return {"error": error, "errors_at": {"20000.0": error}, "separation": separation, "cpu_s": cpu}
+        return {"error": error, "errors_at": {"20000.0": error}, "separation": separation, "cpu_s": cpu, **counted}
     import work_precision as wp
 
     # work_precision's points run the first-order scheme unless they name another
@@ -185,7 +206,7 @@ def measure(case: str, tolerance: float, reference: dict) -> dict:
     errors = wp.lattice_errors(point, reference["result"])
     return {"error": errors["elongation"], "errors_at": {"elongation": errors["elongation"]},
             "period_error": errors["period"], "peak_time_errors": peak_time_errors(point.result, reference["result"]),
-            "cpu_s": point.seconds}
+            "cpu_s": point.seconds, **point.result.get("shear_substeps", {})}
 
 
 def peak_time_errors(result: dict, reference: dict) -> list[float]:
@@ -221,8 +242,8 @@ def report(result: dict) -> str:
     def error(case: str, value: float) -> str:
         return f"{100 * value:.2g} %" if case == "lattice" else f"{value:.2g}"
 
-    lines = [("| case (error measured) | tolerances | error (CPU s) at each | slope | default "
-              f"{result['default']:g}: time error | spatial error h = 1 → 0.5 |"), "|---|---|---|---|---|---|"]
+    lines = [("| case (error measured) | tolerances | error (CPU s) at each | slope | mean substep at each; α, p | "
+              f"default {result['default']:g}: time error | spatial error h = 1 → 0.5 |"), "|---|---|---|---|---|---|---|"]
     for case, entry in result["cases"].items():
         window = [row for row in entry["rows"] if row["tolerance_t"] in entry["window"]]
         default = next(row for row in entry["rows"] if row["tolerance_t"] == result["default"])
@@ -233,10 +254,15 @@ def report(result: dict) -> str:
                      + f" | {entry['slope']:.2f}"
                      + (f" (period: {slope(entry['window'], [row['period_error'] for row in window]):.2f})"
                         if case == "lattice" else "")
+                     + " | " + ", ".join(f"{row['mean_substep']:.3g}" for row in window)
+                     + f"; {entry['substep_slope']:.2f}, {entry['order_in_substep']:.2f}"
                      + f" | {error(case, default['error'])} ({judged}) | "
                      + ", ".join(error(case, value) for value in spatial.values()) + " |")
     commands = "; ".join(f"`{entry['command']}`" for entry in result["cases"].values())
-    text = "\n".join(lines) + f"\n\nCommands: {commands}."
+    text = "\n".join(lines) + (
+        "\n\nα: the log–log slope of the mean accepted substep (the measured phase's duration over its "
+        "substeps) against the tolerance; p = slope/α, the order at which the measured error falls with "
+        f"that substep. Commands: {commands}.")
     lattice = result["cases"].get("lattice")
     if lattice and all("peak_time_errors" in row for row in lattice["rows"]):
         window = [row for row in lattice["rows"] if row["tolerance_t"] in lattice["window"]]
@@ -260,6 +286,7 @@ def main() -> None:
         common.update_readme("tolerance", report(json.loads(args.output.read_text())))
         return
     refs = references(args.cases)
+    simulate(disc_scene({}, 10.0))  # compiles the window kernels, which the first timed run would pay for
     for case in args.cases:
         tolerances = sorted(set(WINDOWS[case]) | {DEFAULT}, reverse=True)
         rows = []
@@ -267,9 +294,11 @@ def main() -> None:
             rows.append({"tolerance_t": tolerance, **measure(case, tolerance, refs[case])})
             print(json.dumps({"case": case, **rows[-1]}), flush=True)
         window = [row for row in rows if row["tolerance_t"] in WINDOWS[case]]
-        out["cases"][case] = {"rows": rows, "window": list(WINDOWS[case]),
-                              "slope": slope([r["tolerance_t"] for r in window], [r["error"] for r in window]),
-
+        tolerances = [r["tolerance_t"] for r in window]
+        error_slope = slope(tolerances, [r["error"] for r in window])
+        substep_slope = slope(tolerances, [r["mean_substep"] for r in window])
+        out["cases"][case] = {"rows": rows, "window": list(WINDOWS[case]), "slope": error_slope,
+                              "substep_slope": substep_slope, "order_in_substep": error_slope / substep_slope,
                               "spatial_error": spatial_errors(case, refs[case]),
                               "reference": {k: v for k, v in refs[case].items() if not k.startswith("result")},
                               "command": f"python benchmarks/tolerance.py --cases {case}"}
