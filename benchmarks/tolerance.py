@@ -31,10 +31,12 @@ a log–log slope of error against tolerance near 1 over the window (proportiona
 slope near 0 means something else sets the step. The disc and the pair run without flow,
 where the scheme allows a tenth of ``tolerance_t`` per substep
 (:meth:`femphase.config.Numerics.substep_tolerance`). The pair's window starts at 1e-3:
-above it, its estimate at the area-mode ceiling (substep 3.33) is below the tolerance, so
-every looser tolerance runs the same substeps and gives about the same error (1.45e-3). The
-lattice's starts at 1e-2: at 0.1 its substep is the ceiling's 3.33 between T1 events
-(estimate ≈ 0.37 of the tolerance, docs/design/time-schemes.md).
+above it, its estimate at the substep 3.33 is below the tolerance (the area-mode ceiling
+caps the substeps the controller would grow), so every looser tolerance runs the same
+substeps and gives about the same error (1.45e-3). The lattice's starts at 1e-2: at 0.1
+its substep is 3.33 throughout the shear, its estimate ≈ 0.37 of the tolerance, inside the
+band where the controller keeps a size (docs/design/time-schemes.md); the ceiling caps
+none of those substeps (docs/decisions/0036-ceiling-idle-under-flow.md).
 
 Why a slope is what it is: the mean accepted substep h̄ of the measured phase (the disc's and
 the pair's relaxation, the lattice's shear) follows the tolerance as tol^α, and the error

@@ -239,24 +239,27 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
 
 
 def last_phase_substeps(info: dict) -> dict:
-    """``substeps`` and ``rejected`` of a run's last phase from its run.json (``info``),
-    and ``mean_substep``, the phase's duration over its substeps (time units); NaN for
-    schemes that do not count substeps and for runs that did not reach the last phase."""
+    """``substeps``, ``rejected`` and ``capped`` (those the area-mode ceiling set) of a
+    run's last phase from its run.json (``info``), and ``mean_substep``, the phase's
+    duration over its substeps (time units); NaN for schemes that do not count substeps and
+    for runs that did not reach the last phase."""
     phases = info["settings"]["phases"]
     counted = {record["phase"]: record for record in info.get("substeps", [])}
     record = counted.get(len(phases) - 1)
     if record is None or record["accepted"] == 0:
-        return {"substeps": math.nan, "rejected": math.nan, "mean_substep": math.nan}
-    return {"substeps": record["accepted"], "rejected": record["rejected"],
+        return {"substeps": math.nan, "rejected": math.nan, "capped": math.nan, "mean_substep": math.nan}
+    return {"substeps": record["accepted"], "rejected": record["rejected"], "capped": record.get("capped", math.nan),
             "mean_substep": float(phases[-1]["duration"]) / record["accepted"]}
 
 
 def same_substeps(levels: list[dict]) -> str:
     """For a tolerance study (levels coarse to fine): a note naming the neighbouring levels
-    whose last phase took the same substeps, accepted and rejected, or "". There the
-    tolerance did not set the substep: the area-mode ceiling or the phase's dt did
-    (docs/scenes.md, ``tolerance_t``), so their difference is not that phase's time error,
-    which the tolerance controls (at most what is left of earlier phases')."""
+    whose last phase took the same substeps, accepted and rejected, or "". Between them the
+    tolerance did not change the step: the controller keeps a size while its estimate stays
+    within about 20–65 % of the tolerance (docs/design/time-schemes.md), and the area-mode
+    ceiling may cap it (``capped``, named in the note), so their difference is not that
+    phase's time error, which the tolerance controls (at most what is left of earlier
+    phases')."""
     pairs = [(coarse, fine) for coarse, fine in zip(levels, levels[1:])
              if math.isfinite(coarse["substeps"]) and coarse["substeps"] == fine["substeps"]
              and coarse["rejected"] == fine["rejected"]]
@@ -264,9 +267,13 @@ def same_substeps(levels: list[dict]) -> str:
         return ""
     named = ", ".join(f"{coarse['s']:g} and {fine['s']:g}" for coarse, fine in pairs)
     finest = pairs[-1][1]
+    involved = list({id(level): level for pair in pairs for level in pair}.values())
+    capped = [level for level in involved if math.isfinite(level["capped"]) and level["capped"] > 0]
+    ceiling = ("; the area-mode ceiling capped " + ", ".join(f"{level['capped']:g} at {level['s']:g}" for level in capped)
+               if capped else "")
     return (f"tolerance_t = {named} took the same substeps in the last phase ({finest['substeps']:g}, mean "
-            f"{finest['mean_substep']:.3g}): the tolerance did not set them there, so their difference is not "
-            f"its time error; refine from {finest['s']:g} down")
+            f"{finest['mean_substep']:.3g}{ceiling}), so their difference is not the time error the tolerance "
+            f"controls; refine from {finest['s']:g} down")
 
 
 def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:
@@ -276,13 +283,13 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     buffer = io.StringIO()
     out = csv.writer(buffer, lineterminator="\n")
     out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "substeps", "rejected",
-                  "mean_substep", "order", "order_observed", "order_used", "limit", "error_bar", "note"])
+                  "capped", "mean_substep", "order", "order_observed", "order_used", "limit", "error_bar", "note"])
     for name, estimate in estimates.items():
         unit = OBSERVABLES[name][1]
         for level, error in zip(levels, estimate.errors):
             out.writerow([name, unit, repr(level["s"]), level["run"], repr(level[name]), repr(error),
                           f"{level['cpu_s']:.3f}", *_counts(level), "", "", "", "", "", ""])
-        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", repr(estimate.order), estimate.order_observed,
+        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", "", repr(estimate.order), estimate.order_observed,
                       repr(estimate.order_used), repr(estimate.limit), repr(estimate.error_bar), estimate.note])
     atomic_write(directory / "convergence.csv", buffer.getvalue())
     names = list(estimates)
@@ -290,7 +297,8 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
         {"value": (("observable", "level"), [[level[n] for level in levels] for n in names]),
          "error": (("observable", "level"), [list(estimates[n].errors) for n in names]),
          "cpu_s": ("level", [level["cpu_s"] for level in levels]),
-         **{key: ("level", [float(level[key]) for level in levels]) for key in ("substeps", "rejected", "mean_substep")},
+         **{key: ("level", [float(level[key]) for level in levels])
+            for key in ("substeps", "rejected", "capped", "mean_substep")},
          "order": ("observable", [estimates[n].order for n in names]),
          "order_used": ("observable", [estimates[n].order_used for n in names]),
          "limit": ("observable", [estimates[n].limit for n in names]),
@@ -306,10 +314,12 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
 
 
 def _counts(level: dict) -> list[str]:
-    """A level's substeps, rejected and mean substep as CSV cells (empty where not counted)."""
+    """A level's substeps, rejected, capped and mean substep as CSV cells (empty where not
+    counted)."""
     if not math.isfinite(level["substeps"]):
-        return ["", "", ""]
-    return [str(level["substeps"]), str(level["rejected"]), f"{level['mean_substep']:.6g}"]
+        return ["", "", "", ""]
+    capped = str(level["capped"]) if math.isfinite(level["capped"]) else ""
+    return [str(level["substeps"]), str(level["rejected"]), capped, f"{level['mean_substep']:.6g}"]
 
 
 def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:

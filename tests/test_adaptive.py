@@ -335,3 +335,32 @@ def test_phases_without_flow_allow_a_tenth_of_the_tolerance(still):
     flow = None if still else linear_shear(0.1, 40.0)
     stepper = Stepper(domain, ModelParameters(), Numerics(tolerance_t=0.2), 10.0, flow, state.radii)
     assert stepper.scheme.tolerance == pytest.approx(0.02 if still else 0.2)
+
+
+def _drifting_pair(duration: float):
+    """Two discs of R = 8 pushed apart across a 27-wide channel, no flow: a quiet relaxation
+    whose estimate falls below the tolerance as the drift slows."""
+    scene = scene_from_dict({
+        "domain": {"Lx": 27.0, "Ly": 120.0},
+        "particles": {"layout": "list", "centres": [[13.5, 50.0], [13.5, 70.0]], "initial_radius": 8.0},
+        "output": {"fields": False, "checkpoint": False},
+        "phases": [{"duration": duration, "dt": 10.0, "frame_interval": duration}],
+    })
+    state = scene.initial_state()
+    Simulation(scene).run(state)
+    return state.memory["adaptive_phase_counts"][0]
+
+
+def test_capped_counts_the_substeps_whose_size_the_area_mode_ceiling_set(monkeypatch):
+    from femphase.timestepping.adaptive import AdaptiveSAV2
+
+    # the controller's wish against the bound, in units of dt: 0.45 is 4.5 time units (m = 3
+    # gives 3.33 either way), 0.55 would be 5 (m = 2), which a ceiling of 0.375 cuts to 3.33
+    assert AdaptiveSAV2.capped_divisions(0.45, 0.375, 0) == (3, False)
+    assert AdaptiveSAV2.capped_divisions(0.55, 0.375, 0) == (3, True)
+    assert AdaptiveSAV2.capped_divisions(0.55, np.inf, 0) == (2, False)
+    accepted, rejected, capped = _drifting_pair(3000.0)
+    assert 0 < capped < accepted
+    monkeypatch.setattr(AdaptiveSAV2, "RANK_ONE_STEP", 1e9)  # the ceiling out of reach
+    accepted_free, _, capped_free = _drifting_pair(3000.0)
+    assert capped_free == 0 and accepted_free < accepted  # the capped substeps grow without it

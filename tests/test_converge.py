@@ -98,7 +98,7 @@ def test_the_tables_hold_what_the_analysis_found_and_a_rerun_continues(study):
 
     root, result = study
     rows = (root / "study" / "convergence.csv").read_text().splitlines()
-    assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,substeps,rejected,mean_substep,order")
+    assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,substeps,rejected,capped,mean_substep,order")
     assert len(rows) == 1 + 3 + 1
     dataset = xr.open_dataset(root / "study" / "convergence.nc", engine="h5netcdf")
     np.testing.assert_allclose(dataset["limit"].sel(observable="area"), result["estimates"]["area"].limit)
@@ -146,20 +146,22 @@ def test_a_tolerance_study_names_the_levels_whose_substeps_the_tolerance_did_not
     assert levels[0]["substeps"] == levels[1]["substeps"] < levels[2]["substeps"]
     note = result["estimates"]["area"].note
     assert "tolerance_t = 0.1 and 0.03 took the same substeps" in note and "refine from 0.03 down" in note
+    assert all(0 <= level["capped"] <= level["substeps"] for level in levels)
     header = (tmp_path / "study" / "convergence.csv").read_text().splitlines()[0]
-    assert "substeps,rejected,mean_substep" in header
+    assert "substeps,rejected,capped,mean_substep" in header
 
 
 def test_levels_with_different_substeps_get_no_note():
     from femphase.converge import same_substeps
 
-    def level(s, substeps, rejected=0):
-        return {"s": s, "substeps": substeps, "rejected": rejected, "mean_substep": 100.0 / substeps}
+    def level(s, substeps, rejected=0, capped=0):
+        return {"s": s, "substeps": substeps, "rejected": rejected, "capped": capped, "mean_substep": 100.0 / substeps}
 
     assert same_substeps([level(0.1, 30), level(0.01, 31), level(1e-3, 80)]) == ""
     assert same_substeps([level(0.1, 30, 1), level(0.01, 30, 0)]) == ""  # a rejection is a different step sequence
     assert same_substeps([level(0.1, math.nan), level(0.01, math.nan)]) == ""  # schemes that do not count
     assert "0.1 and 0.01" in same_substeps([level(0.1, 30), level(0.01, 30), level(1e-3, 80)])
+    assert "; the area-mode ceiling capped 12 at 0.1)" in same_substeps([level(0.1, 30, capped=12), level(0.01, 30), level(1e-3, 80)])
 
 
 def test_the_command_refuses_two_refined_parameters_and_unknown_observables(tmp_path):

@@ -91,14 +91,16 @@ class RunDirectory(Tracker):
 
     def _substeps(self, state: State) -> dict:
         """run.json's ``substeps``: per phase begun, the accepted and rejected substeps of a
-        scheme that counts them (``adaptive``: ``State.memory["adaptive_phase_counts"]``,
-        checkpointed, so a resumed run's counts continue); none for other schemes."""
+        scheme that counts them, and the accepted ones whose size the area-mode ceiling set
+        (``adaptive``: ``State.memory["adaptive_phase_counts"]``, checkpointed, so a resumed
+        run's counts continue); none for other schemes."""
         counts = state.memory.get("adaptive_phase_counts")
         if counts is None:
             return {}
         phases = self.simulation.scene.phases
-        return {"substeps": [{"phase": k, "name": phases[k].name, "accepted": int(accepted), "rejected": int(rejected)}
-                             for k, (accepted, rejected) in enumerate(counts.tolist()) if k < len(phases)]}
+        keys = ("accepted", "rejected", "capped")
+        return {"substeps": [{"phase": k, "name": phases[k].name, **dict(zip(keys, map(int, row)))}
+                             for k, row in enumerate(counts.tolist()) if k < len(phases)]}
 
     def _checkpoint(self, state: State) -> None:
         save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {

@@ -14,12 +14,14 @@ stderr (:func:`femphase.cli.console.console_handler`). From Python,
 
 A status line (level INFO) reads
 
-    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
+    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 capped=135 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
 
 with t the simulated time (time units), step the steps done of the scene's total, the
 phase (index:name), the mean wall time per step since the previous line (ms), under the
 adaptive scheme the mean accepted substep since the previous line (time units; ``-``
-when none was taken) and the substeps rejected since (absent for other schemes), the number of
+when none was taken), the substeps rejected since, and the accepted ones whose size the
+area-mode ceiling set rather than the error estimate (``capped``; when all are, the ceiling,
+not the tolerance, set the step) (absent for other schemes), the number of
 windows (one per particle) and their mean size in dofs, the resident memory of the process
 now (``rss``, /proc/self/statm; absent where there is no /proc) and its peak (``peak``,
 resource.getrusage's ru_maxrss), in MiB, and the remaining wall time if the remaining
@@ -124,19 +126,27 @@ class StatusLog(Tracker):
             self._mark(state, now)
 
     def _substeps(self, state: State) -> list[str]:
-        """``substep=`` and ``rejected=`` since the previous line, for schemes that count
-        their substeps (``adaptive``: ``State.memory["adaptive_counts"]``); none for others."""
+        """``substep=``, ``rejected=`` and ``capped=`` (accepted substeps whose size the
+        area-mode ceiling set, not the error estimate) since the previous line, for schemes
+        that count their substeps (``adaptive``: ``State.memory["adaptive_counts"]`` and
+        ``["adaptive_phase_counts"]``); none for others."""
         counts = state.memory.get("adaptive_counts")
         if counts is None:
             return []
         accepted, rejected = (int(n) for n in counts - self._since_counts)
         substep = f"{(state.time - self._since_time) / accepted:.3g}" if accepted > 0 else "-"
-        return [f"substep={substep}", f"rejected={rejected}"]
+        return [f"substep={substep}", f"rejected={rejected}", f"capped={self._capped(state) - self._since_capped}"]
+
+    @staticmethod
+    def _capped(state: State) -> int:
+        per_phase = state.memory.get("adaptive_phase_counts")
+        return int(per_phase[:, 2].sum()) if per_phase is not None and per_phase.shape[1] > 2 else 0
 
     def _mark(self, state: State, now: float | None = None) -> None:
         self._since, self._since_step = wallclock.monotonic() if now is None else now, state.step
         self._since_time = state.time
         self._since_counts = np.array(state.memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)))
+        self._since_capped = self._capped(state)
 
     def _phase(self, index: int) -> str:
         return f"{index}:{self.simulation.scene.phases[index].name}"

@@ -123,6 +123,15 @@ class AdaptiveSAV2(RelaxedSAV2):
         return self.RANK_ONE_STEP / max(float(rate.max()), 1e-300)
 
     @classmethod
+    def capped_divisions(cls, wanted: float, largest: float, done: int) -> tuple[int, bool]:
+        """(m of the next substep for the controller's ``wanted`` size under the bound
+        ``largest``, both in units of dt; whether that bound made it smaller than the
+        controller alone would have): a substep the area-mode ceiling set, not the error
+        estimate."""
+        m = cls.divisions_for(min(wanted, largest), done)
+        return m, m != cls.divisions_for(wanted, done)
+
+    @classmethod
     def divisions_for(cls, size: float, done: int) -> int:
         """m of the largest substep dt/m no larger than ``size`` (in units of dt) that can
         start after ``done`` units (it starts at a multiple of its own length)."""
@@ -140,11 +149,11 @@ class AdaptiveSAV2(RelaxedSAV2):
         # the rank-one modes' bound, once per step (the areas change slowly), in units of dt
         largest = self.largest_substep(phi, layout, state.radii) / dt
         carried = int(memory.get("adaptive_divisions", np.array([self.FIRST]))[0])
-        m = self.divisions_for(min(1.0 / carried, largest), 0)
+        m, capped = self.capped_divisions(1.0 / carried, largest, 0)
         previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
         r = self.auxiliary(phi, layout, state)
         done = 0  # units (dt/UNITS) done in this step
-        accepted = rejected = 0
+        accepted = rejected = at_ceiling = 0  # at_ceiling: accepted substeps the ceiling set (capped_divisions)
         before = self.free_energy(phi, layout, state.radii) if self.checks_energy else None
         owed: tuple[int, ...] = ()  # m of the accepted substep whose second half-advection is still due
         while done < total:
@@ -170,13 +179,13 @@ class AdaptiveSAV2(RelaxedSAV2):
             if error > self.tolerance and m < self.UNITS:
                 rejected += 1
                 factor = max(self.SHRINK, self.SAFETY * (self.tolerance / error) ** 0.5)
-                m = self.divisions_for(min(min(factor, 0.75) / m, largest), done)
+                m, capped = self.capped_divisions(min(factor, 0.75) / m, largest, done)
                 continue
             if before is not None:
                 after = self.free_energy(new, layout, state.radii)
                 if self.rises(before, after) and m < self.UNITS:  # F must not rise: a smaller substep
                     rejected += 1
-                    m = self.divisions_for(min(0.75 / m, largest), done)
+                    m, capped = self.capped_divisions(0.75 / m, largest, done)
                     continue
                 if self.rises(before, after):
                     new = self.fallback(phi, layout, time, state.radii, h)
@@ -187,10 +196,11 @@ class AdaptiveSAV2(RelaxedSAV2):
             owed = (m,)
             done += self.UNITS // m
             accepted += 1
+            at_ceiling += capped
             factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous_error / self.tolerance) ** self.K_P
             factor = min(self.GROWTH, max(self.SHRINK, factor))
             previous_error = error
-            m = self.divisions_for(min(factor / m, largest), done)
+            m, capped = self.capped_divisions(factor / m, largest, done)
             layout, phi = stepper.refit(layout, phi)
         lag = 0.5 * dt / owed[0]
         if self.decaying:
@@ -202,19 +212,22 @@ class AdaptiveSAV2(RelaxedSAV2):
         memory["adaptive_error"] = np.array([previous_error])
         memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]
         memory["adaptive_phase_counts"] = counted_in_phase(memory.get("adaptive_phase_counts"), state.phase,
-                                                           accepted, rejected)
+                                                           accepted, rejected, at_ceiling)
         self.keep(state, r)
         return phi, layout
 
 
-def counted_in_phase(counts: np.ndarray | None, phase: int, accepted: int, rejected: int) -> np.ndarray:
-    """``State.memory["adaptive_phase_counts"]`` with ``accepted`` and ``rejected`` substeps
-    added to phase ``phase``: (phases so far, 2) int64, row k the accepted and rejected
-    substeps of phase k (the run directory's run.json reports them; ``adaptive_counts`` is
-    their sum over phases, counted since the run began)."""
+def counted_in_phase(counts: np.ndarray | None, phase: int, accepted: int, rejected: int,
+                     capped: int) -> np.ndarray:
+    """``State.memory["adaptive_phase_counts"]`` with ``accepted``, ``rejected`` and
+    ``capped`` substeps added to phase ``phase``: (phases so far, 3) int64, row k the
+    accepted substeps of phase k, the rejected ones, and the accepted ones whose size the
+    area-mode ceiling set rather than the error estimate (:meth:`AdaptiveSAV2.capped_divisions`).
+    The run directory's run.json reports them; ``adaptive_counts`` is the first two summed
+    over phases, counted since the run began."""
     rows = max(phase + 1, 0 if counts is None else counts.shape[0])
-    out = np.zeros((rows, 2), dtype=np.int64)
-    if counts is not None:
-        out[:counts.shape[0]] = counts
-    out[phase] += (accepted, rejected)
+    out = np.zeros((rows, 3), dtype=np.int64)
+    if counts is not None:  # (phases, 2) from checkpoints that did not count capped substeps
+        out[:counts.shape[0], :counts.shape[1]] = counts
+    out[phase] += (accepted, rejected, capped)
     return out
