@@ -14,7 +14,7 @@ stderr (:func:`femphase.cli.console.console_handler`). From Python,
 
 A status line (level INFO) reads
 
-    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 capped=135 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
+    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 capped=0 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
 
 with t the simulated time (time units), step the steps done of the scene's total, the
 phase (index:name), the mean wall time per step since the previous line (ms), under the
