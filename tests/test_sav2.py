@@ -266,3 +266,24 @@ def test_the_midpoint_step_part_by_part_is_the_step_on_the_whole_layout():
     unsplit = Stepper(domain, ModelParameters(), Numerics(scheme="sav2", repulsion_split=False), 2.0, flow,
                       state.radii)
     assert not unsplit.scheme.window_local
+
+
+def test_the_energy_check_after_a_restart_is_the_free_energy_of_that_field():
+    """A relaxation step's F check takes E1 from the restart at the same φ and adds the
+    gradient energy (RelaxedSAV2.free_energy): it must equal F computed afresh, and a field
+    that is not the restarted array must not use the restart's E1."""
+    domain, state = small_system([[14.0, 20.0], [27.0, 20.0]], initial_radius=6.0)
+    scheme = Stepper(domain, ModelParameters(), Numerics(scheme="sav2"), 2.0, None, state.radii).scheme
+    scheme.stepper.step(state)
+    layout, phi = state.flat()
+    fresh = energy_of(state, ModelParameters()).total
+    scheme.restart(WindowedFields(phi, layout, state.radii))
+    assert scheme.free_energy(phi, layout, state.radii) == pytest.approx(fresh, rel=1e-13)
+    # another array after a restart: every term afresh (its E1 differs from the restart's)
+    scheme.restart(WindowedFields(phi, layout, state.radii))
+    changed = phi.copy()
+    changed[np.argmax(phi)] -= 0.5
+    expected = scheme.stepper.energy.parts(WindowedFields(changed, layout, state.radii,
+                                                          domain.stiffness_apply(layout))).total
+    assert abs(expected - fresh) > 1e-3 * abs(fresh)
+    assert scheme.free_energy(changed, layout, state.radii) == pytest.approx(expected, rel=1e-13)
