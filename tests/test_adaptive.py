@@ -337,12 +337,13 @@ def test_phases_without_flow_allow_a_tenth_of_the_tolerance(still):
     assert stepper.scheme.tolerance == pytest.approx(0.02 if still else 0.2)
 
 
-def _drifting_pair(duration: float):
+def _drifting_pair(duration: float, merged_steps: int = 8):
     """Two discs of R = 8 pushed apart across a 27-wide channel, no flow: a quiet relaxation
     whose estimate falls below the tolerance as the drift slows."""
     scene = scene_from_dict({
         "domain": {"Lx": 27.0, "Ly": 120.0},
         "particles": {"layout": "list", "centres": [[13.5, 50.0], [13.5, 70.0]], "initial_radius": 8.0},
+        "numerics": {"merged_steps": merged_steps},
         "output": {"fields": False, "checkpoint": False},
         "phases": [{"duration": duration, "dt": 10.0, "frame_interval": duration}],
     })
@@ -361,6 +362,9 @@ def test_capped_counts_the_substeps_whose_size_the_area_mode_ceiling_set(monkeyp
     assert AdaptiveSAV2.capped_divisions(0.55, np.inf, 0) == (2, False)
     accepted, rejected, capped = _drifting_pair(3000.0)
     assert 0 < capped < accepted
+    # a capped substep that ends one stepper call starts the next one capped: calls of one
+    # step (three substeps) count what calls of eight do
+    assert _drifting_pair(3000.0, merged_steps=1).tolist() == [accepted, rejected, capped]
     monkeypatch.setattr(AdaptiveSAV2, "RANK_ONE_STEP", 1e9)  # the ceiling out of reach
     accepted_free, _, capped_free = _drifting_pair(3000.0)
     assert capped_free == 0 and accepted_free < accepted  # the capped substeps grow without it

@@ -148,8 +148,12 @@ class AdaptiveSAV2(RelaxedSAV2):
         total = steps * self.UNITS
         # the rank-one modes' bound, once per step (the areas change slowly), in units of dt
         largest = self.largest_substep(phi, layout, state.radii) / dt
-        carried = int(memory.get("adaptive_divisions", np.array([self.FIRST]))[0])
+        # (m, whether the ceiling capped it) chosen at the end of the previous call; checkpoints
+        # that did not record the second carry m alone
+        stored = memory.get("adaptive_divisions", np.array([self.FIRST]))
+        carried = int(stored[0])
         m, capped = self.capped_divisions(1.0 / carried, largest, 0)
+        capped = capped or (stored.size > 1 and bool(stored[1]) and m == carried)
         previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
         r = self.auxiliary(phi, layout, state)
         done = 0  # units (dt/UNITS) done in this step
@@ -208,7 +212,7 @@ class AdaptiveSAV2(RelaxedSAV2):
         advection = self._advection(owed)
         if advection is not None:
             phi, layout = advection.advect(phi, layout, state.time + steps * dt - lag)
-        memory["adaptive_divisions"] = np.array([m])
+        memory["adaptive_divisions"] = np.array([m, int(capped)])
         memory["adaptive_error"] = np.array([previous_error])
         memory["adaptive_counts"] = memory.get("adaptive_counts", np.zeros(2, dtype=np.int64)) + [accepted, rejected]
         memory["adaptive_phase_counts"] = counted_in_phase(memory.get("adaptive_phase_counts"), state.phase,
