@@ -15,8 +15,8 @@ DIR/ ::
                      start and end times, and the history of segments (one per start or
                      resume, each with its command line, wall time and provenance:
                      versions, host, threads); with the adaptive scheme, ``substeps``: per
-                     phase, the accepted and rejected substeps; replaced atomically at
-                     every frame
+                     phase, the accepted, rejected and capped substeps; replaced
+                     atomically at every frame
   run.log            the log (:class:`RunLog`): a header line per segment, status lines,
                      warnings, how each segment ended; appended, never cut
 

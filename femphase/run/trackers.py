@@ -20,9 +20,9 @@ with t the simulated time (time units), step the steps done of the scene's total
 phase (index:name), the mean wall time per step since the previous line (ms), under the
 adaptive scheme the mean accepted substep since the previous line (time units; ``-``
 when none was taken), the substeps rejected since, and the accepted ones whose size the
-area-mode ceiling set rather than the error estimate (``capped``; when all are, the ceiling,
-not the tolerance, set the step) (absent for other schemes), the number of
-windows (one per particle) and their mean size in dofs, the resident memory of the process
+area-mode ceiling set rather than the error estimate (``capped``: when all are, the
+ceiling, not the tolerance, set the step); these three are absent for other schemes. Then
+the number of windows (one per particle) and their mean size in dofs, the resident memory of the process
 now (``rss``, /proc/self/statm; absent where there is no /proc) and its peak (``peak``,
 resource.getrusage's ru_maxrss), in MiB, and the remaining wall time if the remaining
 steps run at that rate (``eta``). The prefix says why the line was written: ``status``
