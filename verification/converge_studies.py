@@ -1,6 +1,6 @@
 """The period law's h-trend and the equilibrium's h → 0 limit, through `femphase converge`.
 
-    python verification/converge_studies.py [--runs DIR] [--workers N]     # ~1.5 CPU-hours, resumable
+    python verification/converge_studies.py [--runs DIR] [--workers N]     # ~0.5 CPU-hours, resumable
 
 Two convergence studies, each exactly what the command line runs:
 
