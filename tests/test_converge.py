@@ -195,3 +195,17 @@ def test_a_mesh_scene_is_refined_by_its_mesh_files(tmp_path):
     area = result["estimates"]["area"]
     assert area.order_observed and 1.0 < area.order < 3.5
     assert abs(area.errors[2]) < abs(area.errors[0])
+
+
+def test_the_command_prints_each_levels_substeps_for_the_adaptive_scheme(tmp_path, capsys):
+    from femphase.cli import main
+
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    assert main(["converge", str(scene), "--h", "2,1", "--observable", "area", "-o", str(tmp_path / "s"),
+                 "--workers", "1"]) == 0
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.startswith("substeps in the last phase")]
+    assert len(lines) == 1 and lines[0].count(";") == 3  # (mean size; capped) at h = 2 and 1
+    assert main(["converge", str(scene), "--h", "2,1", "--observable", "area", "-o", str(tmp_path / "f"),
+                 "--workers", "1", "--set", 'numerics.scheme="sav2"']) == 0
+    assert "substeps in the last phase" not in capsys.readouterr().out  # a fixed-step scheme counts none

@@ -64,6 +64,11 @@ def run(args: argparse.Namespace) -> int:
         order = f"{estimate.order:.2f}" + ("" if estimate.order_observed else "*")
         print(f"{name:<16} {order:>7} {estimate.limit:>14.6g} {estimate.error_bar:>12.3g}   {errors}"
               + (f"  ({estimate.note})" if estimate.note else ""))
+    counted = [level for level in result["levels"] if math.isfinite(level["substeps"])]
+    if counted:  # the adaptive scheme: what its controller did in the phase the observables come from
+        print("substeps in the last phase (mean size; capped by the area-mode ceiling): " + ", ".join(
+            f"{level['s']:.4g}: {level['substeps']:g} ({level['mean_substep']:.3g}; {level['capped']:g})"
+            for level in counted))
     assumed = any(not estimate.order_observed for estimate in result["estimates"].values())
     print(("(* assumed, not observed)  " if assumed else "") + f"tables: {Path(args.output) / 'convergence.csv'}, "
           "convergence.nc; figure: convergence.png")
