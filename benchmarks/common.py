@@ -47,6 +47,17 @@ def relaxed_random_packing(dt: float | None = None, **numerics):
     return scene, simulation, state, time.process_time() - started
 
 
+def phase_substeps(memory: dict, phase: int, duration: float) -> dict:
+    """The adaptive scheme's accepted substeps in ``phase`` (of ``duration`` time units) and
+    their mean size, from a state's memory (``adaptive_phase_counts``); empty for fixed-step
+    schemes."""
+    counts = memory.get("adaptive_phase_counts")
+    if counts is None or counts.shape[0] <= phase:
+        return {}
+    accepted = int(counts[phase, 0])
+    return {"substeps": accepted, "mean_substep": duration / accepted}
+
+
 def run_phases(scene):
     """(state, CPU seconds per phase, batched CG iterations per phase, the last phase's
     stepper): every phase of ``scene`` from its initial state, each in one stepper call

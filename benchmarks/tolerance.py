@@ -97,23 +97,13 @@ def pair_scene(numerics: dict, dt: float, h: float = 1.0):
 
 
 def simulate(scene) -> tuple[FrameRecorder, float, dict]:
-    """(frames, CPU seconds, :func:`substeps` of its last phase)."""
+    """(frames, CPU seconds, :func:`common.phase_substeps` of its last phase)."""
     recorder = FrameRecorder()
     state = scene.initial_state()
     started = time.process_time()
     Simulation(scene).run(state, [recorder])
-    return recorder, time.process_time() - started, substeps(state.memory, len(scene.phases) - 1,
-                                                               scene.phases[-1].duration)
-
-
-def substeps(memory: dict, phase: int, duration: float) -> dict:
-    """The adaptive scheme's accepted substeps in ``phase`` and their mean size (time units),
-    from a state's memory; empty for fixed-step schemes (the references)."""
-    counts = memory.get("adaptive_phase_counts")
-    if counts is None or counts.shape[0] <= phase:
-        return {}
-    accepted = int(counts[phase, 0])
-    return {"substeps": accepted, "mean_substep": duration / accepted}
+    return recorder, time.process_time() - started, common.phase_substeps(state.memory, len(scene.phases) - 1,
+                                                                      scene.phases[-1].duration)
 
 
 def disc_areas(numerics: dict, dt: float, h: float = 1.0) -> tuple[list[float], float, dict]:

@@ -50,7 +50,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import common  # pins BLAS threads before numpy loads
 import numpy as np
 
 from femphase.analysis.periods import first_period
@@ -180,9 +180,9 @@ def run(point: Point) -> Point:
                         "field": phi.tolist()}
     else:
         point.result = {"times": tracker.times, "mean_elongation": tracker.values}
-        counts = state.memory.get("adaptive_phase_counts")
-        if counts is not None and counts.shape[0] > 1:  # the adaptive scheme's substeps under shear
-            point.result["shear_substeps"] = {"substeps": int(counts[1, 0]), "mean_substep": SHEAR / int(counts[1, 0])}
+        shear = common.phase_substeps(state.memory, 1, SHEAR)
+        if shear:  # the adaptive scheme's substeps under shear
+            point.result["shear_substeps"] = shear
     print(f"{point.problem:<8} {point.label:<36} h={point.h:<5g} dt={point.dt:<7g} {point.seconds:8.2f} s", flush=True)
     return point
 
