@@ -368,7 +368,13 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
             raise ConvergenceError(option, values, "two or more mesh files that exist, coarse to fine")
     elif len(values) < 2 or any(not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0) for v in values):
         raise ConvergenceError(option, values, "two or more numbers > 0, e.g. 1,0.5,0.25")
-    loaded = load_scene(scene)
+    levels = [Path(v).resolve() for v in values] if parameter == "mesh" else values
+    if len(set(levels)) < len(levels):
+        raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice)")
+    loaded = load_scene(scene, list(assignments))
+    if "separation" in observables and loaded.n_particles != 2:
+        # checked before any run: the runs would be wasted on an observable they cannot give
+        raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {loaded.n_particles})")
     kind = loaded.domain.kind
     if (parameter, kind) in (("h", "mesh"), ("mesh", "grid")):
         raise ConvergenceError(option, values, "--h on the structured channel, --mesh FILE1,FILE2,… on a mesh "

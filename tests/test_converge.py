@@ -164,7 +164,7 @@ def test_levels_with_different_substeps_get_no_note():
     assert "; the area-mode ceiling capped 12 at 0.1)" in same_substeps([level(0.1, 30, capped=12), level(0.01, 30), level(1e-3, 80)])
 
 
-def test_the_command_refuses_two_refined_parameters_and_unknown_observables(tmp_path):
+def test_the_command_refuses_bad_levels_and_observables_before_any_run(tmp_path):
     scene = tmp_path / "disc.toml"
     scene.write_text(DISC)
     command = [sys.executable, "-m", "femphase.cli", "converge", str(scene), "-o", str(tmp_path / "s")]
@@ -172,6 +172,10 @@ def test_the_command_refuses_two_refined_parameters_and_unknown_observables(tmp_
     assert both.returncode == 2 and "exactly one option with two or more values" in both.stderr
     unknown = subprocess.run(command + ["--h", "1,0.5", "--observable", "volume"], capture_output=True, text=True)
     assert unknown.returncode == 2 and "volume" in unknown.stderr and "separation" in unknown.stderr
+    twice = subprocess.run(command + ["--h", "1,0.5,1"], capture_output=True, text=True)
+    assert twice.returncode == 2 and "'--h' = [1.0, 0.5, 1.0]" in twice.stderr and "distinct" in twice.stderr
+    lone = subprocess.run(command + ["--h", "1,0.5", "--observable", "separation"], capture_output=True, text=True)
+    assert lone.returncode == 2 and "a two-particle scene (this one has 1)" in lone.stderr
     assert not (tmp_path / "s" / "runs").exists()
 
 
