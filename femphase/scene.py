@@ -296,9 +296,11 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     numerics, domain = scene.numerics, scene.domain
     scheme = numerics.scheme if scheme is None else scheme
     key = "numerics.scheme" if scheme == numerics.scheme else "--method"
+    # as the user wrote it: --method takes "fem" or "fd", numerics.scheme the schemes' names
+    given, instead = ("fd", '"fem"') if key == "--method" else (scheme, '"euler"')
     if scheme == "fd-heun":
         if domain.kind != "grid":
-            raise SceneError(key, scheme, '"euler": the finite-difference reference needs the structured channel '
+            raise SceneError(key, given, f'{instead}: the finite-difference reference needs the structured channel '
                              f'([domain] kind = "grid"; this scene\'s kind is "{domain.kind}")')
         for i, phase in enumerate(scene.phases):
             # the scheme's own checks (its stability limit), phase by phase
@@ -306,7 +308,7 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
                 Stepper(domain, scene.model, numerics, phase.dt, scene.flow(phase), scene.radii, scheme=scheme)
             except SceneError as exc:
                 raise SceneError(f"phases.{i}.{exc.key.removeprefix('phases.')}", exc.value,
-                                 f"{exc.valid} ({key} = \"{scheme}\")") from None
+                                 f"{exc.valid} ({key} = \"{given}\")") from None
             except Exception as exc:  # a python flow runs the user's code
                 raise SceneError(f"phases.{i}.flow", phase.flow, f"a flow that gives (u, v) at the nodes "
                                  f"({type(exc).__name__}: {exc})") from None

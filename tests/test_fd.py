@@ -237,3 +237,26 @@ def test_windows_agree_with_full_mesh_fields():
             stepper.step(state)
         results.append(state.global_fields())
     assert np.max(np.abs(results[0] - results[1])) < WindowPolicy().threshold
+
+
+def test_the_fd_method_off_the_structured_channel_is_refused_as_the_option_was_given(tmp_path):
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+    from femphase.scene import check_numerics
+
+    write_domain(tmp_path / "channel.vtu", *delaunay_channel(24.0, edge_for_spacing(1.0), lambda x: 0 * x,
+                                                            lambda x: 0 * x + 24.0, seed=1))
+    def scene(**numerics):
+        return scene_from_dict({
+            "domain": {"kind": "mesh", "mesh": "channel.vtu"},
+            "particles": {"layout": "single", "centres": [[12.0, 12.0]], "initial_radius": 5.0},
+            "numerics": numerics,
+            "phases": [{"name": "relax", "duration": 1.0, "dt": 0.1, "frame_interval": 1.0}],
+        }, tmp_path)
+
+    with pytest.raises(SceneError) as option:  # femphase run --method fd
+        check_numerics(scene(), scheme="fd-heun")
+    assert (option.value.key, option.value.value) == ("--method", "fd") and option.value.valid.startswith('"fem"')
+    with pytest.raises(SceneError) as key:  # numerics.scheme = "fd-heun" in the scene
+        check_numerics(scene(scheme="fd-heun"))
+    assert (key.value.key, key.value.value) == ("numerics.scheme", "fd-heun") and "structured channel" in key.value.valid
