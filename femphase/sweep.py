@@ -541,6 +541,8 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
     ``scheduler``, else a LocalCluster of ``workers`` processes (default: one per core).
     ``log`` receives one line per finished run. Nothing runs before the sweep file and every
     run's scene are validated, and an existing ``directory`` checked (SweepError)."""
+    if workers is not None and not (isinstance(workers, int) and workers >= 1):
+        raise SweepError("--workers", workers, "a whole number ≥ 1 (worker processes)")
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep, assignments)
     directory = Path(directory).resolve()
     if directory.exists() and not directory.is_dir():

@@ -176,6 +176,8 @@ def test_the_command_refuses_bad_levels_and_observables_before_any_run(tmp_path)
     assert twice.returncode == 2 and "'--h' = [1.0, 0.5, 1.0]" in twice.stderr and "distinct" in twice.stderr
     lone = subprocess.run(command + ["--h", "1,0.5", "--observable", "separation"], capture_output=True, text=True)
     assert lone.returncode == 2 and "a two-particle scene (this one has 1)" in lone.stderr
+    idle = subprocess.run(command + ["--h", "1,0.5", "--workers", "0"], capture_output=True, text=True)
+    assert idle.returncode == 2 and "'--workers' = 0" in idle.stderr
     assert not (tmp_path / "s" / "runs").exists()
 
 

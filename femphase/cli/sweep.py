@@ -14,10 +14,8 @@ __all__ = ["register", "run"]
 def run(args: argparse.Namespace) -> int:
     """`femphase sweep`: run (or continue) a sweep; exit 4 when some runs are not done."""
     # the command's implementation loads when it runs: the parser and the other commands start without it
-    from femphase.sweep import EXIT_INCOMPLETE, SweepError, run_sweep
+    from femphase.sweep import EXIT_INCOMPLETE, run_sweep
 
-    if args.workers is not None and args.workers < 1:
-        raise SweepError("--workers", args.workers, "a whole number ≥ 1 (worker processes)")
     terminated: list[int] = []
 
     def terminate(number, frame):  # SIGTERM (Slurm, timeout) stops the sweep as Ctrl-C does
