@@ -117,11 +117,13 @@ EXIT_INCOMPLETE = 4
 
 
 class SweepError(SceneError):
-    """A sweep file key or value, or a sweep directory, is invalid (exit 2)."""
+    """A sweep file key or value, or a sweep directory, is invalid (exit 2); an option
+    (``-o``, ``--workers``) is named as one."""
 
     def __init__(self, key: str, value: object, valid: str) -> None:
         super().__init__(key, value, valid)
-        self.args = (f"sweep key '{key}' = {value!r} is invalid: {valid}",)
+        if not key.startswith("-"):
+            self.args = (f"sweep key '{key}' = {value!r} is invalid: {valid}",)
 
 
 @dataclass(frozen=True)

@@ -10,6 +10,7 @@ import pytest
 from scipy.signal import find_peaks
 
 from femphase.cli.ode import register
+from femphase.errors import SceneError
 from femphase.model.minimal import (
     MinimalModelParameters,
     elongation_rate,
@@ -194,8 +195,21 @@ def test_bad_values_raise_value_error_naming_them(call, named):
         call()
 
 
-def test_cli_rejects_a_negative_rate(tmp_path):
-    args = parse(["ode", "--rate", "-0.1", "-o", str(tmp_path)])
-    with pytest.raises(ValueError, match=r"rate = -0\.1 is invalid: .*> 0"):
+@pytest.mark.parametrize("options, named", [
+    (["--rate", "-0.1"], r"option '--rate' = -0\.1 is invalid: .*> 0"),
+    (["--rate", "0.1", "--t-end", "0"], r"option '--t-end' = 0\.0 is invalid"),
+    (["--rate", "0.1", "--initial-elongation", "-1"], r"option '--initial-elongation' = -1\.0 is invalid"),
+    (["--rate", "0.1", "--K", "-1"], r"option '--K' = -1\.0 is invalid"),
+])
+def test_cli_names_a_bad_option_as_given_and_writes_nothing(tmp_path, options, named):
+    args = parse(["ode", *options, "-o", str(tmp_path)])
+    with pytest.raises(SceneError, match=named):
         args.func(args)
     assert not (tmp_path / "ode.csv").exists()
+
+
+def test_cli_refuses_an_output_path_that_is_a_file(tmp_path):
+    (tmp_path / "taken").write_text("")
+    args = parse(["ode", "--rate", "0.1", "-o", str(tmp_path / "taken")])
+    with pytest.raises(SceneError, match=r"option '-o' = .*taken' is invalid: a directory"):
+        args.func(args)

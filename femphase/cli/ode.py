@@ -6,10 +6,12 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from femphase.errors import SceneError
 from femphase.model.minimal import (
     DEFAULT_INITIAL_ELONGATION,
     DEFAULT_PERIODS,
     MinimalModelParameters,
+    ParameterError,
     period,
     solve_minimal_model,
     write_solution,
@@ -20,11 +22,16 @@ __all__ = ["register", "run"]
 
 def run(args: argparse.Namespace) -> int:
     """`femphase ode`: solve the minimal model and write ode.csv and ode.json to args.output."""
-    parameters = MinimalModelParameters(A=args.A, epsilon=args.epsilon, K=args.K, k=args.k)
-    t_end = DEFAULT_PERIODS * period(args.rate, args.k) if args.t_end is None else args.t_end
-    solution = solve_minimal_model(
-        args.rate, t_end, parameters=parameters, initial_elongation=args.initial_elongation
-    )
+    if args.output.exists() and not args.output.is_dir():
+        raise SceneError("-o", str(args.output), "a directory (this path is a file)")
+    try:
+        parameters = MinimalModelParameters(A=args.A, epsilon=args.epsilon, K=args.K, k=args.k)
+        t_end = DEFAULT_PERIODS * period(args.rate, args.k) if args.t_end is None else args.t_end
+        solution = solve_minimal_model(
+            args.rate, t_end, parameters=parameters, initial_elongation=args.initial_elongation
+        )
+    except ParameterError as exc:  # every parameter is an option of the same name
+        raise SceneError(f"--{exc.name.replace('_', '-')}", exc.value, exc.valid) from None
     write_solution(solution, args.output)
     print(f"wrote {args.output / 'ode.csv'} and {args.output / 'ode.json'}")
     return 0

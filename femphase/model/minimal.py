@@ -30,6 +30,7 @@ import numpy as np
 
 __all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "RESET_ORIENTATION", "angular_frequency",
            "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution", "orientation",
+           "ParameterError",
            "period", "solve_minimal_model", "t1_times", "wrap_orientation", "write_solution"]
 
 #: Near-circular start, like the phase-field runs that start from discs; r = 0 itself is
@@ -68,9 +69,19 @@ class MinimalModelParameters:
         _require("k", self.k, self.k > 0, "must be a finite number > 0")
 
 
+class ParameterError(ValueError):
+    """A parameter of the model or its solver out of range: ``name`` (the Python argument's
+    name), ``value`` and what is ``valid``, so that a caller can name it in its own terms
+    (``femphase ode`` names its option)."""
+
+    def __init__(self, name: str, value: object, valid: str) -> None:
+        self.name, self.value, self.valid = name, value, valid
+        super().__init__(f"{name} = {value!r} is invalid: {valid}")
+
+
 def _require(name: str, value: float, condition: bool, valid: str) -> None:
     if not (np.isfinite(value) and condition):
-        raise ValueError(f"{name} = {value!r} is invalid: {valid}")
+        raise ParameterError(name, value, valid)
 
 
 def angular_frequency(rate: float, k: float = K_PAPER) -> float:
