@@ -495,7 +495,24 @@ def initial_centres(scene: Scene) -> np.ndarray:
     if outside.any():
         raise SceneError("particles.centres", centres[outside].tolist(),
                          f"centres inside the domain (y between the walls, {low:g} ≤ y ≤ {high:g})")
+    _check_distinct(centres, domain.period, domain.spacing)
     return centres
+
+
+def _check_distinct(centres: np.ndarray, period: float, spacing: float) -> None:
+    """SceneError when two listed centres lie within one spacing of each other (x periodic):
+    two fields started there are the same field, and the dynamics, symmetric in them, never
+    tells them apart (a centre listed twice, as a rule)."""
+    if len(centres) < 2:
+        return
+    dx = np.abs(centres[:, None, 0] - centres[None, :, 0]) % period
+    distance = np.hypot(np.minimum(dx, period - dx), centres[:, None, 1] - centres[None, :, 1])
+    distance[np.diag_indices(len(centres))] = np.inf
+    i, j = np.unravel_index(np.argmin(distance), distance.shape)
+    if distance[i, j] < spacing:
+        raise SceneError("particles.centres", [centres[min(i, j)].tolist(), centres[max(i, j)].tolist()],
+                         f"distinct centres: particles {min(i, j)} and {max(i, j)} are {distance[i, j]:.3g} apart, "
+                         f"less than the spacing h = {spacing:g} (x is periodic with period {period:g})")
 
 
 def set_value(data: dict, assignment: str) -> None:

@@ -74,6 +74,15 @@ def test_too_many_particles_is_refused_with_the_limit():
         scene_from_dict(data)
 
 
+@pytest.mark.parametrize("centres, apart", [([[10.0, 12.0], [10.0, 12.0]], "0 apart"),
+                                             ([[0.2, 12.0], [SMALL["domain"]["Lx"] - 0.1, 12.0]], "0.3 apart")])
+def test_listed_centres_within_one_spacing_are_refused(centres, apart):
+    data = {**SMALL, "particles": {"layout": "list", "centres": centres, "initial_radius": 3.0}}
+    with pytest.raises(SceneError, match=f"particles 0 and 1 are {apart}, less than the spacing h"):
+        scene_from_dict(data)
+    scene_from_dict({**data, "particles": {**data["particles"], "centres": [centres[0], [centres[0][0] + 1.5, 12.0]]}})
+
+
 def test_the_cli_prints_one_message_and_no_traceback(tmp_path):
     path = write_scene(tmp_path / "scene.toml")
     result = subprocess.run(
