@@ -8,7 +8,9 @@ from pathlib import Path
 import pytest
 
 from femphase.cli import main
+from femphase.errors import SceneError
 from femphase.io.files import read_csv
+from femphase.io.rundir import resume_position
 
 SCENE = """
 name = "tiny"
@@ -79,6 +81,7 @@ def test_an_unusable_output_path_is_one_clear_message(scene, tmp_path, capsys, t
     ("particles.centres=[[10.0, 15.0], [21.0, 15.0], [15.0, 5.0]]", "particles.centres"),
     ("output.observables=[\"order\"]", "output.observables"),
     ("phases.0.duration=10", "phases.0.duration"),
+    ("phases.1.duration=5", "phases.1.duration"),  # shorter than the 10 it has run
     ("phases.0.flow={type = \"shear\", rate = 0.1}", "phases.0.flow"),
 ])
 def test_resume_refuses_incompatible_changes_naming_the_key(scene, tmp_path, capsys, assignment, key):
@@ -90,6 +93,18 @@ def test_resume_refuses_incompatible_changes_naming_the_key(scene, tmp_path, cap
     message = capsys.readouterr().err
     assert f"'{key}'" in message and "Traceback" not in message, message
     assert _snapshot(run) == before
+
+
+def test_the_phase_under_way_may_end_later_or_sooner_but_not_before_the_checkpoint():
+    phase = {"dt": 10.0, "frame_interval": 10.0}
+    saved = {"phases": [{**phase, "duration": 100.0}, {**phase, "duration": 100.0}]}
+
+    def resumed(duration):
+        return resume_position(saved, {"phases": [saved["phases"][0], {**phase, "duration": duration}]}, 150.0)
+
+    assert resumed(60.0)[:2] == (1, 5) and resumed(50.0)[:2] == (2, 0)
+    with pytest.raises(SceneError, match="at least 50: phase 1 has already run 50 time units"):
+        resumed(40.0)
 
 
 def test_extending_a_finished_run_equals_running_it_longer_at_once(scene, tmp_path):

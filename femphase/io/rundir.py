@@ -301,6 +301,10 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
         if end < time - tolerance and abs(new["duration"] - old["duration"]) > tolerance:
             raise SceneError(f"phases.{k}.duration", new["duration"], f"{old['duration']:g} as in the checkpoint: "
                              f"phase {k} ended at t = {end:g}, before the checkpoint (t = {time:g})")
+        if end >= time - tolerance and new["duration"] < time - start - tolerance:  # under way, or just ended
+            raise SceneError(f"phases.{k}.duration", new["duration"], f"at least {time - start:g}: phase {k} has "
+                             f"already run {time - start:g} time units (t = {time:g}); a run is not shortened "
+                             "(start a new run directory for a shorter one)")
         start = end
     for k, (old, new) in enumerate(zip(old_phases, new_phases)):
         for key in ("duration", "dt", "frame_interval", "flow"):
