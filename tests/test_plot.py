@@ -77,9 +77,11 @@ def test_directory_that_is_not_a_run_is_a_clear_error(tmp_path, capsys):
     assert "particles.csv" in str(pytest.raises(FileNotFoundError, open_run, tmp_path).value)
 
 
-def test_bad_ode_rate_is_rejected(tiny_run, tmp_path, capsys):
-    assert main(["plot", str(tiny_run), "-o", str(tmp_path), "--ode-rate", "-1"]) == 2
-    assert "--ode-rate" in capsys.readouterr().err
+@pytest.mark.parametrize("option, value", [("--ode-rate", "-1"), ("--ode-k", "0")])
+def test_a_bad_ode_option_is_named_and_no_figure_written(tiny_run, tmp_path, capsys, option, value):
+    assert main(["plot", str(tiny_run), "-o", str(tmp_path / "figures"), option, value]) == 2
+    assert f"option '{option}' = {float(value)!r} is invalid" in capsys.readouterr().err
+    assert not (tmp_path / "figures").exists()
 
 
 def test_run_without_flow(tmp_path):

@@ -41,6 +41,7 @@ from femphase.io.checkpoints import load_checkpoint
 from femphase.io.fields import point_data
 from femphase.io.reader import RunData, open_run
 from femphase.io.rundir import CHECKPOINT
+from femphase.model.minimal import ParameterError
 from femphase.oscillations import K_PAPER, ode_solution, order_series
 from femphase.plot.figures import pyplot, save
 
@@ -287,8 +288,11 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
     if len(run.time) == 0:
         raise ValueError(f"{str(Path(directory) / 'particles.csv')!r} has no frames yet")
     out = Path(output) if output is not None else run.directory / "figures"
+    # both checked before any figure is written
     if ode_rate is not None and not (np.isfinite(ode_rate) and ode_rate > 0):
-        raise ValueError(f"--ode-rate = {ode_rate!r} is invalid: the shear rate γ̇ must be a finite number > 0")
+        raise ParameterError("ode_rate", ode_rate, "the shear rate γ̇ of the ODE: a finite number > 0")
+    if not (np.isfinite(ode_k) and ode_k > 0):
+        raise ParameterError("ode_k", ode_k, "the ODE's k (ω = k γ̇): a finite number > 0")
     return {
         "snapshot": plot_snapshot(run, out / f"snapshot.{fmt}"),
         "elongation": plot_elongation(run, out / f"elongation.{fmt}", ode_rate, ode_k),
