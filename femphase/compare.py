@@ -94,6 +94,14 @@ class GridData:
                 f"grid data: 'phi' has shape {self.phi.shape}; expected (F, N, ny, nx) = "
                 f"({shape[0]}, N, {shape[1]}, {shape[2]}) from the sizes of time, y and x"
             )
+        if not (np.all(np.isfinite(self.time)) and np.all(np.diff(self.time) > 0)):
+            raise ValueError(f"grid data: 'time' must be finite and strictly increasing (got {self.time.tolist()[:6]}"
+                             f"{' …' if self.time.size > 6 else ''})")
+        bad = ~np.isfinite(self.phi)
+        if bad.any():
+            frame = int(np.argwhere(bad)[0][0])
+            raise ValueError(f"grid data: 'phi' holds {int(bad.sum())} NaN or infinite values, the first in frame "
+                             f"{frame} (t = {self.time[frame]:g}); compare finite fields")
 
     def grid(self) -> ChannelGrid:
         """The channel grid of x and y; ValueError when they are not a uniform lattice from 0."""

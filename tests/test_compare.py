@@ -147,6 +147,12 @@ def test_malformed_grid_data_is_rejected(runs, tmp_path):
         GridData(data.time, data.x, data.y, data.phi[:, :, :, :-1])
     with pytest.raises(ValueError, match="uniform grid starting at 0"):
         GridData(data.time, data.x + 0.5, data.y, data.phi).grid()
+    with pytest.raises(ValueError, match="'time' must be finite and strictly increasing"):
+        GridData(data.time[::-1], data.x, data.y, data.phi)
+    broken = data.phi.copy()
+    broken[2, 0, 3, 4] = np.nan
+    with pytest.raises(ValueError, match=f"1 NaN or infinite values, the first in frame 2 \\(t = {data.time[2]:g}\\)"):
+        GridData(data.time, data.x, data.y, broken)
     (tmp_path / "junk.npz").write_text("not a zip file")
     with pytest.raises(ValueError, match="cannot be read"):
         compare_runs(runs["fem"], tmp_path / "junk.npz")
