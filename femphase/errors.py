@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-__all__ = ["BlowUpError", "FemphaseError", "InputError", "Interrupted", "ResolutionWarning", "SceneError"]
+__all__ = ["BlowUpError", "FemphaseError", "InputError", "Interrupted", "ResolutionWarning", "SceneError",
+           "StiffnessWarning"]
 
 
 class FemphaseError(Exception):
@@ -43,3 +44,8 @@ class Interrupted(FemphaseError, RuntimeError):
 
 class ResolutionWarning(UserWarning):
     """A scene runs, but at a resolution known to bias its results (the message says how)."""
+
+
+class StiffnessWarning(UserWarning):
+    """A scene runs, but a stiff term holds its steps far below dt (the message says which
+    term, how far, and what lifts it)."""

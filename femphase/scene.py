@@ -21,7 +21,7 @@ from femphase.analysis.observables import OBSERVABLES
 from femphase.config import Numerics
 from femphase.domains import DOMAINS, Domain, domain_from_table
 from femphase.domains.mesh.stokes import stokes_drive
-from femphase.errors import ResolutionWarning, SceneError
+from femphase.errors import ResolutionWarning, SceneError, StiffnessWarning
 from femphase.flows import FLOWS, Flow, flow_from_spec
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
 from femphase.placement import hexagonal_centres
@@ -282,7 +282,38 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
     check_numerics(scene)
+    _check_area_ceiling(scene)
     return scene
+
+
+#: Substeps per step of dt that the area-mode ceiling alone may force before a scene warns:
+#: the paper's μ needs none (ceiling 3.75 against dt = 10), μ × 10 about 27, μ × 100 about 270.
+CEILING_SUBSTEPS = 64
+
+
+def _check_area_ceiling(scene: Scene) -> None:
+    """Warn when the adaptive scheme's area-mode ceiling (:attr:`AdaptiveSAV2.RANK_ONE_STEP`
+    over the area constraint's rate c = J0·8μ/(πR²), the smallest R, areas at their target)
+    holds a phase's substeps below dt/:data:`CEILING_SUBSTEPS`."""
+    from femphase.timestepping.adaptive import AdaptiveSAV2
+
+    numerics, model = scene.numerics, scene.model
+    if numerics.scheme != "adaptive" or numerics.area_implicit or model.area_stiffness <= 0:
+        return
+    radius = float(np.min(scene.radii))
+    rate = model.mobility * 8.0 * model.area_stiffness / (np.pi * radius**2)
+    ceiling = AdaptiveSAV2.RANK_ONE_STEP / rate
+    k, phase = max(enumerate(scene.phases), key=lambda item: item[1].dt)
+    if phase.dt / ceiling > CEILING_SUBSTEPS:
+        warnings.warn(
+            f"model.area_stiffness = {model.area_stiffness:g} makes the area constraint stiff (rate "
+            f"c = J0·8μ/(πR²) = {rate:.3g} per time unit at R = {radius:g}): the adaptive substep stays below "
+            f"{AdaptiveSAV2.RANK_ONE_STEP:g}/c = {ceiling:.3g} time units, where its explicit step stops damping "
+            f"the area, at least {phase.dt / ceiling:.0f} substeps per step of phases.{k}.dt = {phase.dt:g}. "
+            "numerics.area_implicit = true lifts that ceiling (with larger errors the estimate does not see, "
+            "docs/decisions/0022-area-mode-ceiling-kept.md); a smaller area_stiffness lowers c",
+            StiffnessWarning, stacklevel=3,
+        )
 
 
 def check_numerics(scene: Scene, scheme: str | None = None) -> None:

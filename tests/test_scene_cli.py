@@ -222,6 +222,24 @@ def test_the_t1_count_looks_between_frames_at_its_interval():
     assert frames.series("t1_count", "global")[-1] == events(5) != events(10)
 
 
+@pytest.mark.parametrize("mu, numerics, warns", [(3000.0, {}, True), (200.0, {}, False),
+                                                  (3000.0, {"area_implicit": True}, False),
+                                                  (3000.0, {"scheme": "sav2"}, False)])
+def test_an_area_constraint_that_caps_the_substep_far_below_dt_warns(mu, numerics, warns):
+    from femphase.errors import StiffnessWarning
+
+    table = {"model": {"area_stiffness": mu}, "domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"},
+             "numerics": numerics, "phases": [{"duration": 10.0, "dt": 10.0, "frame_interval": 10.0}]}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene_from_dict(table)
+    stiff = [w for w in caught if issubclass(w.category, StiffnessWarning)]
+    # c = 0.5·8·3000/(π 8²) = 59.7 per time unit: the ceiling 1.5/c = 0.0251, 398 substeps of dt = 10
+    assert bool(stiff) == warns
+    if warns:
+        assert "ceiling" in str(stiff[0].message) and "at least 398 substeps" in str(stiff[0].message)
+
+
 def test_h_equal_to_the_interface_width_warns_about_pinned_interfaces():
     from femphase.errors import ResolutionWarning
     from femphase.scene import scene_from_dict
