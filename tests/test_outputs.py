@@ -170,3 +170,16 @@ def test_frame_fields_hold_the_largest_field_and_its_particle_at_every_node(mesh
     assert np.array_equal(data["phi_max"], top[state.domain.dof_map])
     assert np.array_equal(data["label"], np.where(top > 0.5, best, -1.0)[state.domain.dof_map])
     assert (data["phi_max"] < 0).any() and set(np.unique(data["label"])) >= {-1.0, 0.0, 1.0, 2.0, 3.0}
+
+
+def test_a_recorded_series_that_does_not_exist_names_the_recorded_ones():
+    scene = small_scene()
+    recorder = FrameRecorder()
+    Simulation(scene).run(scene.initial_state(), [recorder])
+    assert recorder.series("elongation").shape == (len(recorder.frames), scene.n_particles)
+    with pytest.raises(KeyError, match="no particle column 'free_energy'; recorded: area, .*kind='global'"):
+        recorder.series("free_energy")
+    with pytest.raises(KeyError, match="no global column 'elongtion'"):
+        recorder.series("elongtion", "global")
+    with pytest.raises(ValueError, match="kind = 'globals' is invalid"):
+        recorder.series("area", "globals")

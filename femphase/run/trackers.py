@@ -189,9 +189,17 @@ class FrameRecorder(Tracker):
 
     def series(self, name: str, kind: str = "particle") -> np.ndarray:
         """(n_frames, N) array of a per-particle column (e.g. "elongation"), or with
-        kind="global" (n_frames,) of a global one (e.g. "free_energy")."""
-        return np.stack([np.asarray(getattr(f, "globals" if kind == "global" else "particle")[name])
-                         for f in self.frames])
+        kind="global" (n_frames,) of a global one (e.g. "free_energy"). KeyError naming the
+        columns recorded when ``name`` is none of them; ValueError for another ``kind``."""
+        if kind not in ("particle", "global"):
+            raise ValueError(f"kind = {kind!r} is invalid: 'particle' (per-particle columns) or 'global'")
+        tables = [getattr(f, "globals" if kind == "global" else "particle") for f in self.frames]
+        if tables and name not in tables[0]:
+            other = "particle" if kind == "global" else "global"
+            hint = f" ({name!r} is a {other} column: kind={other!r})" if name in getattr(
+                self.frames[0], "globals" if other == "global" else "particle") else ""
+            raise KeyError(f"no {kind} column {name!r}; recorded: {', '.join(sorted(tables[0]))}{hint}")
+        return np.stack([np.asarray(table[name]) for table in tables])
 
     @property
     def times(self) -> np.ndarray:
