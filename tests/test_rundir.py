@@ -107,6 +107,16 @@ def test_the_phase_under_way_may_end_later_or_sooner_but_not_before_the_checkpoi
         resumed(40.0)
 
 
+def test_a_resume_over_an_unreadable_run_json_warns_and_writes_a_new_one(scene, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.1.duration=10") == 0
+    (run / "run.json").write_text("not json")
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 0
+    assert "run.json is missing or unreadable" in capsys.readouterr().err
+    status = json.loads((run / "run.json").read_text())
+    assert status["status"] == "completed" and [s["resumed"] for s in status["segments"]] == [True]
+
+
 def test_extending_a_finished_run_equals_running_it_longer_at_once(scene, tmp_path):
     straight, extended = tmp_path / "straight", tmp_path / "extended"
     assert _run(scene, straight, "--set", "phases.1.duration=30") == 0
