@@ -112,7 +112,7 @@ def test_a_resume_over_an_unreadable_run_json_warns_and_writes_a_new_one(scene, 
     assert _run(scene, run, "--set", "phases.1.duration=10") == 0
     (run / "run.json").write_text("not json")
     assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 0
-    assert "run.json is missing or unreadable" in capsys.readouterr().err
+    assert "run.json is missing or not JSON" in capsys.readouterr().err
     status = json.loads((run / "run.json").read_text())
     assert status["status"] == "completed" and [s["resumed"] for s in status["segments"]] == [True]
 

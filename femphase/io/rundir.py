@@ -38,7 +38,6 @@ import json
 import logging
 import os
 import time as wallclock
-import warnings
 from pathlib import Path
 from typing import Iterable
 from xml.sax.saxutils import escape
@@ -349,16 +348,10 @@ class Status:
 
     @staticmethod
     def read(directory: Path) -> dict | None:
-        """The run.json a resumed run continues; None, with a warning, when it is missing or
-        unreadable: the resumed run then starts a new history (its data and checkpoint are
-        the files that matter, and they are intact)."""
         path = Path(directory) / "run.json"
         try:
             return json.loads(path.read_text())
-        except (OSError, ValueError) as exc:
-            warnings.warn(f"{path} is missing or unreadable ({type(exc).__name__}: {exc}); the resumed run "
-                          "writes a new one, without the earlier segments' history (started, hosts, CPU "
-                          "times); the data and the checkpoint are intact", stacklevel=2)
+        except (OSError, ValueError):
             return None
 
     def begin_segment(self, segment: dict) -> None:

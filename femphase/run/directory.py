@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import shlex
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -54,11 +55,18 @@ class RunDirectory(Tracker):
             self.outputs.start_new(mesh)
         else:
             self.outputs.start_from(self.resume_from, mesh)  # checks every file before it cuts any
+        previous = None
+        if self.resume_from is not None:
+            previous = Status.read(self.directory)
+            if previous is None:
+                warnings.warn(f"{self.directory / 'run.json'} is missing or not JSON: the resumed run writes a new "
+                              "one, without the earlier segments' history (start, hosts, CPU times); the data and "
+                              "the checkpoint are intact", stacklevel=2)
         atomic_write(self.directory / "scene.toml", to_toml(scene.to_dict()))
         self.status = Status(self.directory, {
             "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
             "settings": scene.to_dict(),
-        }, Status.read(self.directory) if self.resume_from is not None else None)
+        }, previous)
         origin = provenance()
         self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
                                    "from_step": state.step, "changes": self.changes, "argv": self.argv,
