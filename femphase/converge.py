@@ -56,6 +56,7 @@ import io
 import json
 import math
 import tempfile
+import warnings
 from dataclasses import dataclass, replace
 from pathlib import Path
 from collections.abc import Callable
@@ -375,6 +376,11 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     if "separation" in observables and loaded.n_particles != 2:
         # checked before any run: the runs would be wasted on an observable they cannot give
         raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {loaded.n_particles})")
+    if parameter == "dt" and loaded.numerics.scheme == "adaptive":
+        warnings.warn("--dt with the adaptive scheme refines the outer step only: its substeps follow "
+                      "numerics.tolerance_t (the substeps line of the report shows them), so the differences are "
+                      "not a time error of order 2 in dt; refine --tolerance-t, or set numerics.scheme = \"sav2\" "
+                      "for a study in dt", stacklevel=2)
     kind = loaded.domain.kind
     if (parameter, kind) in (("h", "mesh"), ("mesh", "grid")):
         raise ConvergenceError(option, values, "--h on the structured channel, --mesh FILE1,FILE2,… on a mesh "

@@ -3,6 +3,7 @@
 import math
 import subprocess
 import sys
+import warnings
 
 import numpy as np
 import pytest
@@ -215,3 +216,15 @@ def test_the_command_prints_each_levels_substeps_for_the_adaptive_scheme(tmp_pat
     assert main(["converge", str(scene), "--h", "2,1", "--observable", "area", "-o", str(tmp_path / "f"),
                  "--workers", "1", "--set", 'numerics.scheme="sav2"']) == 0
     assert "substeps in the last phase" not in capsys.readouterr().out  # a fixed-step scheme counts none
+
+
+def test_a_dt_study_warns_under_the_adaptive_scheme_only(tmp_path):
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    quick = ["phases.0.duration=2.0", "phases.0.frame_interval=2.0"]
+    with pytest.warns(UserWarning, match="--dt with the adaptive scheme refines the outer step only"):
+        run_convergence(scene, tmp_path / "adaptive", "dt", [1.0, 0.5], ["area"], quick, workers=1, log=lambda line: None)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        run_convergence(scene, tmp_path / "sav2", "dt", [1.0, 0.5], ["area"], [*quick, 'numerics.scheme="sav2"'],
+                        workers=1, log=lambda line: None)
