@@ -220,7 +220,7 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
     for entry in index["runs"]:
         run = open_run(directory / entry["directory"])
         info = run.info
-        spacing = (math.sqrt(run.domain.area / run.domain.n_dofs) if parameter == "mesh"
+        spacing = (run.domain.effective_spacing if parameter == "mesh"
                    else float(entry["values"][keys[0]]))
         levels.append({"s": spacing, "run": entry["id"],
                        "cpu_s": float(info.get("cpu_time_s", math.nan)), **last_phase_substeps(info),

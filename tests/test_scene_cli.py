@@ -253,6 +253,33 @@ def test_h_equal_to_the_interface_width_warns_about_pinned_interfaces():
         scene_from_dict({**table, "domain": {"Lx": 40.0, "Ly": 40.0, "h": 1.0}})
 
 
+@pytest.mark.parametrize("spacing, outcome", [(1.0, None), (1.5, "warns"), (2.5, "refused")])
+def test_a_mesh_is_judged_by_its_node_density_like_the_grid_by_h(tmp_path, spacing, outcome):
+    """A Delaunay mesh made for h (edges 1.07 h) holds as many nodes per area as the grid at
+    h, so it is judged as that grid would be, not by its longer edges."""
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+    from femphase.errors import ResolutionWarning
+
+    write_domain(tmp_path / "channel.vtu", *delaunay_channel(40.0, edge_for_spacing(spacing), lambda x: 0 * x,
+                                                            lambda x: 0 * x + 40.0, seed=1))
+    table = {"domain": {"kind": "mesh", "mesh": "channel.vtu"}, "particles": {"layout": "single"},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        if outcome == "refused":
+            with pytest.raises(SceneError, match=r"needs h ≤ λ \(the mesh's effective spacing √\(area/dofs\) is 2\.[45]"):
+                scene_from_dict(table, tmp_path)
+            return
+        scene = scene_from_dict(table, tmp_path)
+    assert scene.domain.effective_spacing == pytest.approx(spacing, rel=0.05)
+    assert scene.domain.median_edge > 1.03 * scene.domain.effective_spacing
+    resolution = [w for w in caught if issubclass(w.category, ResolutionWarning)]
+    assert bool(resolution) == (outcome == "warns")
+    if resolution:
+        assert "the mesh's effective spacing √(area/dofs) = 1.49" in str(resolution[0].message)
+
+
 def test_resume_of_a_mesh_run_continues_to_the_same_rows_as_an_uninterrupted_run(tmp_path):
     from femphase.domains.mesh.domain import write_domain
     from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
