@@ -494,7 +494,12 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
     from dask.distributed import Client, LocalCluster
 
     if scheduler is not None:
-        with Client(scheduler) as connected:
+        try:
+            connected = Client(scheduler)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:  # unreachable, or not an address
+            raise SweepError("--scheduler", scheduler, "the address of a running Dask scheduler, e.g. "
+                             f"tcp://host:8786 (connecting failed: {type(exc).__name__}: {exc})") from None
+        with connected:
             log(f"femphase sweep: using the Dask cluster at {scheduler}")
             yield connected
         return

@@ -125,6 +125,16 @@ def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("address, cause", [("tcp://127.0.0.1:1", "OSError"), ("nonsense", "ValueError")])
+def test_a_scheduler_that_cannot_be_reached_is_named_as_the_option(tmp_path, address, cause):
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}), pytest.raises(SweepError) as caught:
+        run_sweep(write(tmp_path), tmp_path / "out", scheduler=address)
+    assert (caught.value.key, caught.value.value) == ("--scheduler", address)
+    assert f"connecting failed: {cause}" in str(caught.value)
+
+
 def test_run_ids_labels_zip_and_sharing(tmp_path):
     product = load_sweep(write(tmp_path / "a"))
     assert [run.id for run in product.runs] == IDS
