@@ -213,3 +213,12 @@ def test_cli_refuses_an_output_path_that_is_a_file(tmp_path):
     args = parse(["ode", "--rate", "0.1", "-o", str(tmp_path / "taken")])
     with pytest.raises(SceneError, match=r"option '-o' = .*taken' is invalid: a directory"):
         args.func(args)
+
+
+def test_a_run_with_more_half_periods_than_samples_solves_and_a_far_longer_one_is_refused():
+    # γ̇ = 10: half periods of π/(2·0.1) ≈ 15.7; 127 of them and 11 samples, so most
+    # segments hold no sample (scipy's dense output fails on an empty time array)
+    solution = solve_minimal_model(10.0, 2000.0, n_samples=11)
+    assert solution.time[-1] == 2000.0 and np.all(np.isfinite(solution.elongation))
+    with pytest.raises(ValueError, match=r"t_end = 1000000000.0 is invalid: at most 10000 half periods"):
+        solve_minimal_model(0.1, 1e9)

@@ -28,10 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "RESET_ORIENTATION", "angular_frequency",
-           "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution", "orientation",
-           "ParameterError",
-           "period", "solve_minimal_model", "t1_times", "wrap_orientation", "write_solution"]
+__all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "MAX_HALF_PERIODS", "RESET_ORIENTATION",
+           "angular_frequency", "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution",
+           "orientation", "ParameterError", "period", "solve_minimal_model", "t1_times", "wrap_orientation",
+           "write_solution"]
+
+#: The most half periods π/(2ω) one solve integrates (each apart, about 10 ms): 10⁴, about
+#: 2 minutes; t_end = 1e9 at γ̇ = 0.1 would have been 636 620, about 2 hours.
+MAX_HALF_PERIODS = 10_000
 
 #: Near-circular start, like the phase-field runs that start from discs; r = 0 itself is
 #: excluded by the K/r term. The transient decays within a few time units (relaxation rate
@@ -221,6 +225,11 @@ def solve_minimal_model(
     )
     if n_samples < 2:
         raise ValueError(f"n_samples = {n_samples!r} is invalid: must be an integer ≥ 2")
+    half_period = _half_period(rate, parameters.k)
+    # each half period is integrated apart (about 10 ms): beyond this, minutes to hours
+    _require("t_end", t_end, t_end / half_period <= MAX_HALF_PERIODS,
+             f"at most {MAX_HALF_PERIODS} half periods π/(2ω) = {half_period:.4g} (ω = kγ̇), i.e. t_end ≤ "
+             f"{MAX_HALF_PERIODS * half_period:.4g}; this one spans {t_end / half_period:.0f}")
 
     starts = _half_period_marks(rate, t_end, parameters.k)
     ends = np.append(starts[1:], t_end)
@@ -247,7 +256,8 @@ def solve_minimal_model(
         if not segment.success:
             raise RuntimeError(f"the ODE failed on [{start:g}, {end:g}]: {segment.message}")
         in_segment = segment_of_sample == j
-        samples[:, in_segment] = segment.sol(time[in_segment])
+        if in_segment.any():  # a long run's segments outnumber its samples: most hold none
+            samples[:, in_segment] = segment.sol(time[in_segment])
         state = segment.y[:, -1].copy()
 
     return MinimalModelSolution(
