@@ -64,7 +64,7 @@ from collections.abc import Callable
 import numpy as np
 
 from femphase.errors import SceneError
-from femphase.io.files import atomic_write
+from femphase.io.files import atomic_write, output_directory
 from femphase.io.reader import RunData, open_run
 from femphase.tomlio import toml_value
 
@@ -386,7 +386,7 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
         raise ConvergenceError(option, values, "--h on the structured channel, --mesh FILE1,FILE2,… on a mesh "
                                f"domain (this scene's domain is of kind {kind!r}; a mesh's spacing is its file's)")
     phases = len(loaded.phases)
-    directory = Path(directory)
+    directory = output_directory(directory)  # "" is refused, not taken for "."
     with tempfile.TemporaryDirectory() as scratch:  # the sweep keeps its own copy, DIR/sweep.toml
         sweep_file = Path(scratch) / "converge.toml"
         sweep_file.write_text(study_sweep(Path(scene), parameter, values, phases))

@@ -92,7 +92,7 @@ from pathlib import Path
 
 from femphase import tomlio
 from femphase.errors import FemphaseError, Interrupted, SceneError
-from femphase.io.files import atomic_write, jsonable
+from femphase.io.files import atomic_write, jsonable, output_directory
 from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
 from femphase.run.runner import run_scene
 from femphase.scene import Scene, read_scene_data, scene_from_dict, set_value
@@ -551,9 +551,7 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
     if workers is not None and not (isinstance(workers, int) and workers >= 1):
         raise SweepError("--workers", workers, "a whole number ≥ 1 (worker processes)")
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep, assignments)
-    directory = Path(directory).resolve()
-    if directory.exists() and not directory.is_dir():
-        raise SweepError("-o", str(directory), "a directory (this path is a file)")
+    directory = output_directory(directory).resolve()  # "" is refused, not taken for "."
     recorded = _check_directory(sweep, directory)
     with _locked(directory / "locks" / "sweep.lock", blocking=False) as mine:
         if not mine:

@@ -323,3 +323,20 @@ def test_resume_of_a_mesh_run_continues_to_the_same_rows_as_an_uninterrupted_run
     b, _ = load_checkpoint(cut / CHECKPOINT, scene.domain)
     assert b.step == a.step == 30 and b.windows == a.windows
     assert np.array_equal(b.global_fields(), a.global_fields())
+
+
+@pytest.mark.parametrize("command", ["run", "ode", "compare", "plot", "sweep", "converge"])
+def test_an_empty_output_directory_is_refused_before_anything_is_written(tmp_path, monkeypatch, capsys, command):
+    """-o "" (an unset shell variable) would otherwise become "." and fill the working
+    directory (with --overwrite, replace a run there)."""
+    scene = Path(__file__).resolve().parents[1] / "examples" / "single.toml"
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(f'[sweep]\nscene = "{scene}"\n[axes]\n"model.mu" = [10.0, 20.0]\n')
+    work = tmp_path / "work"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    argv = {"run": ["run", str(scene)], "ode": ["ode", "--rate", "0.1"], "compare": ["compare", "a", "b"],
+            "plot": ["plot", "a"], "sweep": ["sweep", str(sweep)], "converge": ["converge", str(scene), "--h", "1,0.5"]}
+    assert main([*argv[command], "-o", ""]) == 2
+    assert "option '-o' = '' is invalid: a directory path (it is empty)" in capsys.readouterr().err
+    assert not any(work.iterdir())

@@ -4,9 +4,9 @@ external grid data (:mod:`femphase.compare`)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from femphase.errors import InputError
+from femphase.io.files import output_directory
 
 __all__ = ["register", "run"]
 
@@ -16,11 +16,13 @@ def run(args: argparse.Namespace) -> int:
     # the command's implementation loads when it runs: the parser and the other commands start without it
     from femphase.compare import compare_runs, default_output, format_table, write_comparison
 
+    # checked before anything is compared; an empty -o is refused, not taken for the default
+    out = output_directory(default_output(args.b) if args.output is None else args.output)
     try:
         result = compare_runs(args.a, args.b, fields=args.fields)
     except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
         raise InputError(str(exc)) from None
-    out = write_comparison(result, args.output or default_output(args.b))
+    out = write_comparison(result, out)
     print(format_table(result))
     print(f"\nper-frame differences in {out / 'compare.csv'}, {out / 'compare.json'}, plot {out / 'compare.png'}")
     return 0
@@ -37,7 +39,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("a", metavar="DIR_A", help="run directory or grid data file")
     parser.add_argument("b", metavar="DIR_B", help="run directory or grid data file")
-    parser.add_argument("-o", "--output", type=Path, default=None,
+    parser.add_argument("-o", "--output", default=None,
                         help="output directory (default: DIR_B/compare)")
     parser.add_argument("--fields", action="store_true",
                         help="also compare the fields (L2 with the lumped mass, L∞), per frame")

@@ -4,9 +4,9 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 from femphase.errors import SceneError
+from femphase.io.files import output_directory
 from femphase.model.minimal import (
     DEFAULT_INITIAL_ELONGATION,
     DEFAULT_PERIODS,
@@ -22,8 +22,7 @@ __all__ = ["register", "run"]
 
 def run(args: argparse.Namespace) -> int:
     """`femphase ode`: solve the minimal model and write ode.csv and ode.json to args.output."""
-    if args.output.exists() and not args.output.is_dir():
-        raise SceneError("-o", str(args.output), "a directory (this path is a file)")
+    args.output = output_directory(args.output)
     try:
         parameters = MinimalModelParameters(A=args.A, epsilon=args.epsilon, K=args.K, k=args.k)
         t_end = DEFAULT_PERIODS * period(args.rate, args.k) if args.t_end is None else args.t_end
@@ -47,7 +46,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "Pinto and write ode.csv and ode.json.",
     )
     parser.add_argument("--rate", type=float, required=True, help="shear rate γ̇ (> 0)")
-    parser.add_argument("-o", "--output", type=Path, required=True, help="output directory")
+    parser.add_argument("-o", "--output", required=True, help="output directory")
     parser.add_argument(
         "--t-end", type=float, default=None,
         help=f"final time (time units; default: {DEFAULT_PERIODS} periods π/(k γ̇))",

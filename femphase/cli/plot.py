@@ -7,6 +7,7 @@ import argparse
 from pathlib import Path
 
 from femphase.errors import InputError, SceneError
+from femphase.io.files import output_directory
 from femphase.model.minimal import K_PAPER, ParameterError
 
 __all__ = ["register", "run"]
@@ -19,6 +20,8 @@ def run(args: argparse.Namespace) -> int:
     from femphase.aggregate import SWEEP_INDEX
     from femphase.plot.run import plot_run
 
+    if args.output is not None:
+        args.output = output_directory(args.output)  # checked before any figure is drawn
     if (args.directory / SWEEP_INDEX).is_file():
         return _plot_sweep(args)
     try:
@@ -40,7 +43,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("directory", type=Path, help="run directory written by `femphase run`, or a sweep "
                         "directory (sweep.json; its figures are described in docs/aggregation.md)")
-    parser.add_argument("-o", "--output", type=Path, default=None, help="output directory (default DIR/figures)")
+    parser.add_argument("-o", "--output", default=None, help="output directory (default DIR/figures)")
     parser.add_argument("--ode-rate", type=float, default=None,
                         help="shear rate γ̇ of the ODE model (default: the run's shear rate)")
     parser.add_argument("--ode-k", type=float, default=K_PAPER, help=f"ω = kγ̇ of the ODE (default {K_PAPER}, the paper's)")

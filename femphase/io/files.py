@@ -3,8 +3,9 @@
 :func:`atomic_write` replaces a file through a temporary name and ``os.replace``, so a
 reader sees the old or the new file, never a part; :func:`write_json` writes JSON so;
 :func:`read_csv` reads ``particles.csv`` and ``global.csv`` (columns in ``docs/outputs.md``);
-:func:`failpoint` is the fault injection of the kill tests. What a run directory holds, and
-its guarantees, is in :mod:`femphase.io.rundir`.
+:func:`failpoint` is the fault injection of the kill tests; :func:`output_directory` checks a
+command's ``-o`` before anything is computed. What a run directory holds, and its guarantees,
+is in :mod:`femphase.io.rundir`.
 """
 
 from __future__ import annotations
@@ -17,7 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_write", "failpoint", "jsonable", "read_csv", "write_json"]
+from femphase.errors import SceneError
+
+__all__ = ["atomic_write", "failpoint", "jsonable", "output_directory", "read_csv", "write_json"]
 
 
 _FAILPOINT_PASSES: dict[str, int] = {}
@@ -73,3 +76,14 @@ def read_csv(path: Path) -> dict[str, np.ndarray]:
     header = next(reader)
     rows = np.array([[float(x) for x in row] for row in reader]).reshape(-1, len(header))
     return {name: rows[:, k] for k, name in enumerate(header)}
+
+
+def output_directory(path: str | Path) -> Path:
+    """``path`` as the directory a command writes into (its ``-o``): SceneError naming
+    ``-o`` when it is empty or names an existing file. Nothing is created here."""
+    if not str(path).strip():
+        raise SceneError("-o", str(path), "a directory path (it is empty)")
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise SceneError("-o", str(path), "a directory (this path is a file)")
+    return path

@@ -45,7 +45,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from femphase.errors import SceneError
-from femphase.io.files import atomic_write, failpoint, jsonable
+from femphase.io.files import atomic_write, failpoint, jsonable, output_directory
 from femphase.io.provenance import now
 
 __all__ = ["CHECKPOINT", "FIELDS_DIR", "FROZEN_TABLES", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog", "Status",
@@ -67,11 +67,7 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None
 
     A directory holding femphase outputs is refused unless ``resume`` (continue it) or
     ``overwrite`` (delete femphase's files in it, and only those)."""
-    if not str(directory).strip():
-        raise SceneError("-o", str(directory), "a directory path (it is empty)")
-    directory = Path(directory)
-    if directory.exists() and not directory.is_dir():
-        raise SceneError("-o", str(directory), "a directory (this path is a file)")
+    directory = output_directory(directory)
     existing = [name for name in OUTPUTS if (directory / name).exists()]
     if resume:
         if not (directory / CHECKPOINT).is_file():

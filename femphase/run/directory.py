@@ -15,7 +15,7 @@ from femphase.analysis.observables import OBSERVABLES
 from femphase.errors import Interrupted
 from femphase.io.checkpoints import save_checkpoint
 from femphase.io.fields import point_data
-from femphase.io.files import atomic_write
+from femphase.io.files import atomic_write, output_directory
 from femphase.io.provenance import provenance
 from femphase.io.rundir import CHECKPOINT, Outputs, RunLog, Status, prepare_directory
 from femphase.run.simulation import Frame, Simulation, Tracker
@@ -38,7 +38,7 @@ class RunDirectory(Tracker):
 
     def __init__(self, directory: str | Path, resume_from: dict | None = None, changes: list[str] | None = None,
                  argv: list[str] | None = None, overwrite: bool = False, sets: list[str] | None = None) -> None:
-        self.directory = Path(directory)
+        self.directory = output_directory(directory)
         self.resume_from, self.changes, self.argv, self.overwrite = resume_from, list(changes or []), argv, overwrite
         self.sets = list(sets or [])
         self.needs = frozenset(OBSERVABLES.names())

@@ -11,6 +11,7 @@ from pathlib import Path
 
 from femphase.errors import SceneError
 from femphase.io.checkpoints import load_checkpoint, read_checkpoint_metadata
+from femphase.io.files import output_directory
 from femphase.io.rundir import CHECKPOINT, prepare_directory, resume_position
 from femphase.run.directory import RunDirectory
 from femphase.run.guards import AccuracyGuard
@@ -60,7 +61,7 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
     ``progress``: the tqdm bar (None: only on a terminal); ``argv`` and ``sets``: the command
     line and its ``--set`` assignments, for run.json; ``status_interval``: seconds of wall
     time between status lines in the log (:class:`femphase.run.trackers.StatusLog`; None: none)."""
-    directory = Path(directory)
+    directory = output_directory(directory)  # "" is refused here, before Path makes it "."
     simulation = Simulation(scene, method)
     check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
     prepare_directory(directory, resume=resume, overwrite=overwrite)
