@@ -301,7 +301,7 @@ def _check_area_ceiling(scene: Scene) -> None:
     if numerics.scheme != "adaptive" or numerics.area_implicit or model.area_stiffness <= 0:
         return
     radius = float(np.min(scene.radii))
-    rate = model.mobility * 8.0 * model.area_stiffness / (np.pi * radius**2)
+    rate = model.area_rate(radius)
     ceiling = AdaptiveSAV2.RANK_ONE_STEP / rate
     k, phase = max(enumerate(scene.phases), key=lambda item: item[1].dt)
     if phase.dt / ceiling > CEILING_SUBSTEPS:

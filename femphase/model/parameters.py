@@ -75,6 +75,11 @@ class ModelParameters:
         """J0 · 2γλ: the coefficient of the Laplacian in the equation of motion (length²/time)."""
         return 2.0 * self.mobility * self.tension * self.interface_width
 
+    def area_rate(self, radius: float) -> float:
+        """c = J0·8μ/(πR²): the rate (1/time) at which a particle of target radius R relaxes
+        back to its area, 1/τ_A (0.4 at the paper's values)."""
+        return 8.0 * self.mobility * self.area_stiffness / (np.pi * radius**2)
+
 
 def double_well(phi: np.ndarray) -> np.ndarray:
     """4 φ² (1 − φ)²: zero at φ = 0 and φ = 1."""

@@ -210,8 +210,7 @@ def relaxation_time(scene: Scene, radii: np.ndarray | None = None) -> float:
     model = scene.model
     if model.area_stiffness <= 0:
         return float("inf")
-    radius = float(np.max(scene.radii if radii is None else radii))
-    return RELAXATION_TIMES * np.pi * radius**2 / (8.0 * model.mobility * model.area_stiffness)
+    return RELAXATION_TIMES / model.area_rate(float(np.max(scene.radii if radii is None else radii)))
 
 
 def _velocity(domain, flow: Flow, time: float) -> np.ndarray:
