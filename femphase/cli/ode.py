@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 
-from femphase.errors import SceneError
 from femphase.io.files import output_directory
 from femphase.model.minimal import (
     DEFAULT_INITIAL_ELONGATION,
@@ -30,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
             args.rate, t_end, parameters=parameters, initial_elongation=args.initial_elongation
         )
     except ParameterError as exc:  # every parameter is an option of the same name
-        raise SceneError(f"--{exc.name.replace('_', '-')}", exc.value, exc.valid) from None
+        raise exc.as_option() from None
     write_solution(solution, args.output)
     print(f"wrote {args.output / 'ode.csv'} and {args.output / 'ode.json'}")
     return 0

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from femphase.errors import InputError, SceneError
+from femphase.errors import InputError
 from femphase.io.files import output_directory
 from femphase.model.minimal import K_PAPER, ParameterError
 
@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         paths = plot_run(args.directory, args.output, ode_rate=args.ode_rate, ode_k=args.ode_k, fmt=args.format)
     except ParameterError as exc:  # ode_rate, ode_k: the options --ode-rate, --ode-k
-        raise SceneError(f"--{exc.name.replace('_', '-')}", exc.value, exc.valid) from None
+        raise exc.as_option() from None
     except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
         raise InputError(str(exc)) from None
     for path in paths.values():

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from femphase.errors import SceneError
+
 __all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "MAX_HALF_PERIODS", "RESET_ORIENTATION",
            "angular_frequency", "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution",
            "orientation", "ParameterError", "period", "solve_minimal_model", "t1_times", "wrap_orientation",
@@ -81,6 +83,11 @@ class ParameterError(ValueError):
     def __init__(self, name: str, value: object, valid: str) -> None:
         self.name, self.value, self.valid = name, value, valid
         super().__init__(f"{name} = {value!r} is invalid: {valid}")
+
+    def as_option(self) -> SceneError:
+        """The same error for a command whose option ``--name`` (underscores as hyphens) is
+        this parameter."""
+        return SceneError(f"--{self.name.replace('_', '-')}", self.value, self.valid)
 
 
 def _require(name: str, value: float, condition: bool, valid: str) -> None:
