@@ -191,15 +191,16 @@ class FrameRecorder(Tracker):
         """(n_frames, N) array of a per-particle column (e.g. "elongation"), or with
         kind="global" (n_frames,) of a global one (e.g. "free_energy"). KeyError naming the
         columns recorded when ``name`` is none of them; ValueError for another ``kind``."""
-        if kind not in ("particle", "global"):
+        attribute = {"particle": "particle", "global": "globals"}
+        if kind not in attribute:
             raise ValueError(f"kind = {kind!r} is invalid: 'particle' (per-particle columns) or 'global'")
-        tables = [getattr(f, "globals" if kind == "global" else "particle") for f in self.frames]
-        if tables and name not in tables[0]:
-            other = "particle" if kind == "global" else "global"
-            hint = f" ({name!r} is a {other} column: kind={other!r})" if name in getattr(
-                self.frames[0], "globals" if other == "global" else "particle") else ""
-            raise KeyError(f"no {kind} column {name!r}; recorded: {', '.join(sorted(tables[0]))}{hint}")
-        return np.stack([np.asarray(table[name]) for table in tables])
+        if self.frames and name not in getattr(self.frames[0], attribute[kind]):
+            other = "global" if kind == "particle" else "particle"
+            hint = (f" ({name!r} is a {other} column: kind={other!r})"
+                    if name in getattr(self.frames[0], attribute[other]) else "")
+            recorded = ", ".join(sorted(getattr(self.frames[0], attribute[kind])))
+            raise KeyError(f"no {kind} column {name!r}; recorded: {recorded}{hint}")
+        return np.stack([np.asarray(getattr(f, attribute[kind])[name]) for f in self.frames])
 
     @property
     def times(self) -> np.ndarray:
