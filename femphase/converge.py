@@ -179,9 +179,14 @@ def _area(run: RunData) -> float:
     return float(np.mean(run.particles["area"][-1]))
 
 
+def _require_pair(n_particles: int) -> None:
+    """ConvergenceError unless the scene has the two particles ``separation`` measures."""
+    if n_particles != 2:
+        raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {n_particles})")
+
+
 def _separation(run: RunData) -> float:
-    if run.n_particles != 2:
-        raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {run.n_particles})")
+    _require_pair(run.n_particles)
     period = float(run.scene["domain"].get("Lx", 0.0)) or run.domain.period
     dx = (run.x[-1, 1] - run.x[-1, 0] + period / 2) % period - period / 2
     return float(np.hypot(dx, run.y[-1, 1] - run.y[-1, 0]))
@@ -373,9 +378,8 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     if len(set(levels)) < len(levels):
         raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice)")
     loaded = load_scene(scene, list(assignments))
-    if "separation" in observables and loaded.n_particles != 2:
-        # checked before any run: the runs would be wasted on an observable they cannot give
-        raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {loaded.n_particles})")
+    if "separation" in observables:  # checked before any run, which could not give it
+        _require_pair(loaded.n_particles)
     if parameter == "dt" and loaded.numerics.scheme == "adaptive":
         warnings.warn("--dt with the adaptive scheme refines the outer step only: its substeps follow "
                       "numerics.tolerance_t (the substeps line of the report shows them), so the differences are "
