@@ -317,9 +317,10 @@ def _check_area_ceiling(scene: Scene) -> None:
 
 
 def check_numerics(scene: Scene, scheme: str | None = None) -> None:
-    """What the time stepping would refuse at its first step, refused now: the
-    finite-difference scheme off the structured channel or above its explicit stability
-    limit, and the tensor solver where the system has no tensor-product form.
+    """What the time stepping would refuse at its first step, refused now: a time mass the
+    scheme cannot step with, the finite-difference scheme off the structured channel or
+    above its explicit stability limit, and the tensor solver where the system has no
+    tensor-product form.
 
     ``scheme``: the time scheme the run uses, if not the scene's ``numerics.scheme`` (``femphase
     run --method fd`` uses "fd-heun"); :func:`femphase.run.runner.run_scene` should call this
@@ -329,6 +330,7 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     key = "numerics.scheme" if scheme == numerics.scheme else "--method"
     # as the user wrote it: --method takes "fem" or "fd", numerics.scheme the schemes' names
     given, instead = ("fd", '"fem"') if key == "--method" else (scheme, '"euler"')
+    SCHEMES.get(scheme).check_mass(numerics.mass)
     if scheme == "fd-heun":
         if domain.kind != "grid":
             raise SceneError(key, given, f'{instead}: the finite-difference reference needs the structured channel '
@@ -434,8 +436,10 @@ def check_flow(spec: dict, domain: Domain) -> None:
 
 def _check_resolution(scene: Scene) -> None:
     domain, lam = scene.domain, scene.model.interface_width
-    # a mesh without a nominal h is measured by its node density, as the grid's h is
-    measured = domain.kind == "mesh" and "h" not in scene.domain_table
+    # a mesh is judged by its node density, as the grid by its h: a nominal h may judge it
+    # coarser, never finer than its nodes are
+    nominal = getattr(domain, "nominal_spacing", None)
+    measured = domain.kind == "mesh" and (nominal is None or nominal < domain.effective_spacing)
     h = domain.effective_spacing if measured else domain.spacing
     name = "the mesh's effective spacing √(area/dofs)" if measured else "domain.h"
     if lam / h < 1.0:
@@ -494,12 +498,14 @@ def _check_particles(scene: Scene) -> None:
     mean_square = float(np.mean(np.square(p.radii))) if p.radii is not None else scene.model.radius**2
     fraction = n * np.pi * mean_square / domain.area
     if fraction > MAX_AREA_FRACTION:
-        raise SceneError(
-            "particles.N", n,
-            f"the particles' total area is {fraction:.3g} × the domain's; at most {MAX_AREA_FRACTION} fits "
-            f"(N ≤ {int(MAX_AREA_FRACTION * domain.area / (np.pi * mean_square))} "
-            f"at R = {np.sqrt(mean_square):g})",
-        )
+        valid = f"the particles' total area is {fraction:.3g} × the domain's; at most {MAX_AREA_FRACTION} fits"
+        # the key the user can change: the count where the layout takes one, else the radii
+        if p.layout in ("random", "hexagonal"):
+            most = int(MAX_AREA_FRACTION * domain.area / (np.pi * mean_square))
+            raise SceneError("particles.N", n, f"{valid} (N ≤ {most} at R = {np.sqrt(mean_square):g})")
+        largest = np.floor(100 * np.sqrt(MAX_AREA_FRACTION * domain.area / (np.pi * n))) / 100  # rounded down: it fits
+        key, value = ("particles.radii", p.radii) if p.radii is not None else ("model.radius", scene.model.radius)
+        raise SceneError(key, value, f"{valid} (a root-mean-square radius ≤ {largest:g} for {n} particles)")
     if p.layout == "hexagonal" and p.per_row is not None and p.per_row > n:
         raise SceneError("particles.per_row", p.per_row, f"a whole number from 1 to particles.N = {n}")
     if p.layout == "random":

@@ -70,8 +70,37 @@ def test_a_bad_option_is_named_as_an_option_and_a_bad_key_as_a_scene_key(tmp_pat
 
 def test_too_many_particles_is_refused_with_the_limit():
     data = {**SMALL, "particles": {"layout": "random", "N": 40}}
-    with pytest.raises(SceneError, match="at most"):
+    with pytest.raises(SceneError, match="at most") as info:
         scene_from_dict(data)
+    assert info.value.key == "particles.N"
+
+
+@pytest.mark.parametrize("particles, key", [({"layout": "single"}, "model.radius"),
+                                             ({**SMALL["particles"], "radii": [16.0, 16.0]}, "particles.radii")])
+def test_too_large_particles_of_fixed_count_name_their_radius_not_n(particles, key):
+    """A single or listed layout has no N to lower: the message names the radius and its largest value."""
+    data = {**SMALL, "model": {"R": 40.0} if key == "model.radius" else {}, "particles": particles}
+    with pytest.raises(SceneError, match=r"at most 1\.5 fits \(a root-mean-square radius ≤ ") as info:
+        scene_from_dict(data)
+    assert info.value.key == key
+    # the largest radius the message gives is accepted
+    largest = float(str(info.value).split("radius ≤ ")[1].split()[0])
+    fits = {**data, "model": {"R": largest}, "particles": {**particles, "radii": None}}
+    fits["particles"].pop("radii")
+    scene_from_dict(fits)
+
+
+@pytest.mark.parametrize("scheme", ["adaptive", "sav2"])
+def test_a_consistent_mass_under_a_lumped_only_scheme_is_refused_on_loading(tmp_path, scheme):
+    """Refused with the scene, before a run directory is touched, and naming the scheme that has it."""
+    path = write_scene(tmp_path / "scene.toml")
+    refusal = f'"lumped" with numerics.scheme = "{scheme}" .*"euler" for the consistent'
+    with pytest.raises(SceneError, match=refusal) as info:
+        load_scene(path, ["numerics.mass='consistent'", f"numerics.scheme='{scheme}'"])
+    assert info.value.key == "numerics.mass"
+    assert main(["run", str(path), "-o", str(tmp_path / "run"), "--set", "numerics.mass='consistent'"]) == 2
+    assert not (tmp_path / "run").exists()
+    load_scene(path, ["numerics.mass='consistent'", "numerics.scheme='euler'"])
 
 
 @pytest.mark.parametrize("centres, apart", [([[10.0, 12.0], [10.0, 12.0]], "0 apart"),
@@ -278,6 +307,41 @@ def test_a_mesh_is_judged_by_its_node_density_like_the_grid_by_h(tmp_path, spaci
     assert bool(resolution) == (outcome == "warns")
     if resolution:
         assert "the mesh's effective spacing √(area/dofs) = 1.49" in str(resolution[0].message)
+
+
+def test_a_nominal_h_cannot_make_a_mesh_finer_than_its_nodes(tmp_path):
+    """A nominal h finer than the mesh's node density leaves the resolution check to the
+    density; one beyond a factor 2 of it describes another mesh and is refused."""
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+
+    write_domain(tmp_path / "coarse.vtu", *delaunay_channel(40.0, edge_for_spacing(2.5), lambda x: 0 * x,
+                                                           lambda x: 0 * x + 40.0, seed=1))
+    table = {"domain": {"kind": "mesh", "mesh": "coarse.vtu", "h": 1.3}, "particles": {"layout": "single"},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with pytest.raises(SceneError, match=r"needs h ≤ λ \(the mesh's effective spacing") as info:
+        scene_from_dict(table, tmp_path)
+    assert info.value.key == "domain.mesh"
+    table["domain"]["h"] = 1.0
+    refusal = r"within a factor 2 of the mesh's effective spacing √\(area/dofs\) = 2\.[45]"
+    with pytest.raises(SceneError, match=refusal) as info:
+        scene_from_dict(table, tmp_path)
+    assert info.value.key == "domain.h"
+
+
+def test_a_periodic_pair_in_the_wrong_order_or_of_walls_names_the_pair(tmp_path):
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import structured_channel
+
+    write_domain(tmp_path / "channel.vtu", *structured_channel(20.0, 10.0, 1.0))
+    table = {"domain": {"kind": "mesh", "mesh": "channel.vtu"},
+             "particles": {"layout": "single", "initial_radius": 2.0}, "model": {"R": 3.0},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    for pair, reason in ((["right", "left"], "'left' \\(at x = 0\\) must lie at larger x than 'right'"),
+                         (["bottom", "top"], "'bottom' is not a straight side x = const")):
+        with pytest.raises(SceneError, match=reason) as info:
+            scene_from_dict({**table, "domain": {**table["domain"], "periodic": pair}}, tmp_path)
+        assert info.value.key == "domain.periodic"
 
 
 def test_resume_of_a_mesh_run_continues_to_the_same_rows_as_an_uninterrupted_run(tmp_path):

@@ -46,7 +46,7 @@ import numpy as np
 from femphase.config import Numerics
 from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
-from femphase.errors import BlowUpError
+from femphase.errors import BlowUpError, SceneError
 from femphase.flows import Flow
 from femphase.model.energy import FreeEnergy
 from femphase.model.parameters import ModelParameters
@@ -140,9 +140,21 @@ class TimeScheme(ABC):
     #: Whether its steps may compute in single precision under flow (``numerics.precision =
     #: "mixed"``); the finite-difference reference's stay double
     mixed_precision: ClassVar[bool] = True
+    #: The time masses (``numerics.mass``) it can step with
+    masses: ClassVar[tuple[str, ...]] = ("lumped", "consistent")
 
     def __init__(self, stepper: StepperProtocol) -> None:
+        self.check_mass(stepper.numerics.mass)
         self.stepper = stepper
+
+    @classmethod
+    def check_mass(cls, mass: str) -> None:
+        """SceneError when the scheme cannot step with the time mass ``mass``."""
+        if mass not in cls.masses:
+            others = [name for name in SCHEMES.names() if mass in SCHEMES.get(name).masses]
+            raise SceneError("numerics.mass", mass, " or ".join(f'"{m}"' for m in cls.masses)
+                             + f' with numerics.scheme = "{cls.name}" (or numerics.scheme = '
+                             + " or ".join(f'"{n}"' for n in others) + f' for the {mass} mass)')
 
     @abstractmethod
     def advance(self, phi: np.ndarray, layout: Layout, state: State) -> tuple[np.ndarray, Layout]:

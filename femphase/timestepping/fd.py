@@ -169,6 +169,7 @@ class FiniteDifferenceHeun(TimeScheme):
     name = "fd-heun"
     order = 2
     mixed_precision = False  # the reference computes in double whatever numerics.precision
+    masses = ("lumped",)  # the 5-point differences are the structured mesh's lumped-mass scheme
 
     def __init__(self, stepper: StepperProtocol) -> None:
         super().__init__(stepper)

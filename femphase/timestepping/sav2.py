@@ -17,7 +17,6 @@ from __future__ import annotations
 import numpy as np
 
 from femphase.domains.layout import Layout
-from femphase.errors import SceneError
 from femphase.model.energy import WindowedFields
 from femphase.state import State
 from femphase.timestepping.base import SCHEMES, StepperProtocol, TimeScheme, auto_stabilisation
@@ -45,6 +44,7 @@ class RelaxedSAV2(TimeScheme):
 
     name = "sav2"
     order = 2
+    masses = ("lumped",)
     #: C in r = √(E1 + C): any C > 0 keeps the root real (E1 ≥ 0 for the paper's terms).
     OFFSET = 1.0
     #: η: the share of each step's dissipation the relaxation of r may give back (Jiang,
@@ -64,9 +64,6 @@ class RelaxedSAV2(TimeScheme):
 
     def __init__(self, stepper: StepperProtocol) -> None:
         super().__init__(stepper)
-        if stepper.numerics.mass != "lumped":
-            raise SceneError("numerics.mass", stepper.numerics.mass,
-                             f'"lumped" with numerics.scheme = "{self.name}" (or scheme = "euler" for the consistent mass)')
         flow, dt = stepper.flow, stepper.dt
         self.half = None if flow.is_still else stepper.domain.advection(flow, 0.5 * dt, stepper.numerics)
         split = stepper.numerics.repulsion_split and not flow.is_still

@@ -69,8 +69,15 @@ TAG_KEYS = ("gmsh:physical", "boundary", "medit:ref", "cell_tags")
 MESH_KEYS = ("kind", "mesh", "h", "periodic", "boundaries", "Lx", "Ly")
 
 
+#: How far a scene's nominal ``h`` may lie from the mesh's effective spacing √(area/dofs),
+#: either way: room for graded meshes, not for an h that describes another mesh (its
+#: margins, tolerances and resolution check would then be another mesh's).
+NOMINAL_SPACING_FACTOR = 2.0
+
+
 class PeriodicPairError(ValueError):
-    """The periodic pair names a boundary the mesh does not have (scene key domain.periodic)."""
+    """The periodic pair names a boundary the mesh does not have, or one that is not a side
+    x = const, or its sides in the wrong order (scene key domain.periodic)."""
 
 
 @DOMAINS.register("mesh")
@@ -135,19 +142,20 @@ class MeshDomain(Domain):
         low_nodes = np.unique(mesh.facets[:, boundaries[low]])
         high_nodes = np.unique(mesh.facets[:, boundaries[high]])
         x = mesh.p[0]
-        period = float(np.mean(x[high_nodes]) - np.mean(x[low_nodes]))
-        if not period > 0:
-            raise ValueError(
-                f"the periodic boundary {high!r} (mean x {np.mean(x[high_nodes]):.6g}) must lie "
-                f"at larger x than {low!r} (mean x {np.mean(x[low_nodes]):.6g})"
-            )
-        tol = 1e-8 * period if tolerance is None else tolerance
+        # the mesh spans one period in x, from one side of the pair to the other
+        tol = 1e-8 * float(np.ptp(x)) if tolerance is None else tolerance
         for name, nodes in ((low, low_nodes), (high, high_nodes)):
             if np.ptp(x[nodes]) > tol:
-                raise ValueError(
+                raise PeriodicPairError(
                     f"the periodic boundary {name!r} is not a straight side x = const: its "
                     f"nodes span x from {x[nodes].min():.6g} to {x[nodes].max():.6g}"
                 )
+        period = float(np.mean(x[high_nodes]) - np.mean(x[low_nodes]))
+        if not period > 0:
+            raise PeriodicPairError(
+                f"the periodic boundary {high!r} (at x = {np.mean(x[high_nodes]):.6g}) must lie "
+                f"at larger x than {low!r} (at x = {np.mean(x[low_nodes]):.6g}): the pair is (min side, max side)"
+            )
         side = np.concatenate([low_nodes, np.setdiff1d(high_nodes, low_nodes)])
         try:
             local = periodic_dof_map(mesh.p[:, side], period, axis=0, tol=tol)
@@ -190,6 +198,12 @@ class MeshDomain(Domain):
         for key, value in (("Lx", domain.period), ("Ly", domain.width)):
             if key in table and not np.isclose(table[key], value, rtol=1e-6):
                 raise SceneError(f"domain.{key}", table[key], f"the mesh's value {value:g} (or leave it out)")
+        measured = domain.effective_spacing
+        if h is not None and not measured / NOMINAL_SPACING_FACTOR <= h <= measured * NOMINAL_SPACING_FACTOR:
+            raise SceneError("domain.h", h, f"a nominal spacing within a factor {NOMINAL_SPACING_FACTOR:g} of the "
+                             f"mesh's effective spacing √(area/dofs) = {measured:.3g}, i.e. from "
+                             f"{measured / NOMINAL_SPACING_FACTOR:.3g} to {measured * NOMINAL_SPACING_FACTOR:.3g} "
+                             f"(its median edge is {domain.median_edge:.3g}), or leave it out")
         return domain
 
     def describe(self) -> dict:
@@ -220,10 +234,7 @@ class MeshDomain(Domain):
     def spacing(self) -> float:
         """The scene's nominal spacing ``h``, else the median edge length: the spacing of
         window margins and tolerances."""
-        if self.nominal_spacing is not None:
-            return self.nominal_spacing
-        ends = self.mesh.p[:, self.mesh.facets]
-        return float(np.median(np.hypot(*(ends[:, 1] - ends[:, 0]))))
+        return self.median_edge if self.nominal_spacing is None else self.nominal_spacing
 
     @cached_property
     def effective_spacing(self) -> float:
