@@ -201,13 +201,17 @@ OBSERVABLES: dict[str, tuple[Callable[[RunData], float], str]] = {
 }
 
 
+def _level_keys(parameter: str, phases: int) -> list[str]:
+    """The scene keys one level of ``parameter`` sets: every phase's dt for "dt"."""
+    if parameter not in PARAMETERS:
+        raise ConvergenceError("parameter", parameter, f"one of {sorted(PARAMETERS)}")
+    return [f"phases.{k}.dt" for k in range(phases)] if parameter == "dt" else [PARAMETERS[parameter][0]]
+
+
 def study_sweep(scene: Path, parameter: str, values: list[float], phases: int) -> str:
     """The sweep file (TOML text) of a study: ``scene`` and the axis of ``parameter``
     (every phase's dt, zipped, for "dt")."""
-    if parameter not in PARAMETERS:
-        raise ConvergenceError("parameter", parameter, f"one of {sorted(PARAMETERS)}")
-    key = PARAMETERS[parameter][0]
-    keys = [f"phases.{k}.dt" for k in range(phases)] if parameter == "dt" else [key]
+    keys = _level_keys(parameter, phases)
     lines = ["# femphase converge: the study's runs (a sweep file, docs/sweeps.md)", "[sweep]",
              f"scene = {toml_value(str(Path(scene).resolve()))}", f'mode = "{"zip" if len(keys) > 1 else "product"}"',
              "", "[axes]"]
@@ -354,6 +358,23 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
     save(fig, path)
 
 
+def _check_levels(scene: str | Path, parameter: str, levels: list, assignments: list[str], phases: int) -> None:
+    """ConvergenceError naming the option and the level whose scene is invalid (``--h 0.7``
+    where Lx is no multiple of it), before any run; the sweep would name its own keys."""
+    from femphase.scene import load_scene
+
+    keys = _level_keys(parameter, phases)
+    for level in levels:
+        value = toml_value(str(level) if parameter == "mesh" else float(level))
+        try:
+            with warnings.catch_warnings():  # the sweep warns once per run
+                warnings.simplefilter("ignore")
+                load_scene(scene, assignments + [f"{k}={value}" for k in keys])
+        except SceneError as exc:
+            raise ConvergenceError(f"--{parameter.replace('_', '-')}", str(level) if parameter == "mesh" else level,
+                                   f"a level every run's scene accepts ({exc})") from None
+
+
 def run_convergence(scene: str | Path, directory: str | Path, parameter: str, values: list[float],
                     observables: list[str], assignments: list[str] = (), *, expected_order: float | None = None,
                     workers: int | None = None, scheduler: str | None = None, client=None,
@@ -368,6 +389,9 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     unknown = [name for name in observables if name not in OBSERVABLES]
     if unknown or not observables:
         raise ConvergenceError("--observable", ",".join(unknown) or "(none)", f"names from {sorted(OBSERVABLES)}")
+    if expected_order is not None and not (math.isfinite(expected_order) and expected_order > 0):
+        raise ConvergenceError("--order", expected_order, "a finite number > 0 (the formal order of the refined "
+                               "parameter, e.g. 2)")
     option = f"--{parameter.replace('_', '-')}"
     if parameter == "mesh":
         if len(values) < 2 or any(not Path(v).is_file() for v in values):
@@ -378,8 +402,13 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     if len(set(levels)) < len(levels):
         raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice)")
     loaded = load_scene(scene, list(assignments))
+    _check_levels(scene, parameter, levels, list(assignments), len(loaded.phases))
     if "separation" in observables:  # checked before any run, which could not give it
         _require_pair(loaded.n_particles)
+    if parameter == "tolerance_t" and loaded.numerics.scheme != "adaptive":
+        raise ConvergenceError(option, values, f'a tolerance study of the adaptive scheme: the scene\'s '
+                               f'numerics.scheme is "{loaded.numerics.scheme}", whose steps the tolerance does '
+                               'not set (refine --dt instead, or --set numerics.scheme=adaptive)')
     if parameter == "dt" and loaded.numerics.scheme == "adaptive":
         warnings.warn("--dt with the adaptive scheme refines the outer step only: its substeps follow "
                       "numerics.tolerance_t (the substeps line of the report shows them), so the differences are "

@@ -182,6 +182,24 @@ def test_the_command_refuses_bad_levels_and_observables_before_any_run(tmp_path)
     assert not (tmp_path / "s" / "runs").exists()
 
 
+@pytest.mark.parametrize("parameter, values, options, refusal", [
+    ("h", [1.0, 0.7], {}, r"'--h' = 0\.7 is invalid: a level every run's scene accepts \(scene key 'domain\.Lx'"),
+    ("dt", [1.0, 0.3], {}, r"'--dt' = 0\.3 is invalid: .*'phases\.0\.duration' = 20\.0"),
+    ("h", [1.0, 0.5], {"expected_order": 0.0}, r"'--order' = 0\.0 is invalid: a finite number > 0"),
+    ("h", [1.0, 0.5], {"expected_order": math.nan}, r"'--order' = nan is invalid"),
+    ("tolerance_t", [0.1, 0.01], {"assignments": ["numerics.scheme='sav2'"]},
+     r"the scene's numerics.scheme is \"sav2\", whose steps the tolerance does not set"),
+])
+def test_a_study_that_cannot_be_run_is_refused_by_its_option_before_any_run(tmp_path, parameter, values, options,
+                                                                           refusal):
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    with pytest.raises(ConvergenceError, match=refusal):
+        run_convergence(scene, tmp_path / "s", parameter, values, ["area"], workers=1, log=lambda line: None,
+                        **options)
+    assert not (tmp_path / "s").exists()
+
+
 def test_a_mesh_scene_is_refined_by_its_mesh_files(tmp_path):
     from femphase.domains.mesh.domain import write_domain
     from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
