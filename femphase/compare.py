@@ -14,11 +14,11 @@ NumPy ``.npz`` or HDF5 (``.h5``/``.hdf5``) holding four arrays:
 i.e. the nodes of the run's grid (:mod:`femphase.domains.grid.lattice`), the particles in the run's order.
 :func:`grid_data_from_run` and :func:`save_grid_data` write a grid run in this layout.
 
-Which inputs can be compared: two grid inputs only on the same grid (same nx, ny, h). Two
-meshed runs, or a meshed and a grid run, always by their observables and energies (their
-periods must agree); their fields only when both are on the same domain (the same
+Which inputs can be compared: two runs always by their observables and energies (their
+periods must agree: grid runs at different h, meshed runs, a meshed and a grid run); their
+fields only when both are on the same domain (for grids the same nx, ny, h; else the same
 :meth:`~femphase.domains.base.Domain.describe`: kind, dofs, period, mesh checksum), else a clear
-error. Grid data is compared only with grid runs.
+error. Grid data holds fields only, so it is compared only with grid runs on its grid.
 
 What is compared, at the frame times both inputs have (matched to 1e-6 time units):
 
@@ -356,15 +356,18 @@ def compare_runs(a: str | Path, b: str | Path, fields: bool = False) -> dict:
 
 
 def _check_domains(a: Source, b: Source, with_fields: bool) -> None:
-    """Two grids must be the same grid; other domains must share the period, and the whole
-    discretisation when their fields are compared."""
+    """Domains must share the period, and the whole discretisation (for grids: the same
+    grid) when their fields are compared, as they are whenever an input is grid data."""
     if a.grid is not None and b.grid is not None:
-        if a.grid != b.grid:
+        if a.grid == b.grid:
+            return
+        if with_fields:
             raise ValueError(
                 f"the grids differ: '{a.label}' has {a.grid.nx} × {a.grid.ny} nodes at h = {a.grid.h:g}, "
-                f"'{b.label}' has {b.grid.nx} × {b.grid.ny} at h = {b.grid.h:g}; compare runs on the same grid"
+                f"'{b.label}' has {b.grid.nx} × {b.grid.ny} at h = {b.grid.h:g}; fields are compared only on "
+                "the same grid" + (": compare the runs without --fields (observables and energies)"
+                                   if a.is_run and b.is_run else ", and grid data holds nothing else")
             )
-        return
     if not np.isclose(a.domain.period, b.domain.period, rtol=1e-9, atol=0.0):
         raise ValueError(
             f"the domains differ in period: '{a.label}' has {a.domain.period:g}, '{b.label}' has "

@@ -119,14 +119,25 @@ def test_default_output_is_inside_dir_b(runs):
     assert (runs["fem_again"] / "compare" / "compare.csv").exists()
 
 
+def test_grid_runs_at_different_h_compare_by_observables(runs):
+    """A study's runs at h = 1 and 2: the same disc pair, its observables O(h²) apart."""
+    result = compare_runs(runs["fem"], runs["coarse"])
+    assert result["field_mode"] == "none" and "energy_total" in result["series"]
+    largest = maxima(result)
+    assert 0 < largest["area"] < 0.05 * np.pi * 8.0**2 and largest["x"] < 0.1 and largest["y"] < 0.1
+
+
 def test_bad_inputs_give_clear_errors(runs, tmp_path):
     with pytest.raises(ValueError, match="does not exist"):
         compare_runs(runs["fem"], tmp_path / "missing")
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="not a run directory: it has no scene.toml"):
         compare_runs(tmp_path / "empty", runs["fem"])
-    with pytest.raises(ValueError, match="grids differ"):
-        compare_runs(runs["fem"], runs["coarse"])
+    with pytest.raises(ValueError, match="grids differ.*compare the runs without --fields"):
+        compare_runs(runs["fem"], runs["coarse"], fields=True)
+    with pytest.raises(ValueError, match="grids differ.*grid data holds nothing else"):
+        save_grid_data(tmp_path / "fine.npz", grid_data_from_run(runs["fem"]))
+        compare_runs(runs["coarse"], tmp_path / "fine.npz")
     with pytest.raises(ValueError, match="has no fields.xdmf"):
         compare_runs(runs["fem"], runs["no_fields"], fields=True)
     data = grid_data_from_run(runs["fem"])
