@@ -597,8 +597,9 @@ def set_value(data: dict, assignment: str) -> None:
                              f"'{parent}' holds a {type(target).__name__}")
 
 
-def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> dict:
-    """The parsed TOML of a scene file with ``--set`` assignments applied (not validated)."""
+def read_scene_data(path: str | Path, assignments: list[str] | str | None = None) -> dict:
+    """The parsed TOML of a scene file with ``--set`` assignments applied (not validated);
+    ``assignments`` is a list of ``"key=value"`` strings, or one such string."""
     path = Path(path)
     if not path.is_file():
         raise SceneError("scene", str(path), "a TOML scene file that exists")
@@ -612,11 +613,12 @@ def read_scene_data(path: str | Path, assignments: list[str] | None = None) -> d
         data = tomlio.loads(text)
     except (tomlio.TOMLDecodeError, RecursionError, ValueError) as exc:
         raise SceneError("scene", str(path), f"valid TOML ({exc})") from None
-    for assignment in assignments or []:
+    for assignment in [assignments] if isinstance(assignments, str) else assignments or []:
         set_value(data, assignment)
     return data
 
 
-def load_scene(path: str | Path, assignments: list[str] | None = None) -> Scene:
-    """Read and validate a scene file (any domain kind), applying ``--set`` first."""
+def load_scene(path: str | Path, assignments: list[str] | str | None = None) -> Scene:
+    """Read and validate a scene file (any domain kind), applying ``--set`` first (a list of
+    ``"key=value"`` strings, or one)."""
     return scene_from_dict(read_scene_data(path, assignments), Path(path).parent)

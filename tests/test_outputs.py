@@ -183,3 +183,22 @@ def test_a_recorded_series_that_does_not_exist_names_the_recorded_ones():
         recorder.series("elongtion", "global")
     with pytest.raises(ValueError, match="kind = 'globals' is invalid"):
         recorder.series("area", "globals")
+
+
+def test_a_simulation_takes_one_tracker_or_a_list_and_names_what_it_cannot_take():
+    sc = small_scene()
+    recorder = FrameRecorder()
+    Simulation(sc).run(sc.initial_state(), recorder)  # one tracker, as py-pde takes it
+    assert len(recorder.frames) == 3
+    with pytest.raises(TypeError, match=r"trackers must be Tracker instances .*\['function'\]"):
+        Simulation(sc).run(sc.initial_state(), [recorder, lambda state: None])
+    with pytest.raises(TypeError, match="state must be a femphase State .* not NoneType"):
+        Simulation(sc).run(None, [recorder])
+
+
+def test_a_scene_takes_one_assignment_as_a_string(tmp_path):
+    from femphase.scene import load_scene
+
+    path = tmp_path / "scene.toml"
+    path.write_text('[[phases]]\nduration = 2.0\ndt = 1.0\nframe_interval = 1.0\n')
+    assert load_scene(path, "phases.0.duration=4").phases[0].duration == 4.0

@@ -111,9 +111,11 @@ class Simulation:
     def steps_done(self, state: State) -> int:
         return sum(p.n_steps for p in self.scene.phases[: state.phase]) + state.phase_step
 
-    def run(self, state: State, trackers: list[Tracker] = (), *, initial_frame: bool | None = None,
+    def run(self, state: State, trackers: list[Tracker] | Tracker = (), *, initial_frame: bool | None = None,
             stop: Callable[[], int | None] | None = None) -> State:
         """Step ``state`` (in place) through the remaining phases; returns it.
+
+        ``trackers``: a list of :class:`Tracker`, or one.
 
         ``initial_frame``: emit a frame of the state before the first step (default: when
         it is at step 0; a resumed run has it already). ``stop()`` is asked after every call
@@ -121,7 +123,13 @@ class Simulation:
         steps (the adaptive default), every few (:meth:`_steps_per_call`). A signal number
         from it stops the run with :class:`~femphase.errors.Interrupted`. Trackers'
         ``after_step`` runs after every call too."""
-        trackers = list(trackers)
+        if not isinstance(state, State):
+            raise TypeError(f"state must be a femphase State (scene.initial_state(), or a checkpoint's), "
+                            f"not {type(state).__name__}")
+        trackers = [trackers] if isinstance(trackers, Tracker) else list(trackers)
+        if not all(isinstance(tracker, Tracker) for tracker in trackers):
+            raise TypeError(f"trackers must be Tracker instances (femphase.run), not "
+                            f"{sorted({type(t).__name__ for t in trackers if not isinstance(t, Tracker)})}")
         needs = frozenset().union(*(t.needs for t in trackers)) if trackers else frozenset()
         t1_counter = self._t1_counter(needs)
         error = None
