@@ -46,6 +46,10 @@ class ResolutionWarning(UserWarning):
     """A scene runs, but at a resolution known to bias its results (the message says how)."""
 
 
+class FlowWarning(UserWarning):
+    """A scene runs, but its flow crosses the walls (the message says where and by how much)."""
+
+
 class StiffnessWarning(UserWarning):
     """A scene runs, but a stiff term holds its steps far below dt (the message says which
     term, how far, and what lifts it)."""

@@ -66,6 +66,13 @@ class FlowDomain(Protocol):
     def y_range(self) -> tuple[float, float]:
         """Lowest and highest y of the domain (the walls' extremes)."""
 
+    @property
+    def period(self) -> float:
+        """The period in x."""
+
+    def wall_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """(points, unit normals), each (2, n), along the walls."""
+
 
 FLOWS: Registry[Callable[[dict, FlowDomain], Flow]] = Registry("Flows", "flow.type")
 
@@ -208,6 +215,41 @@ def _try_flow(flow: Flow, spec: dict, domain: FlowDomain) -> None:
     if not (np.isfinite(u).all() and np.isfinite(v).all()):
         raise SceneError("flow.function", spec.get("function"), f"a callable computing a finite {signature} "
                          "(it gave NaN or inf)")
+
+
+#: Normal velocity at the walls, or jump across the period, relative to the flow's largest
+#: speed, below which a flow counts as tangential there, or periodic (rounding)
+FLOW_DEFECT = 1e-6
+
+
+def _velocity(flow: Flow, x: np.ndarray, y: np.ndarray, t: float) -> np.ndarray:
+    """(2, n) velocity of ``flow`` at the points (x, y) at time t."""
+    with np.errstate(all="ignore"):
+        return np.stack([np.broadcast_to(np.asarray(w, dtype=float), x.shape) for w in flow.velocity(x, y, t)])
+
+
+def flow_defects(flow: Flow, domain: FlowDomain) -> dict[str, tuple[float, float, np.ndarray]]:
+    """What makes ``flow`` unfit for the domain, by more than :data:`FLOW_DEFECT` of its
+    largest speed, at t = 0 (also t = 1 for a time-dependent flow, which may vanish at
+    t = 0): "walls", the largest |v·n| on the walls, and "period", the largest |v(x + Lx, y)
+    − v(x, y)| at the dofs; each as (that value, the largest speed, the point (x, y)).
+    Empty for a flow tangential to the walls and periodic in x, or no flow."""
+    if flow.is_still:
+        return {}
+    points, normals = domain.wall_normals()
+    x, y = np.asarray(domain.coordinates)
+    defects = {}
+    for t in (0.0, 1.0) if not flow.steady else (0.0,):
+        at_dofs = _velocity(flow, x, y, t)
+        speed = float(np.max(np.hypot(*at_dofs)))
+        found = {"walls": (np.abs(np.sum(_velocity(flow, *points, t) * normals, axis=0)), points),
+                 "period": (np.max(np.abs(_velocity(flow, x + domain.period, y, t) - at_dofs), axis=0),
+                            np.stack([x, y]))}
+        for name, (excess, where) in found.items():
+            k = int(np.argmax(excess))
+            if excess[k] > FLOW_DEFECT * speed and (name not in defects or excess[k] > defects[name][0]):
+                defects[name] = (float(excess[k]), speed, where[:, k])
+    return defects
 
 
 def flow_from_spec(spec: dict, domain: FlowDomain) -> Flow:

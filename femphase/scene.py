@@ -21,8 +21,8 @@ from femphase.analysis.observables import OBSERVABLES
 from femphase.config import Numerics
 from femphase.domains import DOMAINS, Domain, domain_from_table
 from femphase.domains.mesh.stokes import stokes_drive
-from femphase.errors import ResolutionWarning, SceneError, StiffnessWarning
-from femphase.flows import FLOWS, Flow, flow_from_spec
+from femphase.errors import FlowWarning, ResolutionWarning, SceneError, StiffnessWarning
+from femphase.flows import FLOWS, Flow, flow_defects, flow_from_spec
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
 from femphase.placement import hexagonal_centres
 from femphase.registry import Registry
@@ -278,9 +278,10 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     _check_particles(scene)
     for i, phase in enumerate(phases):
         try:
-            check_flow(phase.flow, scene.domain)
+            flow = check_flow(phase.flow, scene.domain)
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
+        _warn_flow_defects(flow, scene.domain, f"phases.{i}.flow")
     check_numerics(scene)
     _check_area_ceiling(scene)
     return scene
@@ -423,15 +424,32 @@ def _check_domain_types(table: dict) -> None:
         raise SceneError("domain.mesh", table["mesh"], "the path of a mesh file (a string, relative to the scene)")
 
 
-def check_flow(spec: dict, domain: Domain) -> None:
+def check_flow(spec: dict, domain: Domain) -> Flow | None:
     """Validate a phase's flow table without solving anything (a stokes flow is solved
-    when its phase starts)."""
+    when its phase starts, and None returned for it); returns the flow."""
     if isinstance(spec, dict) and spec.get("type") == "stokes" and "stokes" in FLOWS:
         stokes_drive(spec)
         if domain.kind != "mesh":
             raise SceneError("flow.type", "stokes", 'a flow without "stokes": a stokes flow needs a meshed domain')
-        return
-    flow_from_spec(spec, domain)
+        return None
+    return flow_from_spec(spec, domain)
+
+
+def _warn_flow_defects(flow: Flow | None, domain: Domain, key: str) -> None:
+    """FlowWarning when ``flow`` crosses the walls or is not periodic in x
+    (:func:`femphase.flows.flow_defects`)."""
+    defects = {} if flow is None else flow_defects(flow, domain)
+    meaning = {
+        "walls": ("crosses the walls: its normal velocity reaches", "The fields see the walls only through their "
+                  "Neumann condition, so such a flow carries φ through them; a flow for meshed walls that are "
+                  'curved or have obstacles is {type = "stokes", ...}'),
+        "period": (f"is not periodic in x: v(x + {domain.period:g}, y) − v(x, y) reaches",
+                   "The domain is periodic, so the fields meet a jump in the flow at its seam"),
+    }
+    for name, (value, speed, (x, y)) in defects.items():
+        what, consequence = meaning[name]
+        warnings.warn(f"{key} {what} {value:.3g} (its largest speed is {speed:.3g}) at (x, y) = ({x:.4g}, {y:.4g}). "
+                      f"{consequence}", FlowWarning, stacklevel=3)
 
 
 def _check_resolution(scene: Scene) -> None:

@@ -404,3 +404,43 @@ def test_an_empty_output_directory_is_refused_before_anything_is_written(tmp_pat
     assert main([*argv[command], "-o", ""]) == 2
     assert "option '-o' = '' is invalid: a directory path (it is empty)" in capsys.readouterr().err
     assert not any(work.iterdir())
+
+
+def test_a_flow_through_the_walls_or_across_the_seam_warns_on_loading(tmp_path, monkeypatch):
+    """The walls take no boundary condition in the advection, so a flow through them carries
+    φ out; a flow that is not periodic jumps at the seam. Built-in row flows on flat walls
+    are neither; on an obstacle's wall they cross."""
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+    from femphase.errors import FlowWarning
+
+    (tmp_path / "userflows.py").write_text(
+        "import numpy as np\n"
+        "def upward(x, y):\n    return 0 * x, 0.1 + 0 * y\n"
+        "def stretching(x, y):\n    return 0.01 * x, 0 * y\n"
+        "def along(x, y):\n    return 0.1 * np.sin(2 * np.pi * x / 30) * y * (30 - y) / 225, 0 * y\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    write_domain(tmp_path / "obstacle.vtu", *delaunay_channel(30.0, edge_for_spacing(1.0), lambda x: 0 * x,
+                                                             lambda x: 0 * x + 30.0, obstacles=[(15.0, 15.0, 3.0)],
+                                                             seed=1))
+
+    def caught(flow: dict, domain: dict | None = None) -> list[str]:
+        data = {**SMALL, "domain": domain or SMALL["domain"],
+                "phases": [SMALL["phases"][0], {**SMALL["phases"][1], "flow": flow}]}
+        if domain:
+            data["particles"] = {"layout": "list", "centres": [[5.0, 8.0], [25.0, 22.0]], "initial_radius": 3.0}
+        with warnings.catch_warnings(record=True) as records:
+            warnings.simplefilter("always")
+            scene_from_dict(data, tmp_path)
+        return [str(w.message) for w in records if issubclass(w.category, FlowWarning)]
+
+    upward = caught({"type": "python", "function": "userflows:upward"})
+    assert len(upward) == 1 and upward[0].startswith("phases.1.flow crosses the walls: its normal velocity "
+                                                     "reaches 0.1 (its largest speed is 0.1)")
+    stretching = caught({"type": "python", "function": "userflows:stretching"})
+    assert len(stretching) == 1 and "is not periodic in x: v(x + 30, y) − v(x, y) reaches 0.3" in stretching[0]
+    assert caught({"type": "python", "function": "userflows:along"}) == []
+    for flow in ({"type": "shear", "rate": 0.5}, {"type": "poiseuille", "rate": 0.5},
+                 {"type": "oscillating_shear", "rate": 0.5, "frequency": 0.1}):
+        assert caught(flow) == []
+        assert len(caught(flow, {"kind": "mesh", "mesh": "obstacle.vtu"})) == 1

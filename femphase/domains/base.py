@@ -103,6 +103,11 @@ class Domain(ABC):
     def wall_points(self) -> np.ndarray:
         """(2, n) points on the walls (for keeping initial discs clear of them)."""
 
+    @abstractmethod
+    def wall_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        """(points, normals), each (2, n): the midpoints of the walls' facets and their unit
+        normals (either sign), where a flow must be tangential."""
+
     def random_centres(self, n: int, radius: float, seed: int) -> np.ndarray:
         """Uniformly random centres (n, 2) of non-overlapping discs of ``radius`` inside the
         domain, each clear of every wall."""

@@ -131,6 +131,11 @@ class GridDomain(Domain):
         x, _ = self.grid.coordinates()
         return np.stack([np.concatenate([x, x]), np.concatenate([np.zeros_like(x), np.full_like(x, self.grid.width)])])
 
+    def wall_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        points = self.wall_points()
+        points[0] += 0.5 * self.grid.h  # the facets' midpoints
+        return points, np.stack([np.zeros(points.shape[1]), np.ones(points.shape[1])])
+
     # -- windows --------------------------------------------------------------------------
     def single_precision_steps(self, numerics: Numerics) -> bool:
         # the tensor solves and row shifts have single-precision paths

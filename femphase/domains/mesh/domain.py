@@ -268,6 +268,11 @@ class MeshDomain(Domain):
     def wall_points(self) -> np.ndarray:
         return self.mesh.p[:, np.unique(self.mesh.facets[:, self.wall_facets])]
 
+    def wall_normals(self) -> tuple[np.ndarray, np.ndarray]:
+        ends = self.mesh.p[:, self.mesh.facets[:, self.wall_facets]]
+        tangent = ends[:, 1] - ends[:, 0]
+        return 0.5 * (ends[:, 0] + ends[:, 1]), np.stack([tangent[1], -tangent[0]]) / np.hypot(*tangent)
+
     # -- windows: the dofs inside boxes -----------------------------------------------------
     @cached_property
     def _dofs(self):
