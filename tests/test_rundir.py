@@ -107,6 +107,20 @@ def test_the_phase_under_way_may_end_later_or_sooner_but_not_before_the_checkpoi
         resumed(40.0)
 
 
+def test_the_steps_of_a_phase_that_will_not_run_again_cannot_change():
+    """A done phase's dt or frame interval changed on resume would make scene.toml describe
+    steps the run never took; the phase under way, or one extended, may change them."""
+    phase = {"dt": 10.0, "frame_interval": 10.0, "duration": 100.0}
+    saved = {"phases": [phase, phase]}
+    for k, key, time in ((0, "dt", 150.0), (0, "frame_interval", 150.0), (1, "dt", 200.0)):
+        phases = [dict(phase), dict(phase)]
+        phases[k][key] = 5.0
+        with pytest.raises(SceneError, match=f"10 as in the checkpoint: phase {k} ran with it until t = "):
+            resume_position(saved, {"phases": phases}, time)
+    assert resume_position(saved, {"phases": [phase, {**phase, "dt": 5.0}]}, 150.0)[:2] == (1, 10)
+    assert resume_position(saved, {"phases": [phase, {**phase, "dt": 5.0, "duration": 150.0}]}, 200.0)[:2] == (1, 20)
+
+
 def test_a_resume_over_an_unreadable_run_json_warns_and_writes_a_new_one(scene, tmp_path, capsys):
     run = tmp_path / "run"
     assert _run(scene, run, "--set", "phases.1.duration=10") == 0

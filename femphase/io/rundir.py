@@ -260,7 +260,8 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
     and within the new duration), anything of later phases, longer or additional phases
     (extending a finished run). Refused, with a SceneError naming the key: the model, domain
     and particles, numerics.diagonals, output.observables, and the duration or flow of
-    phases already done or the flow of the phase under way."""
+    phases already done or the flow of the phase under way, and the dt or frame interval of
+    phases done and not extended (the run's scene.toml would describe steps it never took)."""
     changes = []
     for table in FROZEN_TABLES:
         old, new = saved.get(table, {}), scene.get(table, {})
@@ -297,6 +298,11 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
         if end < time - tolerance and abs(new["duration"] - old["duration"]) > tolerance:
             raise SceneError(f"phases.{k}.duration", new["duration"], f"{old['duration']:g} as in the checkpoint: "
                              f"phase {k} ended at t = {end:g}, before the checkpoint (t = {time:g})")
+        if start + new["duration"] <= time + tolerance:  # done, and not extended: nothing of it runs again
+            for key in ("dt", "frame_interval"):
+                if new[key] != old[key]:
+                    raise SceneError(f"phases.{k}.{key}", new[key], f"{old[key]:g} as in the checkpoint: phase {k} "
+                                     f"ran with it until t = {end:g} and does not run again")
         if end >= time - tolerance and new["duration"] < time - start - tolerance:  # under way, or just ended
             raise SceneError(f"phases.{k}.duration", new["duration"], f"at least {time - start:g}: phase {k} has "
                              f"already run {time - start:g} time units (t = {time:g}); a run is not shortened "
