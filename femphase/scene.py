@@ -454,11 +454,8 @@ def _warn_flow_defects(flow: Flow | None, domain: Domain, key: str) -> None:
 
 def _check_resolution(scene: Scene) -> None:
     domain, lam = scene.domain, scene.model.interface_width
-    # a mesh is judged by its node density, as the grid by its h: a nominal h may judge it
-    # coarser, never finer than its nodes are
-    nominal = getattr(domain, "nominal_spacing", None)
-    measured = domain.kind == "mesh" and (nominal is None or nominal < domain.effective_spacing)
-    h = domain.effective_spacing if measured else domain.spacing
+    h = domain.resolution
+    measured = h != domain.spacing  # a mesh's node density, not the h the scene gives
     name = "the mesh's effective spacing √(area/dofs)" if measured else "domain.h"
     if lam / h < 1.0:
         raise SceneError(

@@ -181,3 +181,19 @@ def test_loose_tolerances_below_h_half_warn_and_name_the_tolerance():
     tight = scene({"domain": {"Lx": 30.0, "Ly": 30.0, "h": 0.4}, "particles": {"layout": "single"}},
                   [phase(10.0, 10.0, type="shear", rate=0.1)], scheme="adaptive", tolerance_t=0.01)
     assert not run(coarse)[0].issues and not run(tight)[0].issues
+
+
+def test_a_mesh_is_judged_fine_by_its_node_density_not_its_longer_edges(tmp_path):
+    """A Delaunay mesh made for h = 0.475 has the grid's node density at 0.475 but edges of
+    about 0.51: the fine-grid check (below h = 0.5), like the resolution check, counts its nodes."""
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+
+    write_domain(tmp_path / "fine.vtu", *delaunay_channel(20.0, edge_for_spacing(0.475), lambda x: 0 * x,
+                                                         lambda x: 0 * x + 20.0, seed=1))
+    fine = scene_from_dict({"domain": {"kind": "mesh", "mesh": "fine.vtu"}, "particles": {"layout": "single"},
+                            "model": {"R": 5.0}, "output": {"fields": False},
+                            "phases": [phase(10.0, 10.0, type="shear", rate=0.1)]}, tmp_path)
+    assert fine.domain.spacing > 0.5 > fine.domain.resolution
+    guard, _ = run(fine)
+    assert [issue.kind for issue in guard.issues] == ["fine grid"]

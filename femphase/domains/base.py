@@ -72,6 +72,12 @@ class Domain(ABC):
         return self.operators.lumped_mass.size
 
     @property
+    def resolution(self) -> float:
+        """The spacing that judges how well the domain resolves an interface (the checks
+        h ≤ λ and the adaptive scheme's fine-grid tolerance): here :attr:`spacing`."""
+        return self.spacing
+
+    @property
     @abstractmethod
     def coordinates(self) -> np.ndarray:
         """(2, n_dofs): x and y of every dof, x in [x0, x0 + period)."""

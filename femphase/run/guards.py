@@ -323,7 +323,7 @@ class AccuracyGuard(Tracker):
         self._check_advection(index, state)
 
     def _check_fine_grid(self, index: int, state: State) -> None:
-        spacing, tolerance = self.scene.domain.spacing, self.scene.numerics.tolerance_t
+        spacing, tolerance = self.scene.domain.resolution, self.scene.numerics.tolerance_t
         if (self.scheme == "adaptive" and spacing < FINE_GRID_SPACING - 1e-12 and tolerance > FINE_GRID_TOLERANCE
                 and not self._flow(index).is_still):
             self._report("fine grid", index, state, "numerics.tolerance_t",

@@ -243,6 +243,14 @@ class MeshDomain(Domain):
         :func:`~femphase.domains.mesh.generation.edge_for_spacing`, has edges 1.07 h)."""
         return float(np.sqrt(self.area / self.n_dofs))
 
+    @property
+    def resolution(self) -> float:
+        """The effective spacing √(area/dofs), or the nominal h where that is coarser: a mesh
+        is judged by its node density, as the grid by its h, and a nominal h may judge it
+        coarser, never finer than its nodes are."""
+        nominal = self.nominal_spacing
+        return self.effective_spacing if nominal is None or nominal < self.effective_spacing else nominal
+
     @cached_property
     def median_edge(self) -> float:
         """The median edge length (the window policy's spacing)."""
