@@ -107,6 +107,16 @@ def test_the_phase_under_way_may_end_later_or_sooner_but_not_before_the_checkpoi
         resumed(40.0)
 
 
+def test_a_run_without_checkpoints_cannot_resume_and_is_told_why(scene, tmp_path, capsys):
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.1.duration=10", "--set", "output.checkpoint=false") == 0
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 2
+    assert "written with output.checkpoint = false, so it cannot be continued" in capsys.readouterr().err
+    assert _run(scene, tmp_path / "new", "--resume") == 2
+    assert "holds checkpoint.h5 (it has no femphase output)" in capsys.readouterr().err
+
+
 def test_the_steps_of_a_phase_that_will_not_run_again_cannot_change():
     """A done phase's dt or frame interval changed on resume would make scene.toml describe
     steps the run never took; the phase under way, or one extended, may change them."""

@@ -44,6 +44,7 @@ from xml.sax.saxutils import escape
 
 import numpy as np
 
+from femphase import tomlio
 from femphase.errors import SceneError
 from femphase.io.files import atomic_write, failpoint, jsonable, output_directory
 from femphase.io.provenance import now
@@ -61,6 +62,14 @@ FIELDS_DIR = "fields"
 _LOGGER = logging.getLogger("femphase")
 
 
+def _written_without_checkpoints(directory: Path) -> bool:
+    """Whether the run's scene.toml sets output.checkpoint = false (False when unreadable)."""
+    try:
+        return tomlio.loads((directory / "scene.toml").read_text(encoding="utf-8"))["output"]["checkpoint"] is False
+    except (OSError, UnicodeDecodeError, ValueError, KeyError, TypeError):
+        return False
+
+
 def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None:
     """Create the run directory, or check that an existing one may be used; nothing is
     written or removed before every check has passed.
@@ -71,7 +80,10 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None
     existing = [name for name in OUTPUTS if (directory / name).exists()]
     if resume:
         if not (directory / CHECKPOINT).is_file():
-            raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}")
+            why = ("; this run was written with output.checkpoint = false, so it cannot be continued: rerun it "
+                   "with --overwrite" if _written_without_checkpoints(directory) else
+                   f" (it has {', '.join(existing) or 'no femphase output'})")
+            raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}{why}")
     elif existing and not overwrite:
         raise SceneError("-o", str(directory), "a new or empty run directory: it holds a run "
                          f"({', '.join(existing)}); continue it with --resume or replace it with --overwrite")
