@@ -47,7 +47,8 @@ class ResolutionWarning(UserWarning):
 
 
 class FlowWarning(UserWarning):
-    """A scene runs, but its flow crosses the walls (the message says where and by how much)."""
+    """A scene runs, but its flow crosses the walls or jumps at the periodic seam (the message
+    says where and by how much)."""
 
 
 class StiffnessWarning(UserWarning):
