@@ -343,6 +343,8 @@ def _structural(base: dict) -> list[BadInput]:
         BadInput("tensor solver with alternating diagonals",
                  _variant(base, {"numerics.solver": "tensor", "numerics.diagonals": "alternating"}),
                  key="numerics.solver"),
+        BadInput("consistent mass under the adaptive scheme",
+                 _variant(base, {"numerics.scheme": "adaptive", "numerics.mass": "consistent"}), key="numerics.mass"),
     ]
     for what, function in (("a missing module", "no_such_module_xyz:f"), ("a missing attribute", "math:no_such"),
                            ("no colon", "math.sin"), ("not callable", "math:pi"), ("a relative import", "..x:y"),
@@ -445,7 +447,7 @@ def _mesh_inputs() -> list[BadInput]:
         ("domain.periodic", [1, 2]), ("domain.periodic", ["top", "bottom"]), ("domain.periodic", {"a": 1}),
         ("domain.boundaries", "left"), ("domain.boundaries", {"left": "one"}), ("domain.boundaries", {"left": True}),
         ("domain.boundaries", {}), ("domain.h", 0.0), ("domain.h", "1"), ("domain.h", _NAN), ("domain.h", True),
-        ("domain.h", 3.0), ("domain.Lx", 99.0), ("domain.Ly", 99.0), ("domain.Lx", -20.0), ("domain.Ly", "12"),
+        ("domain.h", 3.0), ("domain.h", 0.3), ("domain.periodic", ["right", "left"]), ("domain.Lx", 99.0), ("domain.Ly", 99.0), ("domain.Lx", -20.0), ("domain.Ly", "12"),
         ("domain.radius", 1.0), ("numerics.scheme", "fd-heun"), ("numerics.solver", "tensor"),
         ("phases.1.flow.max_velocity", "fast"), ("phases.1.flow.max_velocity", _NAN),
         ("phases.1.flow.max_velocity", True), ("phases.1.flow.viscosity", 0.0), ("phases.1.flow.viscosity", -1.0),
@@ -462,6 +464,10 @@ def _mesh_inputs() -> list[BadInput]:
             description += " (no such boundaries)"
         if path == "domain.h" and value == 3.0:
             description += " (coarser than λ)"
+        if path == "domain.h" and value == 0.3:
+            description += " (finer than the mesh's nodes)"
+        if path == "domain.periodic" and value == ["right", "left"]:
+            description += " (sides in the wrong order)"
         if path == "phases.1.flow.flux":
             key = "phases.1.flow"  # two driving keys
         if path == "particles.centres":
