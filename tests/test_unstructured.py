@@ -103,6 +103,18 @@ def test_a_missing_or_crooked_periodic_side_is_an_error():
         MeshDomain.from_mesh(MeshTri(p, mesh.t), boundaries)
 
 
+def test_line_cells_are_found_in_meshes_beyond_46341_nodes():
+    """Node-pair keys i·n + j overflow int32 (the meshes' index type) beyond √2³¹ nodes, and
+    then no longer match the keys of int64 line cells (as generated or read): the paper's
+    channel at h = 0.6 has 47 055 nodes."""
+    from femphase.domains.mesh.domain import facet_indices
+
+    mesh = MeshTri.init_tensor(np.linspace(0.0, 1.0, 231), np.linspace(0.0, 1.0, 211))
+    assert mesh.p.shape[1] > 46341 and mesh.facets.dtype == np.int32
+    wanted = mesh.boundary_facets()[::7]
+    np.testing.assert_array_equal(facet_indices(mesh, mesh.facets[::-1, wanted].astype(np.int64)), wanted)
+
+
 def test_unreadable_or_unnamed_files_raise_scene_errors(tmp_path):
     with pytest.raises(SceneError, match="domain.mesh"):
         read_domain(tmp_path / "missing.vtu")

@@ -490,9 +490,10 @@ def facet_indices(mesh: MeshTri, lines: np.ndarray) -> np.ndarray:
     """Indices into ``mesh.facets`` of node pairs ``lines`` (2, n); raises when a pair is
     no edge of the mesh."""
     n = mesh.p.shape[1]
-    keys = np.sort(mesh.facets, axis=0)
+    # 64-bit keys: mesh indices are int32, whose n² overflows beyond 46 340 nodes
+    keys = np.sort(mesh.facets, axis=0).astype(np.int64)
     keys = keys[0] * n + keys[1]
-    wanted = np.sort(lines, axis=0)
+    wanted = np.sort(lines, axis=0).astype(np.int64)
     wanted = wanted[0] * n + wanted[1]
     order = np.argsort(keys)
     position = np.searchsorted(keys, wanted, sorter=order).clip(0, keys.size - 1)
