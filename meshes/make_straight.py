@@ -4,7 +4,9 @@ The paper's channel, 70 × 240 lattice units, one node per unit area (h = 1):
 
 * straight_structured.vtu    femphase's structured mesh (right diagonals), tagged boundaries;
 * straight_unstructured.vtu  a Delaunay mesh of a rotated, jittered hexagonal lattice
-                             (femphase.domains.mesh.generation.delaunay_channel).
+                             (femphase.domains.mesh.generation.delaunay_channel);
+* straight_unstructured_h065.vtu  the same at h = 0.65 (39 772 dofs), for refining the
+                             mesh path (verification/sweeps/poiseuille_mesh_rate1.toml).
 
 Boundaries are line cells with cell data "boundary" = femphase.domains.mesh.domain.BOUNDARY_TAGS
 (left 1, right 2, bottom 3, top 4); ``right`` is ``left`` moved by 70 in x (periodic pair).
@@ -23,6 +25,8 @@ if __name__ == "__main__":
         "straight_structured.vtu": structured_channel(LENGTH, HEIGHT, SPACING),
         "straight_unstructured.vtu": delaunay_channel(
             LENGTH, edge_for_spacing(SPACING), lambda x: 0 * x, lambda x: 0 * x + HEIGHT, seed=1),
+        "straight_unstructured_h065.vtu": delaunay_channel(
+            LENGTH, edge_for_spacing(0.65), lambda x: 0 * x, lambda x: 0 * x + HEIGHT, seed=1),
     }.items():
         write_domain(HERE / name, mesh, boundaries)
         print(HERE / name, {k: round(v, 3) for k, v in mesh_quality(mesh).items()})
