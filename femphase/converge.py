@@ -402,7 +402,6 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     if len(set(levels)) < len(levels):
         raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice)")
     loaded = load_scene(scene, list(assignments))
-    _check_levels(scene, parameter, levels, list(assignments), len(loaded.phases))
     if "separation" in observables:  # checked before any run, which could not give it
         _require_pair(loaded.n_particles)
     if parameter == "tolerance_t" and loaded.numerics.scheme != "adaptive":
@@ -419,6 +418,7 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
         raise ConvergenceError(option, values, "--h on the structured channel, --mesh FILE1,FILE2,… on a mesh "
                                f"domain (this scene's domain is of kind {kind!r}; a mesh's spacing is its file's)")
     phases = len(loaded.phases)
+    _check_levels(scene, parameter, levels, list(assignments), phases)
     directory = output_directory(directory)  # "" is refused, not taken for "."
     with tempfile.TemporaryDirectory() as scratch:  # the sweep keeps its own copy, DIR/sweep.toml
         sweep_file = Path(scratch) / "converge.toml"

@@ -211,8 +211,9 @@ def test_a_mesh_scene_is_refined_by_its_mesh_files(tmp_path):
                                                   seed=1))
     scene = tmp_path / "disc.toml"
     scene.write_text(DISC.replace("Lx = 40.0\nLy = 40.0\nh = 1.0", f'kind = "mesh"\nmesh = "{files[0].name}"'))
-    with pytest.raises(ConvergenceError, match="--mesh FILE1"):
-        run_convergence(scene, tmp_path / "wrong", "h", [1.0, 0.5], ["area"], workers=1, log=lambda line: None)
+    for levels in ([1.0, 0.5], [1.0, 0.25]):  # 0.25 is no nominal h of this mesh: named as the wrong option first
+        with pytest.raises(ConvergenceError, match="--mesh FILE1"):
+            run_convergence(scene, tmp_path / "wrong", "h", levels, ["area"], workers=1, log=lambda line: None)
     result = run_convergence(scene, tmp_path / "study", "mesh", [str(f) for f in files], ["area"], workers=1,
                              log=lambda line: None)
     spacings = [level["s"] for level in result["levels"]]
