@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-__all__ = ["BlowUpError", "FemphaseError", "InputError", "Interrupted", "ResolutionWarning", "SceneError",
-           "StiffnessWarning"]
+__all__ = ["BlowUpError", "FemphaseError", "FlowWarning", "InputError", "Interrupted", "ResolutionWarning",
+           "SceneError", "StiffnessWarning"]
 
 
 class FemphaseError(Exception):
