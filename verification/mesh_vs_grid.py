@@ -2,7 +2,7 @@
 
     python verification/mesh_vs_grid.py            # h = 2, 1, 0.5, 0.25 and the advections
     python verification/mesh_vs_grid.py --quick    # h = 1, 0.5
-    python verification/mesh_vs_grid.py --tolerance-t 0.001 --output DIR   # the same, time error 50× smaller
+    python verification/mesh_vs_grid.py --tolerance-t 0.001   # the same at that tolerance (no advection study)
 
 A lone particle and a pair (R = 8, relaxed from discs of R, no relaxation phase) in the
 Poiseuille flow u = 4U y(Ly − y)/Ly², U = 0.5, of a 48 × 64 channel for 2000 time units,
