@@ -12,6 +12,7 @@ from scipy.signal import find_peaks
 from femphase.cli.ode import register
 from femphase.errors import SceneError
 from femphase.model.minimal import (
+    MinimalModelError,
     MinimalModelParameters,
     elongation_rate,
     lattice_angle,
@@ -222,3 +223,32 @@ def test_a_run_with_more_half_periods_than_samples_solves_and_a_far_longer_one_i
     assert solution.time[-1] == 2000.0 and np.all(np.isfinite(solution.elongation))
     with pytest.raises(ValueError, match=r"t_end = 1000000000.0 is invalid: at most 10000 half periods"):
         solve_minimal_model(0.1, 1e9)
+
+
+@pytest.mark.filterwarnings("ignore:lsoda")  # LSODA warns before it fails; the error is what is tested
+@pytest.mark.parametrize("rate, t_end, options, reason", [
+    (1e-10, None, {}, r"on t ∈ \[3\.14159e\+12, .*LSODA"),  # t far beyond the relaxation time's resolution
+    (1.0, 400.0, {"parameters": MinimalModelParameters(A=1e300)}, r"A = 1e\+300.*r reached nan"),
+    (1.0, None, {"parameters": MinimalModelParameters(epsilon=1e12)}, r"ε = 1e\+12.*more than 2000 evaluations"),
+    (1e8, 1e-3, {}, r"γ̇ = 1e\+08.*below the resolution of t"),
+])
+def test_extreme_parameters_stop_with_a_message_naming_them(monkeypatch, rate, t_end, options, reason):
+    # a small budget keeps the stalling case fast; the paper's parameters need 600–1900
+    monkeypatch.setattr("femphase.model.minimal.MAX_EVALUATIONS", 2000)
+    with pytest.raises(MinimalModelError, match=reason):
+        solve_minimal_model(rate, t_end or 5 * period(rate), **options)
+
+
+def test_the_evaluation_budget_leaves_the_paper_range_room(monkeypatch):
+    # γ̇ = 1 takes the most evaluations per half period among the paper's rates (about 1900)
+    monkeypatch.setattr("femphase.model.minimal.MAX_EVALUATIONS", 4000)
+    for rate in (1e-5, 0.0161, 1.0, 1e4):
+        assert np.all(np.isfinite(solve_minimal_model(rate, 5 * period(rate)).elongation))
+
+
+def test_cli_reports_a_failed_integration_as_an_error_and_writes_nothing(tmp_path, capsys):
+    from femphase.cli import main
+
+    assert main(["ode", "--rate", "1", "--A", "1e300", "-o", str(tmp_path / "run")]) == 2
+    assert "error: the minimal model could not be integrated" in capsys.readouterr().err
+    assert not (tmp_path / "run" / "ode.csv").exists()

@@ -16,6 +16,9 @@ Conventions:
 * time is in the solver's time units; angles are in radians;
 * θ is the orientation of the elongation axis measured from the x axis (the flow direction),
   anticlockwise positive; it is nematic (θ + π ≡ θ) and reported in (−π/2, π/2];
+* the solver (LSODA, each half period apart) integrates the paper's A, ε, K, k and r(0) at γ̇
+  from 1e-5 to 1e4 and t_end up to 1.6e10; where the time scales lie further apart or r
+  overflows, it stops with :class:`MinimalModelError` naming the interval and parameters;
 * γ̇ ("rate") is the paper's shear-rate parameter. In femphase it is a velocity scale (the
   wall moves at γ̇ lattice units per time unit); the ODE only uses the number γ̇.
 """
@@ -28,16 +31,22 @@ from pathlib import Path
 
 import numpy as np
 
-from femphase.errors import SceneError
+from femphase.errors import FemphaseError, SceneError
 
-__all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "MAX_HALF_PERIODS", "RESET_ORIENTATION",
-           "angular_frequency", "elongation_rate", "lattice_angle", "MinimalModelParameters", "MinimalModelSolution",
-           "orientation", "ParameterError", "period", "solve_minimal_model", "t1_times", "wrap_orientation",
-           "write_solution"]
+__all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "MAX_EVALUATIONS", "MAX_HALF_PERIODS",
+           "RESET_ORIENTATION", "angular_frequency", "elongation_rate", "lattice_angle", "MinimalModelError",
+           "MinimalModelParameters", "MinimalModelSolution", "orientation", "ParameterError", "period",
+           "solve_minimal_model", "t1_times", "wrap_orientation", "write_solution"]
 
 #: The most half periods π/(2ω) one solve integrates (each apart, about 10 ms): 10⁴, about
 #: 2 minutes; t_end = 1e9 at γ̇ = 0.1 would have been 636 620, about 2 hours.
 MAX_HALF_PERIODS = 10_000
+
+#: The most right-hand-side evaluations one half period may take. The paper's parameters
+#: take 600–1900 (γ̇ from 1e-5 to 1e4); where the model's time scales lie too far apart for
+#: LSODA in double precision (γ̇ = 1e300, ε = 1e12, r(0) = 1e-300, t ~ 1e11) it would
+#: otherwise stall for minutes to hours instead of failing. At this budget it stops in ~2 s.
+MAX_EVALUATIONS = 100_000
 
 #: Near-circular start, like the phase-field runs that start from discs; r = 0 itself is
 #: excluded by the K/r term. The transient decays within a few time units (relaxation rate
@@ -75,6 +84,12 @@ class MinimalModelParameters:
         _require("k", self.k, self.k > 0, "must be a finite number > 0")
 
 
+class MinimalModelError(FemphaseError, RuntimeError):
+    """The minimal model could not be integrated at valid but extreme parameters (its time
+    scales too far apart for the solver, or r overflowing): the message names the time
+    interval, the parameters and what is known to work."""
+
+
 class ParameterError(ValueError):
     """A parameter of the model or its solver out of range: ``name`` (the Python argument's
     name), ``value`` and what is ``valid``, so that a caller can name it in its own terms
@@ -88,6 +103,10 @@ class ParameterError(ValueError):
         """The same error for a command whose option ``--name`` (underscores as hyphens) is
         this parameter."""
         return SceneError(f"--{self.name.replace('_', '-')}", self.value, self.valid)
+
+
+class _Stalled(Exception):
+    """Raised from the right-hand side past :data:`MAX_EVALUATIONS` to stop the solver."""
 
 
 def _require(name: str, value: float, condition: bool, valid: str) -> None:
@@ -243,25 +262,49 @@ def solve_minimal_model(
     time = np.union1d(np.linspace(0.0, t_end, n_samples), starts[1::2])
     segment_of_sample = np.searchsorted(starts, time, side="right") - 1
 
+    evaluations = 0
+
     def rhs(t: float, y: np.ndarray) -> list[float]:
+        nonlocal evaluations
+        evaluations += 1
+        if evaluations > MAX_EVALUATIONS:
+            raise _Stalled
         r, theta = y
         return [
             elongation_rate(r, theta, lattice_angle(t, rate, parameters.k), rate, parameters),
             -np.pi * omega / 4 * abs(np.sin(2 * omega * t)),
         ]
 
+    def failed(start: float, end: float, reason: str) -> MinimalModelError:
+        return MinimalModelError(
+            f"the minimal model could not be integrated on t ∈ [{start:.6g}, {end:.6g}] at γ̇ = {rate:g}, "
+            f"A = {parameters.A:g}, ε = {parameters.epsilon:g}, K = {parameters.K:g}, k = {parameters.k:g}, "
+            f"r(0) = {initial_elongation:g}: {reason}. Its time scales (relaxation 1/(3εr² + K/r²), half period "
+            f"π/(2ω) = {half_period:.4g}) lie too far apart here, or r overflows, for the solver in double "
+            "precision; the paper's A, ε, K, k and r(0) integrate at γ̇ from 1e-5 to 1e4 and t_end up to 1.6e10"
+        )
+
     state = np.array([initial_elongation, np.pi / 2])
     samples = np.empty((2, time.size))
     for j, (start, end) in enumerate(zip(starts, ends)):
         if j % 2 == 1:
             state[1] = RESET_ORIENTATION
+        if not np.all(np.isfinite(state)):
+            raise failed(start, end, f"r reached {state[0]:g}")
+        evaluations = 0
         # r relaxes on a time ~1 while the forcing varies on π/ω ~ 10³: the problem is stiff,
         # and LSODA switches to BDF where an explicit Runge–Kutta method would crawl.
-        segment = solve_ivp(
-            rhs, (start, end), state, method="LSODA", dense_output=True, rtol=1e-9, atol=1e-12
-        )
+        try:
+            with np.errstate(over="ignore", invalid="ignore"):  # r overflowing is reported below
+                segment = solve_ivp(
+                    rhs, (start, end), state, method="LSODA", dense_output=True, rtol=1e-9, atol=1e-12
+                )
+        except _Stalled:
+            raise failed(start, end, f"more than {MAX_EVALUATIONS} evaluations in one half period") from None
+        except ValueError as exc:  # steps below the spacing of t's doubles: scipy's dense output refuses them
+            raise failed(start, end, f"the solver's steps fell below the resolution of t ({exc})") from None
         if not segment.success:
-            raise RuntimeError(f"the ODE failed on [{start:g}, {end:g}]: {segment.message}")
+            raise failed(start, end, f"LSODA: {segment.message.rstrip('.')}")
         in_segment = segment_of_sample == j
         if in_segment.any():  # a long run's segments outnumber its samples: most hold none
             samples[:, in_segment] = segment.sol(time[in_segment])
