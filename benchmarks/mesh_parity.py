@@ -10,7 +10,9 @@ alternate, ``--repeats`` times, and the ratios are mesh/grid within the same run
 * CPU per time unit under flow (process CPU clock around the flow phase's steps);
 * peak resident memory of the whole process;
 * the mesh path with its previous solvers (``numerics.solver = "direct"``: an LU per box
-  and a complex LU per window for the advection) as a third kind, with ``--direct``.
+  and a complex LU per window for the advection) as a third kind, with ``--direct``;
+* the mesh with the Galerkin advection at every Courant number (no semi-Lagrangian steps,
+  :mod:`femphase.domains.mesh.semi_lagrangian`) as a kind, with ``--galerkin``.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \\
         python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct
@@ -35,6 +37,7 @@ SCENES = {
     "mesh": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0"], "stokes"),
     "mesh_direct": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0",
                                                     "numerics.solver=\"direct\""], "stokes"),
+    "mesh_galerkin": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0"], "stokes"),
 }
 THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
@@ -44,6 +47,10 @@ def child(kind: str, relax: float, flow: float, velocity: float) -> dict:
     from femphase.scene import load_scene
 
     path, sets, flow_type = SCENES[kind]
+    if kind == "mesh_galerkin":  # the Galerkin step at every Courant number
+        from femphase.domains.mesh import semi_lagrangian
+
+        semi_lagrangian.COURANT = float("inf")
     velocity_key = "rate" if flow_type == "poiseuille" else "max_velocity"
     flow_table = f'{{type = "{flow_type}", {velocity_key} = {velocity}}}'
     scene = load_scene(ROOT / path, [*sets, f"phases.0.duration={relax}", f"phases.1.duration={flow}",
@@ -61,13 +68,15 @@ def main() -> None:
     parser.add_argument("--velocity", type=float, default=0.1, help="centre-line velocity U (default 0.1)")
     parser.add_argument("--repeats", type=int, default=1, help="alternations of the kinds (default 1)")
     parser.add_argument("--direct", action="store_true", help="also the mesh with per-box LU solvers")
+    parser.add_argument("--galerkin", action="store_true",
+                        help="also the mesh with the Galerkin advection at every Courant number (no semi-Lagrangian)")
     parser.add_argument("--child", choices=sorted(SCENES), help=argparse.SUPPRESS)
     parser.add_argument("--output", type=Path, default=RESULT)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child, args.relax, args.flow, args.velocity)))
         return
-    kinds = ["grid", "mesh"] + (["mesh_direct"] if args.direct else [])
+    kinds = ["grid", "mesh"] + ["mesh_direct"] * args.direct + ["mesh_galerkin"] * args.galerkin
     runs = []
     for repeat in range(args.repeats):
         for kind in kinds:

@@ -57,7 +57,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from femphase.domains.mesh.advection import GalerkinAdvection, GalerkinRungeKutta
-from femphase.domains.mesh.domain import MeshDomain, locate
+from femphase.domains.mesh.domain import MeshDomain
+from femphase.domains.mesh.location import locate
 from femphase.fem.blocks import BlockPattern
 from femphase.flows import python_flow
 

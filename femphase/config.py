@@ -14,7 +14,8 @@ import numpy as np
 
 from femphase.errors import SceneError
 
-__all__ = ["DIAGONAL_PATTERNS", "FD_ADVECTION", "MASS_TYPES", "PRECISIONS", "SOLVER_METHODS", "Numerics"]
+__all__ = ["DIAGONAL_PATTERNS", "FD_ADVECTION", "MASS_TYPES", "MESH_ADVECTIONS", "PRECISIONS", "SOLVER_METHODS",
+           "Numerics"]
 
 #: Triangulations of the structured channel: every square cut along the same diagonal
 #: ("right": lower left to upper right; "left") or the two alternating.
@@ -27,6 +28,8 @@ MASS_TYPES = ("lumped", "consistent")
 FD_ADVECTION = ("upwind3", "upwind1")
 #: ``numerics.precision``.
 PRECISIONS = ("mixed", "double")
+#: ``numerics.mesh_advection``: see :class:`Numerics`.
+MESH_ADVECTIONS = ("auto", "galerkin", "semi-lagrangian")
 
 
 @dataclass(frozen=True)
@@ -109,6 +112,12 @@ class Numerics:
                     benchmarks/stability.py warns (:class:`femphase.run.guards.AccuracyWarning`,
                     naming the scene key to change); True: it stops with
                     :class:`femphase.run.guards.AccuracyError` at that step (docs/outputs.md)
+    mesh_advection  meshes only: "auto" (default): in a steady flow with the batched solves,
+                    semi-Lagrangian for every advection of Courant number max|v| dt/h ≥ 2 (h
+                    the median edge), Galerkin below (:mod:`femphase.domains.mesh.semi_lagrangian`; docs/decisions/0043);
+                    "galerkin": the Galerkin step at every Courant number; "semi-lagrangian":
+                    semi-Lagrangian at every Courant number (steady flows only; below 2 its
+                    interpolation errors exceed the Galerkin step's, docs/decisions/0042)
     cache_mib       mebibytes (2²⁰ bytes) that everything a run keeps for reuse may hold
                     together: window dofs, per-window blocks and solvers, the current
                     layout's block-diagonal matrices, advections per substep size (the
@@ -136,6 +145,7 @@ class Numerics:
     merged_steps: int = 8
     precision: str = "mixed"
     strict: bool = False
+    mesh_advection: str = "auto"
     cache_mib: float = 256.0
 
     #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of the
@@ -215,7 +225,8 @@ class Numerics:
         for key, value, valid in (("mass", self.mass, MASS_TYPES), ("solver", self.solver, SOLVER_METHODS),
                                   ("fd_advection", self.fd_advection, FD_ADVECTION),
                                   ("diagonals", self.diagonals, DIAGONAL_PATTERNS),
-                                  ("precision", self.precision, PRECISIONS)):
+                                  ("precision", self.precision, PRECISIONS),
+                                  ("mesh_advection", self.mesh_advection, MESH_ADVECTIONS)):
             if value not in valid:
                 raise SceneError(f"numerics.{key}", value, f"one of {valid}")
         if self.stabilisation != "auto" and not (

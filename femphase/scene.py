@@ -282,6 +282,11 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
         _warn_flow_defects(flow, scene.domain, f"phases.{i}.flow")
+        if flow is not None and not flow.steady and scene.numerics.mesh_advection == "semi-lagrangian" \
+                and scene.domain.kind == "mesh":
+            raise SceneError("numerics.mesh_advection", "semi-lagrangian",
+                             f'"auto" or "galerkin": phases.{i}.flow changes with time, and the semi-Lagrangian '
+                             "step on meshes is one matrix per steady flow and dt")
     check_numerics(scene)
     _check_area_ceiling(scene)
     return scene

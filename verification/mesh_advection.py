@@ -11,7 +11,11 @@ advection of :mod:`femphase.domains.mesh.advection`:
   1, 2, 3 Jacobi corrections of the lumped mass inverse (three stages and K = 2 are
   ``STAGES`` and ``MASS_CORRECTIONS``, the default), and of four stages (classical RK4) with
   K = 1, 2;
-* the Galerkin–Padé step with exact per-window solves (``numerics.solver = "direct"``).
+* the Galerkin–Padé step with exact per-window solves (``numerics.solver = "direct"``);
+
+and by u = 3 at phase dt 1, 2, 4 (advections at Courant numbers 1.4–5.6), the default (the
+semi-Lagrangian step of :mod:`femphase.domains.mesh.semi_lagrangian` from Courant number 2
+on) against the explicit Galerkin step at every Courant number.
 
 Reported: the displacement error (x travelled − 32)/32 and the change of elongation
 (spurious stretching), and the CPU seconds of each carried run. The flow's exact
@@ -36,7 +40,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from femphase.analysis.shape import shape_observables  # noqa: E402
 from femphase.config import Numerics  # noqa: E402
-from femphase.domains.mesh import advection  # noqa: E402
+from femphase.domains.mesh import advection, semi_lagrangian  # noqa: E402
 from femphase.domains.mesh.domain import MeshDomain  # noqa: E402
 from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing  # noqa: E402
 from femphase.flows import python_flow  # noqa: E402
@@ -52,10 +56,16 @@ STEPS = (0.25, 1.0, 2.0, 4.0)
 SCHEMES = {f"explicit, 3 stages, K = {k}": ((k, 3), Numerics()) for k in (0, 1, 2, 3)}
 SCHEMES.update({f"explicit, 4 stages (RK4), K = {k}": ((k, 4), Numerics()) for k in (1, 2)})
 SCHEMES["Galerkin–Padé (solver = \"direct\")"] = (None, Numerics(solver="direct"))
+#: the fast disc: speed, phase dts, and name → the Courant number from which it advects semi-Lagrangian
+FAST_SPEED, FAST_STEPS = 3.0, (1.0, 2.0, 4.0)
+FAST_SCHEMES = {"default (semi-Lagrangian from Courant number 2)": semi_lagrangian.COURANT,
+                "explicit Galerkin (3 stages, K = 2) at every Courant number": float("inf")}
 
 
-def carried(domain: MeshDomain, explicit: tuple[int, int] | None, numerics: Numerics, dt: float) -> dict:
-    """The disc's displacement error and elongation change after DISTANCE units of u = 1."""
+def carried(domain: MeshDomain, explicit: tuple[int, int] | None, numerics: Numerics, dt: float,
+            speed: float = 1.0) -> dict:
+    """The disc's displacement error and elongation change after the whole steps nearest to
+    DISTANCE units of u = ``speed``."""
     params = ModelParameters()
     state = discs_state(domain, np.array([[10.0, HEIGHT / 2]]), np.array([8.0]), np.array([8.0]), 2.0,
                         domain.window_policy(numerics))
@@ -63,33 +73,53 @@ def carried(domain: MeshDomain, explicit: tuple[int, int] | None, numerics: Nume
     for _ in range(40):
         relax.step(state)
     start = shape_observables(state)
-    uniform = python_flow(lambda x, y: (np.ones_like(x), np.zeros_like(y)))
+    uniform = python_flow(lambda x, y: (np.full_like(x, speed), np.zeros_like(y)))
     defaults = advection.MASS_CORRECTIONS, advection.STAGES
     try:
         if explicit is not None:
             advection.MASS_CORRECTIONS, advection.STAGES = explicit
         stepper = Stepper(domain, params, numerics, dt, uniform, state.radii)
         clock = time.process_time()
-        for _ in range(round(DISTANCE / dt)):
+        steps = round(DISTANCE / (speed * dt))
+        for _ in range(steps):
             stepper.step(state)
         cpu = time.process_time() - clock
     finally:
         advection.MASS_CORRECTIONS, advection.STAGES = defaults
     end = shape_observables(state)
-    travelled = (end.x[0] - start.x[0]) % LENGTH
-    return {"dt": dt, "displacement_error": float((travelled - DISTANCE) / DISTANCE),
+    travelled, distance = (end.x[0] - start.x[0]) % LENGTH, speed * dt * steps
+    return {"dt": dt, "speed": speed, "displacement_error": float((travelled - distance) / distance),
             "elongation_change": float(end.elongation[0] - start.elongation[0]), "cpu_s": cpu}
 
 
-def block(results: dict) -> str:
-    header = "| advection | " + " | ".join(f"dt = {dt:g}" for dt in STEPS) + " | CPU s (all dt) |"
-    lines = [("`python verification/mesh_advection.py`: displacement error, elongation change of a disc "
-              f"carried {DISTANCE:g} units by u = 1 on a Delaunay mesh at h = 1"), "", header,
-             "|---|" + "---|" * (len(STEPS) + 1)]
+def table(results: dict, steps: tuple[float, ...]) -> list[str]:
+    lines = ["| advection | " + " | ".join(f"dt = {dt:g}" for dt in steps) + " | CPU s (all dt) |",
+             "|---|" + "---|" * (len(steps) + 1)]
     for name, rows in results.items():
         cells = " | ".join(f"{100 * row['displacement_error']:+.2f} %, {row['elongation_change']:+.4f}" for row in rows)
         lines.append(f"| {name} | {cells} | {sum(row['cpu_s'] for row in rows):.1f} |")
+    return lines
+
+
+def block(results: dict, fast: dict) -> str:
+    lines = [("`python verification/mesh_advection.py`: displacement error, elongation change of a disc "
+              f"carried {DISTANCE:g} units by u = 1 on a Delaunay mesh at h = 1"), "", *table(results, STEPS), "",
+             f"The same disc carried by u = {FAST_SPEED:g} (the whole steps nearest to {DISTANCE:g} units):", "",
+             *table(fast, FAST_STEPS)]
     return "\n".join(lines) + "\n"
+
+
+def fast_disc(domain: MeshDomain) -> dict:
+    """The disc carried by u = FAST_SPEED under each of FAST_SCHEMES."""
+    results, default = {}, semi_lagrangian.COURANT
+    try:
+        for name, courant in FAST_SCHEMES.items():
+            semi_lagrangian.COURANT = courant
+            results[name] = [carried(domain, None, Numerics(), dt, FAST_SPEED) for dt in FAST_STEPS]
+            print(name, json.dumps(results[name]), flush=True)
+    finally:
+        semi_lagrangian.COURANT = default
+    return results
 
 
 def main() -> None:
@@ -99,8 +129,9 @@ def main() -> None:
     for name, (explicit, numerics) in SCHEMES.items():
         results[name] = [carried(domain, explicit, numerics, dt) for dt in STEPS]
         print(name, json.dumps(results[name]), flush=True)
-    (RESULTS / "mesh_advection.json").write_text(json.dumps(results, indent=1) + "\n")
-    text = block(results)
+    fast = fast_disc(domain)
+    (RESULTS / "mesh_advection.json").write_text(json.dumps({**results, "fast": fast}, indent=1) + "\n")
+    text = block(results, fast)
     print(text)
     write_block("mesh_advection", text, "Advection on meshes: a translating disc")
 

@@ -1,11 +1,14 @@
-"""Advection on meshes, over one step of fixed dt.
+"""Galerkin advection on meshes, over one step of fixed dt.
 
 Galerkin in space: consistent mass M and the skew-symmetric advection matrix C
 (:func:`advection_matrix`), M φ' = −C φ. Why Galerkin and not semi-Lagrangian on meshes:
 semi-Lagrangian with P1 interpolation adds a numerical diffusion ~ h² C(1 − C)/(2 dt) (C the
 Courant number) as large as the model's own diffusivity at the paper's u ~ 1, h = 1; Galerkin
 has none, and the resolved interface held to its tanh profile by the double well does not
-oscillate at cell Péclet numbers above 2. Two steps in time:
+oscillate at cell Péclet numbers above 2. A quadratic-exact semi-Lagrangian step
+(:mod:`femphase.domains.mesh.semi_lagrangian`) is as accurate from Courant number 2 on, and
+the domain takes it there in steady flows
+(:meth:`femphase.domains.mesh.domain.MeshDomain.advection`). Two steps in time:
 
 * **explicit** (:class:`GalerkinRungeKutta`, with the batched window solves, the meshes'
   default): an explicit Runge–Kutta step of s = :data:`STAGES` stages and order s on

@@ -34,14 +34,17 @@ from typing import Callable, Sequence
 
 import meshio
 import numpy as np
-from scipy.spatial import cKDTree
 from skfem import MeshTri
 
 from femphase.config import Numerics
 from femphase.domains.base import DOMAINS, Domain
 from femphase.domains.layout import Layout
+from femphase.domains.advection import nodal_velocity
+from femphase.domains.mesh import semi_lagrangian
 from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
+from femphase.domains.mesh.semi_lagrangian import SemiLagrangian, courant_number
 from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
+from femphase.domains.mesh.location import locate
 from femphase.errors import SceneError
 from femphase.fem.meshfiles import read_meshio
 from femphase.fem.operators import (
@@ -54,7 +57,7 @@ from femphase.fem.periodic import fold_matrix, periodic_dof_map
 from femphase.flows import Flow
 
 __all__ = ["BOUNDARY_TAGS", "MESH_KEYS", "PERIODIC_PAIR", "TAG_KEYS", "MeshDomain", "PeriodicPairError",
-           "channel_sides", "facet_indices", "locate", "mesh_checksum", "read_domain", "write_domain"]
+           "channel_sides", "facet_indices", "mesh_checksum", "read_domain", "write_domain"]
 
 
 #: Tag numbers of the boundary names when a file cannot store names (``.vtu``, ``.xdmf``).
@@ -430,12 +433,21 @@ class MeshDomain(Domain):
         return [Box(*map(float, row)) for row in array]
 
     # -- fast paths and flows ---------------------------------------------------------------
-    def advection(self, flow: Flow, dt: float, numerics: Numerics) -> GalerkinRungeKutta | GalerkinPade:
-        """Explicit Runge–Kutta with the batched window solves, Galerkin–Padé with per-window
+    def advection(self, flow: Flow, dt: float,
+                  numerics: Numerics) -> GalerkinRungeKutta | GalerkinPade | SemiLagrangian:
+        """By ``numerics.mesh_advection``: semi-Lagrangian in a steady flow ("auto": with the
+        batched window solves, from the Courant number
+        :data:`~femphase.domains.mesh.semi_lagrangian.COURANT` on; "semi-lagrangian": always;
+        :mod:`femphase.domains.mesh.semi_lagrangian`), else explicit Runge–Kutta with the
+        batched window solves and Galerkin–Padé, the exact-solve reference, with per-window
         factorisations (:mod:`femphase.domains.mesh.advection`)."""
-        if self.solves_batched(numerics):
-            return GalerkinRungeKutta(self, flow, dt, numerics)
-        return GalerkinPade(self, flow, dt, numerics)
+        mode, batched = numerics.mesh_advection, self.solves_batched(numerics)
+        if flow.steady and (mode == "semi-lagrangian" or mode == "auto" and batched and (
+                courant_number(self, nodal_velocity(self, flow), dt) >= semi_lagrangian.COURANT)):
+            return SemiLagrangian(self, flow, dt)
+        if not batched:
+            return GalerkinPade(self, flow, dt, numerics)
+        return GalerkinRungeKutta(self, flow, dt, numerics)
 
     def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Area with the nodal quadrature; shape tensor the exact integral of the P1 element
@@ -444,26 +456,6 @@ class MeshDomain(Domain):
         area[layout.order] = layout.reduce(np.add, layout.mass * phi**2)
         tensors[layout.order] = shape_tensors(self.operators, layout.node_index, layout.offsets, phi)
         return area, self.centroids(layout, phi), tensors
-
-
-def locate(mesh: MeshTri, points: np.ndarray, candidates: int = 12) -> np.ndarray:
-    """The triangle containing each point (2, n), or −1 outside the mesh.
-
-    Checks the barycentric coordinates in the ``candidates`` triangles with the nearest
-    centroids, enough for triangles of bounded aspect ratio.
-    """
-    corners = mesh.p[:, mesh.t]  # (2, 3, n_elements)
-    tree = cKDTree(corners.mean(axis=1).T)
-    _, near = tree.query(points.T, k=min(candidates, mesh.t.shape[1]))
-    a, b, c = (corners[:, k][:, near] for k in range(3))  # (2, n, candidates)
-    e1, e2, d = b - a, c - a, points[:, :, None] - a
-    det = e1[0] * e2[1] - e1[1] * e2[0]
-    s = (d[0] * e2[1] - d[1] * e2[0]) / det
-    t = (e1[0] * d[1] - e1[1] * d[0]) / det
-    eps = 1e-12
-    inside = (s >= -eps) & (t >= -eps) & (s + t <= 1 + eps)
-    found = inside.any(axis=1)
-    return np.where(found, near[np.arange(len(near)), inside.argmax(axis=1)], -1)
 
 
 def _check_triangles(mesh: MeshTri) -> None:

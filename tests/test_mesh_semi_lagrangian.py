@@ -1,0 +1,124 @@
+"""Semi-Lagrangian advection on meshes (femphase.domains.mesh.semi_lagrangian): its
+interpolant, its departure points, when meshes choose it, and a translating disc."""
+
+import numpy as np
+import pytest
+from test_unstructured import PARAMS, discs, python_flow, straight
+
+from femphase.analysis.shape import shape_observables
+from femphase.config import Numerics
+from femphase.domains.mesh import semi_lagrangian
+from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
+from femphase.domains.mesh.domain import write_domain
+from femphase.domains.mesh.generation import structured_channel
+from femphase.errors import SceneError
+from femphase.domains.mesh.semi_lagrangian import (
+    SemiLagrangian,
+    courant_number,
+    departure_points,
+    interpolation_matrix,
+)
+from femphase.flows import Flow
+from femphase.scene import scene_from_dict
+from femphase.timestepping.stepper import Stepper
+
+
+@pytest.fixture(scope="module")
+def channel():
+    return straight(20.0, 12.0)
+
+
+def test_the_interpolant_is_exact_for_quadratics_and_the_identity_at_nodes(channel):
+    rng = np.random.default_rng(0)
+    x, y = channel.coordinates
+    # points away from the periodic seam, where a non-periodic quadratic is no field of the mesh
+    points = np.stack([3.0 + 14.0 * rng.random(500), 12.0 * rng.random(500)])
+    quadratic = lambda x, y: 1 + 0.1 * x - 0.05 * y + 0.02 * x * x - 0.03 * x * y + 0.01 * y * y  # noqa: E731
+    matrix = interpolation_matrix(channel, points)
+    assert np.abs(matrix @ quadratic(x, y) - quadratic(*points)).max() < 1e-10
+    at_nodes = interpolation_matrix(channel, np.array(channel.coordinates))
+    assert np.abs(at_nodes.toarray() - np.eye(channel.n_dofs)).max() < 1e-12
+
+
+def test_points_across_the_seam_and_beyond_the_walls_keep_rows_of_unit_sum(channel):
+    # a field periodic in x is interpolated the same from either side of the seam; a point a
+    # hair beyond a wall (the departure's integration error) takes the nearest triangle
+    x, y = channel.coordinates
+    periodic = np.cos(2 * np.pi * x / channel.period) * (1 + 0.01 * y * y)
+    seam = np.array([[channel.x0 + 1e-9, channel.x0 + channel.period - 1e-9], [5.0, 5.0]])
+    values = interpolation_matrix(channel, seam) @ periodic
+    assert values[0] == pytest.approx(values[1], abs=1e-6)
+    beyond = np.array([[5.0, 9.0], [-0.01, 12.01]])
+    matrix = interpolation_matrix(channel, beyond)
+    np.testing.assert_allclose(np.asarray(matrix.sum(axis=1)).ravel(), 1.0, atol=1e-12)
+
+
+def test_departure_points_in_uniform_flow_are_the_nodes_moved_back(channel):
+    x, y = channel.coordinates
+    velocity = np.stack([np.full_like(x, 1.5), np.zeros_like(y)])
+    points = departure_points(channel, velocity, 4.0)
+    expected = channel.x0 + np.mod(x - 6.0 - channel.x0, channel.period)
+    np.testing.assert_allclose(points[1], y, atol=1e-12)
+    shift = np.mod(points[0] - expected + channel.period / 2, channel.period) - channel.period / 2
+    assert np.abs(shift).max() < 1e-9
+
+
+def test_meshes_choose_it_for_steady_flows_by_the_courant_threshold_and_the_scene_key(channel):
+    uniform = python_flow(lambda x, y: (np.ones_like(x), np.zeros_like(y)))
+    edge = channel.median_edge
+    slow = semi_lagrangian.COURANT * edge * 0.9
+    fast = semi_lagrangian.COURANT * edge * 1.1
+    assert courant_number(channel, np.stack([np.ones(3), np.zeros(3)]), fast) > semi_lagrangian.COURANT
+    assert isinstance(channel.advection(uniform, slow, Numerics()), GalerkinRungeKutta)
+    assert isinstance(channel.advection(uniform, fast, Numerics()), SemiLagrangian)
+    assert isinstance(channel.advection(uniform, fast, Numerics(mesh_advection="galerkin")), GalerkinRungeKutta)
+    assert isinstance(channel.advection(uniform, slow, Numerics(mesh_advection="semi-lagrangian")), SemiLagrangian)
+    # per-window solvers keep their exact-solve reference, the Padé step, unless asked
+    assert isinstance(channel.advection(uniform, fast, Numerics(solver="direct")), GalerkinPade)
+    changing = Flow("python", lambda x, y, t: (np.ones_like(x), np.zeros_like(y)), steady=False)
+    assert isinstance(channel.advection(changing, fast, Numerics()), GalerkinRungeKutta)
+    with pytest.raises(ValueError, match="steady flow"):
+        SemiLagrangian(channel, changing, fast)
+
+
+def test_the_scene_key_is_checked_and_refused_for_flows_that_change(tmp_path):
+    with pytest.raises(SceneError, match=r"numerics.mesh_advection' = 'upwind' is invalid: one of"):
+        Numerics(mesh_advection="upwind")
+    mesh, boundaries = structured_channel(20.0, 16.0, 1.0)
+    write_domain(tmp_path / "channel.vtu", mesh, boundaries)
+    table = {"domain": {"kind": "mesh", "mesh": str(tmp_path / "channel.vtu")}, "particles": {"layout": "single"},
+             "model": {"radius": 4.0}, "numerics": {"mesh_advection": "semi-lagrangian"},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0,
+                         "flow": {"type": "oscillating_shear", "rate": 0.1, "frequency": 0.1}}]}
+    with pytest.raises(SceneError, match=r"numerics.mesh_advection.*phases.0.flow changes with time"):
+        scene_from_dict(table, tmp_path)
+    table["numerics"]["mesh_advection"] = "galerkin"
+    assert scene_from_dict(table, tmp_path).numerics.mesh_advection == "galerkin"
+
+
+def carried(monkeypatch, courant: float, speed: float = 3.0, dt: float = 2.0) -> tuple[float, float]:
+    """(displacement error, elongation change) of a relaxed disc carried by u = ``speed``
+    at phase dt ``dt`` under the default scheme, semi-Lagrangian from ``courant`` on."""
+    monkeypatch.setattr(semi_lagrangian, "COURANT", courant)
+    domain = straight(40.0, 30.0)
+    state = discs(domain, [[10.0, 15.0]])
+    relax = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
+    for _ in range(40):
+        relax.step(state)
+    start = shape_observables(state)
+    flow = python_flow(lambda x, y: (np.full_like(x, speed), np.zeros_like(y)))
+    stepper = Stepper(domain, PARAMS, Numerics(), dt, flow, state.radii)
+    steps = round(32.0 / (speed * dt))
+    for _ in range(steps):
+        stepper.step(state)
+    end = shape_observables(state)
+    distance = speed * dt * steps
+    return ((end.x[0] - start.x[0]) % 40.0 - distance) / distance, end.elongation[0] - start.elongation[0]
+
+
+def test_a_disc_carried_at_courant_numbers_above_two_keeps_its_speed_and_shape(monkeypatch):
+    # u = 3, substeps of about 2/3 and 1 (Courant numbers 1.9–2.8): the semi-Lagrangian step
+    # against the Galerkin step it replaces there, each its error in space and time
+    semi, galerkin = carried(monkeypatch, 1.5), carried(monkeypatch, np.inf)
+    assert abs(semi[0]) < 0.005  # the meshes' bound on a translating particle's speed
+    assert abs(semi[1]) <= abs(galerkin[1])
