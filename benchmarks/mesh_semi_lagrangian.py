@@ -25,7 +25,8 @@ Measured:
 * **accuracy**: the translating disc of verification/mesh_advection.py (R = 8 on a 40 × 30
   Delaunay channel at h = 1, carried 32 units by u = 1 under the default adaptive scheme at
   phase dt 0.25, 1, 2, 4): displacement error, elongation change, and the Courant numbers
-  u dt_a/h of the advections dt_a the scheme asked for (h the median edge);
+  u dt_a/h of the advections dt_a the scheme built (h the median edge; a built one may go
+  unused);
 * **whole runs**: examples/random.toml in Poiseuille flow against examples/straight_mesh.toml
   in its Stokes flow (``benchmarks/mesh_parity.py``'s kinds, centre-line velocity 0.1,
   400 time units of relaxation and 800 of flow at dt = 10), the mesh with its default

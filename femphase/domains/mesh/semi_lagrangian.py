@@ -17,9 +17,11 @@ Why only for fast flows (:data:`COURANT`): the interpolation error is made at ev
 it grows as the Courant number u dt/h falls; the Galerkin step's does not depend on dt. A
 disc translating at u = 1 on a Delaunay mesh at h = 1 (default scheme) moved with −0.17 %
 and stretched by +0.005 under the Galerkin step at every dt; under this step by +0.05 %,
-−0.003 to −0.006 at Courant numbers 0.9–3.7, but +0.15 %, +0.012 at 0.5–0.9 and +0.67 %,
-+0.045 at 0.02–0.23 (docs/decisions/0042-mesh-semi-lagrangian-not-kept.md). Where the
-Galerkin step subcycles (ω dt > 1), its cost grows with u while this step's does not.
+−0.003 to −0.006 at Courant numbers 0.9–1.9, but +0.15 %, +0.012 at 0.5–0.9 and +0.67 %,
++0.045 at 0.02–0.23 (docs/decisions/0042-mesh-semi-lagrangian-not-kept.md); at u = 3
+(Courant numbers 2.8–5.6) by +0.03 %, −0.004 against −0.07 %, +0.010
+(verification/mesh_advection.py). Where the Galerkin step subcycles (ω dt > 1), its cost
+grows with u while this step's does not.
 """
 
 from __future__ import annotations
