@@ -114,7 +114,8 @@ class Numerics:
                     :class:`femphase.run.guards.AccuracyError` at that step (docs/outputs.md)
     mesh_advection  meshes only: "auto" (default): in a steady flow with the batched solves,
                     semi-Lagrangian for every advection of Courant number max|v| dt/h ≥ 2 (h
-                    the median edge), Galerkin below (:mod:`femphase.domains.mesh.semi_lagrangian`; docs/decisions/0043);
+                    the median edge), Galerkin below (:mod:`femphase.domains.mesh.semi_lagrangian`;
+                    docs/decisions/0043);
                     "galerkin": the Galerkin step at every Courant number; "semi-lagrangian":
                     semi-Lagrangian at every Courant number (steady flows only; below 2 its
                     interpolation errors exceed the Galerkin step's, docs/decisions/0042)

@@ -42,7 +42,6 @@ from femphase.domains.layout import Layout
 from femphase.domains.advection import nodal_velocity
 from femphase.domains.mesh import semi_lagrangian
 from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
-from femphase.domains.mesh.semi_lagrangian import SemiLagrangian, courant_number
 from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
 from femphase.domains.mesh.location import locate
 from femphase.errors import SceneError
@@ -434,7 +433,7 @@ class MeshDomain(Domain):
 
     # -- fast paths and flows ---------------------------------------------------------------
     def advection(self, flow: Flow, dt: float,
-                  numerics: Numerics) -> GalerkinRungeKutta | GalerkinPade | SemiLagrangian:
+                  numerics: Numerics) -> GalerkinRungeKutta | GalerkinPade | semi_lagrangian.SemiLagrangian:
         """By ``numerics.mesh_advection``: semi-Lagrangian in a steady flow ("auto": with the
         batched window solves, from the Courant number
         :data:`~femphase.domains.mesh.semi_lagrangian.COURANT` on; "semi-lagrangian": always;
@@ -443,8 +442,8 @@ class MeshDomain(Domain):
         factorisations (:mod:`femphase.domains.mesh.advection`)."""
         mode, batched = numerics.mesh_advection, self.solves_batched(numerics)
         if flow.steady and (mode == "semi-lagrangian" or mode == "auto" and batched and (
-                courant_number(self, nodal_velocity(self, flow), dt) >= semi_lagrangian.COURANT)):
-            return SemiLagrangian(self, flow, dt)
+                semi_lagrangian.courant_number(self, nodal_velocity(self, flow), dt) >= semi_lagrangian.COURANT)):
+            return semi_lagrangian.SemiLagrangian(self, flow, dt)
         if not batched:
             return GalerkinPade(self, flow, dt, numerics)
         return GalerkinRungeKutta(self, flow, dt, numerics)
