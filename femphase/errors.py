@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-__all__ = ["BlowUpError", "FemphaseError", "FlowWarning", "InputError", "Interrupted", "ResolutionWarning",
-           "SceneError", "StiffnessWarning"]
+__all__ = ["BlowUpError", "FemphaseError", "FlowWarning", "InputError", "Interrupted", "ModelWarning",
+           "ResolutionWarning", "SceneError", "StiffnessWarning"]
 
 
 class FemphaseError(Exception):
@@ -44,6 +44,11 @@ class Interrupted(FemphaseError, RuntimeError):
 
 class ResolutionWarning(UserWarning):
     """A scene runs, but at a resolution known to bias its results (the message says how)."""
+
+
+class ModelWarning(UserWarning):
+    """A scene runs, but with particles the diffuse-interface model does not resolve as
+    particles (the message says which and why)."""
 
 
 class FlowWarning(UserWarning):

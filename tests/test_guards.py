@@ -197,3 +197,25 @@ def test_a_mesh_is_judged_fine_by_its_node_density_not_its_longer_edges(tmp_path
     assert fine.domain.spacing > 0.5 > fine.domain.resolution
     guard, _ = run(fine)
     assert [issue.kind for issue in guard.issues] == ["fine grid"]
+
+
+def test_a_vanishing_particle_warns_once_and_names_the_area_term():
+    # μ = 0: a disc of R = 3 shrinks by its curvature and is gone (area < 1e-29) by t = 300
+    single = {"domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"},
+              "model": {"radius": 3.0, "mu": 0.0}}
+    sc = scene(single, [phase(400.0, 10.0, 50.0)], scheme="adaptive")
+    recorder = FrameRecorder()
+    guard, caught = run(sc, trackers=[recorder])
+    vanished = [i for i in guard.issues if i.kind == "vanished"]
+    area = recorder.series("area")[:, 0] / (np.pi * 9.0)
+    first = recorder.times[np.argmax(area < 0.01)]
+    assert len(vanished) == 1 and len(caught) == 1 and vanished[0].time == first and vanished[0].key == "model.mu"
+    assert "particle 0 has vanished" in str(caught[0].message) and "model.mu = 0" in str(caught[0].message)
+
+
+def test_a_vanishing_particle_stops_a_strict_run():
+    single = {"domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"},
+              "model": {"radius": 3.0, "mu": 0.0}}
+    sc = scene(single, [phase(400.0, 10.0, 50.0)], scheme="adaptive", strict=True)
+    with pytest.raises(AccuracyError, match="vanished"):
+        Simulation(sc).run(sc.initial_state(), [AccuracyGuard()])

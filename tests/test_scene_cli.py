@@ -269,6 +269,23 @@ def test_an_area_constraint_that_caps_the_substep_far_below_dt_warns(mu, numeric
         assert "ceiling" in str(stiff[0].message) and "at least 398 substeps" in str(stiff[0].message)
 
 
+@pytest.mark.parametrize("particles, warns", [({"layout": "single"}, False),
+                                              ({"layout": "list", "centres": [[10.0, 20.0], [30.0, 20.0]],
+                                                "radii": [8.0, 2.5]}, True)])
+def test_a_particle_smaller_than_one_and_a_half_interface_widths_warns(particles, warns):
+    from femphase.errors import ModelWarning
+
+    table = {"domain": {"Lx": 40.0, "Ly": 40.0}, "particles": particles,
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene_from_dict(table)
+    model = [str(w.message) for w in caught if issubclass(w.category, ModelWarning)]
+    assert bool(model) == warns
+    if warns:  # λ = 2: the bound is 3, and the key is the one that set the small radius
+        assert model[0].startswith("particles.radii: a target radius R = 2.5 below 1.5λ = 3")
+
+
 def test_h_equal_to_the_interface_width_warns_about_pinned_interfaces():
     from femphase.errors import ResolutionWarning
     from femphase.scene import scene_from_dict

@@ -4,8 +4,8 @@ the value that brings the run back.
 
 Large steps are stable, not accurate: the "euler" scheme's stabilisation keeps every dt
 energy-stable, and a run with meaningless results finishes as silently as a good one. The
-guard (:class:`AccuracyGuard`, a :class:`~femphase.run.simulation.Tracker`) checks three things,
-each warned (:class:`AccuracyWarning`) at most once per phase, or, with
+guard (:class:`AccuracyGuard`, a :class:`~femphase.run.simulation.Tracker`) checks the following,
+each warned (:class:`AccuracyWarning`) at most once per phase (``vanished`` once per run), or, with
 ``numerics.strict = true``, raised as :class:`AccuracyError` naming the step and time:
 
 ``saturation`` (before the first step of every phase; "euler" and its subclasses)
@@ -61,6 +61,16 @@ each warned (:class:`AccuracyWarning`) at most once per phase, or, with
     :data:`STRAIN_RATE_ENVELOPE` = 10/240 (the flow's velocity key, e.g.
     ``phases.K.flow.rate``), or else the area stiffness (``model.mu``).
 
+``vanished`` (at every frame, with or without an area term)
+    a_i < :data:`VANISHED_RATIO` = 0.01 (or below its start, for a particle started smaller):
+    the particle's field has all but disappeared. A
+    particle shrinks by its interface's curvature unless the area term holds it; without it
+    (μ = 0) a disc of R = 3 vanishes within 300 time units (areas 1e-30 and below), and its
+    centroid, elongation and orientation, computed from a field of rounding noise, wander
+    (elongation 3.6 and 11 in particles.csv) while the run goes on. The warning names the
+    particle, its area and the time from which its shape columns mean nothing, and the key
+    that holds particles at their area (``model.mu``).
+
 Not guarded (not measured): the Galerkin–Padé step's accuracy at large Courant numbers on
 meshes (0.1 % lag at u dt/h = 1; the default explicit step subcycles at ω h ≤ 1 and has no
 such limit), the first-order splitting error below dt*.
@@ -90,7 +100,7 @@ from femphase.timestepping.euler import LinearlyImplicitEuler
 from femphase.timestepping.fd import explicit_stability_limit
 
 __all__ = ["ADVECTION_LIMIT", "AREA_RATIO_MAX", "AREA_RATIO_MIN", "FINE_GRID_SPACING", "FINE_GRID_TOLERANCE",
-           "RELAXATION_TIMES", "SLOWDOWN_LIMIT",
+           "RELAXATION_TIMES", "SLOWDOWN_LIMIT", "VANISHED_RATIO",
            "STRAIN_RATE_ENVELOPE", "AccuracyError", "AccuracyGuard", "AccuracyWarning", "StepMeasures",
            "advective_spread", "area_ratios", "max_strain_rate", "relaxation_time", "step_measures"]
 
@@ -102,6 +112,8 @@ ADVECTION_LIMIT = 1.0
 #: Accepted particle areas ∫φ²/(πR²) after the relaxation.
 AREA_RATIO_MIN = 0.6
 AREA_RATIO_MAX = CURVATURE_AREA_MAX
+#: Below this ∫φ²/(πR²) a particle has vanished (checked at every frame, whatever μ).
+VANISHED_RATIO = 0.01
 #: The area check starts after this many area relaxation times τ_A = πR²/(8 J0 μ).
 RELAXATION_TIMES = 40.0
 #: The strongest velocity gradient of the measured envelope (the slab sheared at γ̇ = 10 in
@@ -248,7 +260,7 @@ def max_strain_rate(domain, velocity: np.ndarray) -> float:
 
 @dataclass(frozen=True)
 class Issue:
-    """One guard finding: its kind ("saturation", "fine grid", "advection", "area"), the phase index, the
+    """One guard finding: its kind ("saturation", "fine grid", "advection", "area", "vanished"), the phase index, the
     step and time it was found at, the scene key to change and the message."""
 
     kind: str
@@ -278,6 +290,8 @@ class AccuracyGuard(Tracker):
             self.strict = bool(self.scene.numerics.strict)
         self.scheme = METHODS.get(simulation.method) or self.scene.numerics.scheme
         self.relax_from = relaxation_time(self.scene, state.radii)
+        # a particle started below VANISHED_RATIO (a tiny initial disc) has vanished only once it shrinks
+        self._vanishes_below = np.minimum(area_ratios(state), VANISHED_RATIO) if state.n_particles else None
         self._warned: set[tuple[str, int]] = set()
         self._checked: set[int] = set()
         self._measures: dict[int, StepMeasures] = {}
@@ -293,8 +307,10 @@ class AccuracyGuard(Tracker):
         ran = self._stepped_phase if self._stepped_phase is not None else min(state.phase, len(self.scene.phases) - 1)
         if state.step > 0 or self._stepped_phase is not None:
             self._check_advection(ran, state)
+            ratio = self._area_ratio(state, frame.particle.get("area"))
+            self._check_vanished(ran, state, ratio)
             if state.time >= self.relax_from - 1e-9:
-                self._check_areas(ran, state, frame.particle.get("area"))
+                self._check_areas(ran, state, ratio)
         if state.phase < len(self.scene.phases):  # the phase about to run: check before its first step
             self._check_phase(state.phase, state)
 
@@ -384,13 +400,32 @@ class AccuracyGuard(Tracker):
                 f"phases.{index}.dt ≤ {_round_down(dt * ADVECTION_LIMIT / fraction)} (or raise numerics.margin to "
                 f"≥ {spread[worst] / ADVECTION_LIMIT:.3g})"))
 
-    def _check_areas(self, index: int, state: State, area: np.ndarray | None) -> None:
+    @staticmethod
+    def _area_ratio(state: State, area: np.ndarray | None) -> np.ndarray:
+        """a_i = ∫φ_i²/(πR_i²), from the frame's area column where it has one."""
+        if area is None:
+            return area_ratios(state)
+        return np.asarray(area, dtype=float) / (np.pi * np.asarray(state.radii, dtype=float) ** 2)
+
+    def _check_vanished(self, index: int, state: State, ratio: np.ndarray) -> None:
+        if any(kind == "vanished" for kind, _ in self._warned) or not ratio.size:
+            return
+        gone = np.flatnonzero(ratio < self._vanishes_below)
+        if not gone.size:
+            return
+        mu = self.scene.model.area_stiffness
+        cause = ("without an area term (model.mu = 0) a particle shrinks by its interface's curvature until it "
+                 "vanishes: set model.mu > 0 (the paper: 20) to hold particles at their area" if mu <= 0 else
+                 f"the area term (model.mu = {mu:g}) did not hold it: raise model.mu or lower phases.{index}.dt")
+        self._report("vanished", index, state, "model.mu", (
+            f"phase {index} ({self.scene.phases[index].name!r}), t = {state.time:g}: particle {int(gone[0])} has "
+            f"vanished, area ∫φ²/πR² = {ratio[gone[0]]:.3g} < {VANISHED_RATIO:g} ({gone.size} of {ratio.size} "
+            f"particles); from here its x, y, elongation and orientation in particles.csv are computed from a "
+            f"field of rounding noise and mean nothing; {cause}"))
+
+    def _check_areas(self, index: int, state: State, ratio: np.ndarray) -> None:
         if ("area", index) in self._warned or state.n_particles == 0:
             return
-        if area is not None:
-            ratio = np.asarray(area, dtype=float) / (np.pi * np.asarray(state.radii, dtype=float) ** 2)
-        else:
-            ratio = area_ratios(state)
         low, high = int(np.argmin(ratio)), int(np.argmax(ratio))
         if ratio[low] >= AREA_RATIO_MIN and ratio[high] <= AREA_RATIO_MAX:
             return
