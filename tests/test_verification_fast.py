@@ -124,6 +124,26 @@ def test_sweep_comparison_states_differences_in_standard_errors():
     assert len(table.splitlines()) == 3  # header, rule, one row: rates only the other sweep has are left out
 
 
+def test_stored_sweeps_compare_without_their_runs(tmp_path, monkeypatch, capsys):
+    import json
+    import sys
+
+    from verification import fig1a_sweep
+
+    for name, mean in (("mine", 0.40), ("theirs", 0.35)):
+        entry = {"rate": 0.1, "runs": 3, "done": 3, "Psi6_mean": {"mean": mean, "sd": 0.03 if mean > 0.36 else 0.04}}
+        (tmp_path / f"{name}.json").write_text(json.dumps({"rates": [entry]}))
+    monkeypatch.setattr(fig1a_sweep, "RESULTS", tmp_path)
+    monkeypatch.setattr(sys, "argv", ["fig1a_sweep", "--stored", "mine", "--against", "theirs"])
+    fig1a_sweep.main()
+    out = capsys.readouterr().out
+    assert "| 0.1 | 3/3 | 0.4 ± 0.03 |" in out and "| 0.1 | 0.4, 0.35, +1.7 |" in out
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mine.json", "theirs.json"]  # nothing written
+    monkeypatch.setattr(sys, "argv", ["fig1a_sweep", "--stored", "nothing"])
+    with pytest.raises(SystemExit, match="no sweep results named 'nothing'.*stored sweeps: mine, theirs"):
+        fig1a_sweep.main()
+
+
 # -- how each domain reads the elongation -------------------------------------------------
 def test_grid_and_mesh_read_an_ellipses_elongation_to_second_order():
     """The same ellipses read on the structured channel at h = 1, 0.5, 0.25: the differences
