@@ -187,7 +187,7 @@ class Numerics:
     #: and its observables converge at order p ≈ 2.5 (a relaxing disc's area) to 2.8 (two
     #: discs' separation) in the substep, while the estimate is a first-order step's local
     #: error, O(h²): at a tolerance in proportion their errors fell as tolerance^(p/2), slopes
-    #: 1.15 and 1.31. The power 2/p ≈ 3/4 brings them to 0.85 and 1.04
+    #: 1.15 and 1.31. The power 2/p ≈ 3/4 brings them to 0.84 and 1.04
     #: (docs/decisions/0044-still-tolerance-power.md); the default is unchanged.
     STILL_EXPONENT = 0.75
     STILL_ANCHOR = 0.1

@@ -125,7 +125,7 @@ def main() -> None:
                         "rate by rate (e.g. poiseuille_reduced)")
     args = parser.parse_args()
     if (args.directory is None) == (args.stored is None):
-        parser.error("give a sweep directory or --stored NAME, not both")
+        parser.error("give one of a sweep directory and --stored NAME")
     if args.stored:
         table = stored(args.stored)
         print(markdown(table))
