@@ -199,3 +199,18 @@ def test_t1_that_reverts_before_completing_is_not_counted():
     fractions = [0.0, 0.51, 0.45, 0.0]
     frames = [lanes(fraction * SPACING) for fraction in fractions]
     assert len(lattice.t1_event_times(frames, range(len(frames)), LX)) == 0
+
+
+def test_a_particle_without_a_centroid_has_no_neighbours_and_the_others_keep_theirs():
+    # a vanished particle's centroid is NaN: the rest triangulate as if it were not there
+    centroids = lanes()
+    gone = centroids.copy()
+    gone[7] = np.nan
+    kept = np.delete(np.arange(len(centroids)), 7)
+    expected = kept[lattice.periodic_delaunay_pairs(centroids[kept], LX)]
+    assert np.array_equal(lattice.periodic_delaunay_pairs(gone, LX), expected)
+    order = lattice.frame_order(gone, np.zeros(len(gone)), LX)
+    assert np.isnan(order["psi6_abs"][7]) and np.isnan(order["psi2_abs"][7])
+    assert np.isfinite(order["Psi6"]) and order["Psi2"] == pytest.approx(1.0)
+    counter = lattice.T1Counter(centroids, LX)
+    assert counter.update(gone) == 0  # losing its bonds is no neighbour exchange

@@ -202,3 +202,32 @@ def test_a_scene_takes_one_assignment_as_a_string(tmp_path):
     path = tmp_path / "scene.toml"
     path.write_text('[[phases]]\nduration = 2.0\ndt = 1.0\nframe_interval = 1.0\n')
     assert load_scene(path, "phases.0.duration=4").phases[0].duration == 4.0
+
+
+def test_a_vanished_particle_has_no_centroid_or_shape_and_no_neighbours():
+    import warnings
+
+    from femphase.analysis.observables import Order
+    from femphase.analysis.shape import present, shape_observables
+    from femphase.scene import scene_from_dict
+
+    scene = scene_from_dict({"name": "gone", "domain": {"Lx": 40.0, "Ly": 40.0},
+                             "particles": {"layout": "list", "centres": [[10.0, 20.0], [30.0, 20.0], [20.0, 8.0],
+                                                                         [20.0, 32.0]]},
+                             "output": {"fields": False}, "phases": [{"duration": 10.0, "dt": 10.0,
+                                                                      "frame_interval": 10.0}]})
+    state = scene.initial_state()
+    state.fields[1][:] = 0.0          # exactly zero: its weighted centroid is 0/0
+    state.fields[2][:] *= 1e-40       # rounding noise: a centroid that could lie anywhere
+    layout, phi = state.flat()
+    assert present(layout, phi).tolist() == [True, False, False, True]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no divide-by-zero warnings on the way
+        shape = shape_observables(state)
+        order = Order(type("Run", (), {"domain": state.domain})())
+        order.look(state)  # the counter starts from these centroids
+        state.time += 10.0
+        order.look(state)  # and updates with them
+    assert np.isnan(shape.x[1:3]).all() and np.isnan(shape.elongation[1:3]).all()
+    assert np.isfinite(shape.x[[0, 3]]).all() and shape.area[1] == 0.0 and shape.area[2] > 0.0
+    assert order.t1.count == 0

@@ -68,6 +68,8 @@ def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray
     Edges whose extent along x exceeds Lx/2 are dropped: the same two particles are then closer
     through the other image, so the edge is not a minimum-image bond.  Such edges only bridge
     an empty gap of more than about half the period along x, never in a dense suspension.
+    A particle whose centroid is NaN (a vanished particle,
+    :func:`femphase.analysis.shape.present`) takes no part and has no neighbours.
 
     Parameters
     ----------
@@ -82,6 +84,11 @@ def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray
         ``(M, 2)`` int array of unique pairs, ``i < j`` in each row, rows sorted.
     """
     centroids = _as_centroids(centroids)
+    finite = np.isfinite(centroids).all(axis=1)
+    if not finite.all():
+        kept = np.flatnonzero(finite)
+        pairs = periodic_delaunay_pairs(centroids[kept], period_x) if kept.size > 1 else np.zeros((0, 2), dtype=int)
+        return kept[pairs].reshape(-1, 2)
     n_particles = len(centroids)
     images = np.concatenate(
         [centroids + (shift, 0.0) for shift in (0.0, -period_x, period_x)]

@@ -21,7 +21,7 @@ from typing import ClassVar, Protocol
 import numpy as np
 
 from femphase.analysis.lattice import T1Counter, frame_order
-from femphase.analysis.shape import DEFAULT_THRESHOLD, shape_observables
+from femphase.analysis.shape import DEFAULT_THRESHOLD, present, shape_observables
 from femphase.config import Numerics
 from femphase.domains.base import Domain
 from femphase.model.energy import FreeEnergy, WindowedFields
@@ -129,13 +129,18 @@ class Order(Observable):
     def __init__(self, simulation: RunContext) -> None:
         super().__init__(simulation)
         self.period = simulation.domain.period
+        numerics = getattr(simulation, "numerics", None)
+        self.threshold = numerics.threshold if numerics is not None else DEFAULT_THRESHOLD
         self.t1: T1Counter | None = None
         self._looked_at: float | None = None  # the time of the counter's last look
 
     def look(self, state: State) -> None:
-        """Update the T1 counter with the state's centroids (the shape observable's x, y)."""
+        """Update the T1 counter with the state's centroids (the shape observable's x, y: NaN
+        for a vanished particle, which then has no neighbours)."""
         layout, phi = state.flat()
-        self._update(state.domain.centroids(layout, phi), state.time)
+        centroids = state.domain.centroids(layout, phi)
+        centroids[~present(layout, phi, self.threshold)] = np.nan
+        self._update(centroids, state.time)
 
     def snapshot(self) -> dict[str, np.ndarray]:
         return self.t1.snapshot() if self.t1 is not None else {}

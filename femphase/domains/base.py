@@ -207,14 +207,16 @@ class Domain(ABC):
 
     def centroids(self, layout: Layout, phi: np.ndarray) -> np.ndarray:
         """φ-weighted centroids (N, 2) in particle order; x a circular mean over the period,
-        in [x0, x0 + period)."""
+        in [x0, x0 + period); y NaN for a field that is zero everywhere (a vanished particle,
+        :func:`femphase.analysis.shape.present`)."""
         cos, sin, y = np.take(self._circle, layout.node_index, axis=1)  # 7× faster than [:, index]
         weight = layout.mass * phi
         total = layout.reduce(np.add, weight)
         cos, sin = layout.reduce(np.add, weight * cos), layout.reduce(np.add, weight * sin)
         out = np.empty((len(layout.windows), 2))
         out[layout.order, 0] = self.x0 + (np.arctan2(sin, cos) % (2 * np.pi)) * self.period / (2 * np.pi)
-        out[layout.order, 1] = layout.reduce(np.add, weight * y) / total
+        with np.errstate(divide="ignore", invalid="ignore"):
+            out[layout.order, 1] = layout.reduce(np.add, weight * y) / total
         return out
 
     def single_precision_steps(self, numerics: Numerics) -> bool:

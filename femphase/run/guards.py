@@ -67,9 +67,10 @@ each warned (:class:`AccuracyWarning`) at most once per phase (``vanished`` once
     particle shrinks by its interface's curvature unless the area term holds it; without it
     (μ = 0) a disc of R = 3 vanishes within 300 time units (areas 1e-30 and below), and its
     centroid, elongation and orientation, computed from a field of rounding noise, wander
-    (elongation 3.6 and 11 in particles.csv) while the run goes on. The warning names the
-    particle, its area and the time from which its shape columns mean nothing, and the key
-    that holds particles at their area (``model.mu``).
+    (elongation 3.6 and 11 in particles.csv) until its φ is nowhere above the window
+    threshold, from where they are NaN (:func:`femphase.analysis.shape.present`). The warning
+    names the particle, its area and the time from which its shape columns mean nothing, and
+    the key that holds particles at their area (``model.mu``).
 
 Not guarded (not measured): the Galerkin–Padé step's accuracy at large Courant numbers on
 meshes (0.1 % lag at u dt/h = 1; the default explicit step subcycles at ω h ≤ 1 and has no
@@ -420,8 +421,8 @@ class AccuracyGuard(Tracker):
         self._report("vanished", index, state, "model.mu", (
             f"phase {index} ({self.scene.phases[index].name!r}), t = {state.time:g}: particle {int(gone[0])} has "
             f"vanished, area ∫φ²/πR² = {ratio[gone[0]]:.3g} < {VANISHED_RATIO:g} ({gone.size} of {ratio.size} "
-            f"particles); from here its x, y, elongation and orientation in particles.csv are computed from a "
-            f"field of rounding noise and mean nothing; {cause}"))
+            f"particles); from here its x, y, elongation and orientation in particles.csv mean nothing (NaN once "
+            f"its φ is nowhere above numerics.threshold); {cause}"))
 
     def _check_areas(self, index: int, state: State, ratio: np.ndarray) -> None:
         if ("area", index) in self._warned or state.n_particles == 0:
