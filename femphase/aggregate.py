@@ -311,7 +311,9 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
     series = order_series(run)
     for name in ("Psi6", "Psi2"):
         out[f"{name}_mean"], out[f"{name}_std"] = frame_average(series[name][window])
-    out["elongation_mean"] = float(run.elongation[window][:, run.bulk_particles()].mean())
+    bulk_mean = run.bulk_elongation(window)
+    bulk_mean = bulk_mean[~np.isnan(bulk_mean)]  # frames where every bulk particle has vanished
+    out["elongation_mean"] = float(bulk_mean.mean()) if bulk_mean.size else float("nan")
     out["t1_rate"] = t1_rate(run, window)
     return out
 

@@ -172,7 +172,9 @@ def _mean_elongation(run: RunData) -> float:
     from femphase.aggregate import averaging_window
 
     window = averaging_window(run.time, run.info["settings"]["phases"])
-    return float(np.mean(run.elongation[window])) if window.size else math.nan
+    values = run.elongation[window]
+    values = values[~np.isnan(values)]  # over the particles present: a vanished one's r is NaN
+    return float(values.mean()) if values.size else math.nan
 
 
 def _area(run: RunData) -> float:

@@ -54,7 +54,7 @@ def measured_period(run: RunData, t_from: float | None = None) -> float | None:
     shear phase), None when no period can be measured."""
     start = run.shear_start if t_from is None else t_from
     frames = run.time >= start - 1e-9
-    mean_r = run.elongation[frames][:, run.bulk_particles()].mean(axis=1)
+    mean_r = run.bulk_elongation(frames)
     try:
         return oscillation_period(run.time[frames], mean_r, discard_fraction=0.25 if t_from is None else 0.0).period
     except ValueError:
@@ -71,7 +71,7 @@ def ode_comparison(run: RunData, rate: float, t_from: float | None = None) -> di
     start = run.shear_start if t_from is None else t_from
     frames = run.time >= start - 1e-9
     t = run.time[frames]
-    mean_r = run.elongation[frames][:, run.bulk_particles()].mean(axis=1)
+    mean_r = run.bulk_elongation(frames)
     period = measured_period(run, t_from)
     ks = {"paper": K_PAPER}
     if period is not None:

@@ -231,3 +231,29 @@ def test_a_vanished_particle_has_no_centroid_or_shape_and_no_neighbours():
     assert np.isnan(shape.x[1:3]).all() and np.isnan(shape.elongation[1:3]).all()
     assert np.isfinite(shape.x[[0, 3]]).all() and shape.area[1] == 0.0 and shape.area[2] > 0.0
     assert order.t1.count == 0
+
+
+def test_the_bulk_mean_elongation_is_over_the_particles_present(tmp_path, monkeypatch):
+    # μ = 0: discs started at R/2 = 4 shrink by their curvature and vanish before t = 100
+    import warnings
+
+    from femphase.aggregate import summarise_run
+    from femphase.io.reader import RunData, open_run
+    from femphase.scene import scene_from_dict
+
+    scene = scene_from_dict({"name": "vanishing", "domain": {"Lx": 60.0, "Ly": 40.0}, "model": {"mu": 0.0},
+                             "particles": {"layout": "list", "centres": [[10.0, 20.0], [30.0, 20.0], [50.0, 20.0]]},
+                             "output": {"fields": False},
+                             "phases": [{"duration": 100.0, "dt": 10.0, "frame_interval": 50.0}]})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the guard's "vanished" warning
+        run_scene(scene, tmp_path / "run", progress=False)
+    run = open_run(tmp_path / "run")
+    assert np.isfinite(run.elongation[0]).all() and np.isnan(run.elongation[-1]).all()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "mean of empty slice" on the way
+        assert np.isnan(run.bulk_elongation()[-1]) and np.isfinite(run.bulk_elongation()[0])
+        assert np.isnan(summarise_run(run)["elongation_mean"])  # its window holds the last frame only
+    # one of three present: the mean is that one's, not NaN and not a mean over noise
+    monkeypatch.setattr(RunData, "elongation", property(lambda self: np.array([[0.1, 0.2, 0.3], [0.4, np.nan, np.nan]])))
+    assert run.bulk_elongation().tolist() == pytest.approx([0.2, 0.4])

@@ -222,6 +222,15 @@ class RunData:
         bulk = (y > low + margin) & (y < high - margin)
         return bulk if bulk.any() else np.ones_like(bulk)
 
+    def bulk_elongation(self, frames=slice(None)) -> np.ndarray:
+        """r̄(t): the elongation averaged over the bulk particles (:meth:`bulk_particles`) at
+        each of ``frames``, over those present (a vanished particle's elongation is NaN,
+        :func:`femphase.analysis.shape.present`); NaN where none is."""
+        values = self.elongation[frames][..., self.bulk_particles()]
+        counts = np.sum(~np.isnan(values), axis=-1)
+        with np.errstate(invalid="ignore"):
+            return np.where(counts > 0, np.nansum(values, axis=-1) / counts, np.nan)
+
     @cached_property
     def t1_times(self) -> np.ndarray:
         """Times of the T1 events after shear onset (empty for fewer than 3 particles)."""

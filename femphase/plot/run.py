@@ -184,7 +184,7 @@ def draw_elongation(ax, run: RunData, ode_rate: float | None = None, ode_k: floa
     t = run.time[frames]
     for j in _shown_particles(run):
         ax.plot(t, run.elongation[frames, j], lw=0.6, alpha=0.6, label=f"particle {j}")
-    ax.plot(t, run.elongation[frames][:, run.bulk_particles()].mean(axis=1), color="green", lw=1.8,
+    ax.plot(t, run.bulk_elongation(frames), color="green", lw=1.8,
             label="bulk mean")
     rate = ode_rate if ode_rate is not None else run.shear_rate
     solution, offset = ode_solution(run, rate, ode_k) if rate else (None, 0.0)
