@@ -55,7 +55,7 @@ from femphase import __version__
 from femphase.analysis.lattice import frame_average, t1_event_times
 from femphase.errors import InputError
 from femphase.io.files import atomic_write
-from femphase.io.reader import TIME_TOLERANCE, RunData, frame_index, merge_times, open_run
+from femphase.io.reader import TIME_TOLERANCE, RunData, frame_index, mean_present, merge_times, open_run
 from femphase.io.rundir import Status
 from femphase.oscillations import measured_period, order_series
 
@@ -311,9 +311,8 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
     series = order_series(run)
     for name in ("Psi6", "Psi2"):
         out[f"{name}_mean"], out[f"{name}_std"] = frame_average(series[name][window])
-    bulk_mean = run.bulk_elongation(window)
-    bulk_mean = bulk_mean[~np.isnan(bulk_mean)]  # frames where every bulk particle has vanished
-    out["elongation_mean"] = float(bulk_mean.mean()) if bulk_mean.size else float("nan")
+    # frames where every bulk particle has vanished are NaN and left out
+    out["elongation_mean"] = mean_present(run.bulk_elongation(window))
     out["t1_rate"] = t1_rate(run, window)
     return out
 

@@ -65,7 +65,7 @@ import numpy as np
 
 from femphase.errors import SceneError
 from femphase.io.files import atomic_write, output_directory
-from femphase.io.reader import RunData, open_run
+from femphase.io.reader import RunData, mean_present, open_run
 from femphase.tomlio import toml_value
 
 __all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "last_phase_substeps",
@@ -172,9 +172,8 @@ def _mean_elongation(run: RunData) -> float:
     from femphase.aggregate import averaging_window
 
     window = averaging_window(run.time, run.info["settings"]["phases"])
-    values = run.elongation[window]
-    values = values[~np.isnan(values)]  # over the particles present: a vanished one's r is NaN
-    return float(values.mean()) if values.size else math.nan
+    # over the particles present: a vanished one's r is NaN
+    return mean_present(run.elongation[window])  # NaN for an empty window too
 
 
 def _area(run: RunData) -> float:

@@ -29,7 +29,7 @@ from femphase.errors import ResolutionWarning
 from femphase.io.files import read_csv
 from femphase.scene import Scene, scene_from_dict
 
-__all__ = ["TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "merge_times", "open_run"]
+__all__ = ["TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "mean_present", "merge_times", "open_run"]
 
 #: Frame times closer than this (time units) are the same frame: runs with different time
 #: steps reach the same frame time up to round-off.
@@ -226,10 +226,7 @@ class RunData:
         """r̄(t): the elongation averaged over the bulk particles (:meth:`bulk_particles`) at
         each of ``frames``, over those present (a vanished particle's elongation is NaN,
         :func:`femphase.analysis.shape.present`); NaN where none is."""
-        values = self.elongation[frames][..., self.bulk_particles()]
-        counts = np.sum(~np.isnan(values), axis=-1)
-        with np.errstate(invalid="ignore"):
-            return np.where(counts > 0, np.nansum(values, axis=-1) / counts, np.nan)
+        return mean_present(self.elongation[frames][..., self.bulk_particles()], axis=-1)
 
     @cached_property
     def t1_times(self) -> np.ndarray:
@@ -247,6 +244,17 @@ class RunData:
         if not path.is_file():
             raise ValueError(f"run '{self.directory}' has no fields.xdmf (it was run with output.fields = false)")
         return FieldFrames(path)
+
+
+def mean_present(values: np.ndarray, axis: int | None = None) -> np.ndarray | float:
+    """The mean of ``values`` along ``axis`` (all of them for None) over the entries that are
+    not NaN (a vanished particle's shape columns are, :func:`femphase.analysis.shape.present`);
+    NaN where every entry is, without numpy's empty-slice warning."""
+    values = np.asarray(values, dtype=float)
+    counts = np.sum(~np.isnan(values), axis=axis)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts > 0, np.nansum(values, axis=axis) / counts, np.nan)
+    return float(mean) if axis is None else mean
 
 
 def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
