@@ -6,7 +6,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 from skfem import MeshTri
 
-__all__ = ["centroid_tree", "locate"]
+__all__ = ["barycentric", "centroid_tree", "locate"]
 
 
 def locate(mesh: MeshTri, points: np.ndarray, candidates: int = 12, tree: cKDTree | None = None) -> np.ndarray:
@@ -32,14 +32,18 @@ def centroid_tree(mesh: MeshTri) -> cKDTree:
     return cKDTree(mesh.p[:, mesh.t].mean(axis=1).T)
 
 
+def barycentric(a: np.ndarray, b: np.ndarray, c: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(s, t): the coordinates of ``points`` in the triangles with corners a, b, c (each
+    (2, …), broadcasting), points = a + s (b − a) + t (c − a); their weights are 1 − s − t, s, t."""
+    e1, e2, d = b - a, c - a, points - a
+    det = e1[0] * e2[1] - e1[1] * e2[0]
+    return (d[0] * e2[1] - d[1] * e2[0]) / det, (e1[0] * d[1] - e1[1] * d[0]) / det
+
+
 def _locate_among(corners: np.ndarray, tree: cKDTree, points: np.ndarray, candidates: int) -> np.ndarray:
     _, near = tree.query(points.T, k=candidates)
     near = near.reshape(points.shape[1], candidates)
-    a, b, c = (corners[:, k][:, near] for k in range(3))  # (2, n, candidates)
-    e1, e2, d = b - a, c - a, points[:, :, None] - a
-    det = e1[0] * e2[1] - e1[1] * e2[0]
-    s = (d[0] * e2[1] - d[1] * e2[0]) / det
-    t = (e1[0] * d[1] - e1[1] * d[0]) / det
+    s, t = barycentric(*(corners[:, k][:, near] for k in range(3)), points[:, :, None])  # (n, candidates)
     eps = 1e-12
     inside = (s >= -eps) & (t >= -eps) & (s + t <= 1 + eps)
     found = inside.any(axis=1)

@@ -33,7 +33,7 @@ from scipy.spatial import cKDTree
 from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
 from femphase.domains.mesh.advection import GalerkinAdvection
-from femphase.domains.mesh.location import centroid_tree, locate
+from femphase.domains.mesh.location import barycentric, centroid_tree, locate
 from femphase.fem.blocks import BlockPattern
 from femphase.flows import Flow
 
@@ -80,9 +80,7 @@ def _containing(domain: Domain, points: np.ndarray, tree) -> tuple[np.ndarray, n
     corners = mesh.p[:, mesh.t[:, elements]]  # (2, 3, n)
     inside = points.copy()
     inside[0] = _unwrap(domain, points[0], corners[0].mean(axis=0))
-    e1, e2, d = corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0], inside - corners[:, 0]
-    det = e1[0] * e2[1] - e1[1] * e2[0]
-    s, t = (d[0] * e2[1] - d[1] * e2[0]) / det, (e1[0] * d[1] - e1[1] * d[0]) / det
+    s, t = barycentric(corners[:, 0], corners[:, 1], corners[:, 2], inside)
     weights = np.clip(np.stack([1.0 - s - t, s, t]), 0.0, None)
     return elements, weights / weights.sum(axis=0)
 
