@@ -25,7 +25,10 @@ What is compared, at the frame times both inputs have (matched to 1e-6 time unit
 * observables, per frame: the largest ``|difference|`` over the particles (particles matched by
   id) of the centroid x (minimum image over the period) and y, the area ∫φ², the elongation
   and the orientation (nematic: differences taken modulo π; only for particles whose
-  elongation is ≥ 0.01 in both inputs, a disc has no orientation). Runs read them from
+  elongation is ≥ 0.01 in both inputs, a disc has no orientation). The centroid and shape
+  are taken over the particles present in both inputs (a vanished particle's are NaN,
+  docs/outputs.md); the area over all, so a particle that vanished in one input only
+  shows there. Runs read them from
   particles.csv; for grid data they are computed from the fields
   (:func:`femphase.analysis.shape.shape_observables`);
 * energies (two run directories only; global.csv): ``|difference|`` of the free energy and of
@@ -409,7 +412,9 @@ def _compare(a: Source, b: Source, with_fields: bool) -> dict:
         diff = _difference(name, a.observables[name][ia], b.observables[name][ib], a.domain.period)
         if name == "orientation":
             diff = np.where(elongated, diff, -np.inf)
-        largest = diff.max(axis=1)
+        # over the particles present in both: a vanished particle's shape columns are NaN (its
+        # area is not, so a particle vanished in one input only shows in the area's difference)
+        largest = np.where(np.isnan(diff), -np.inf, diff).max(axis=1)
         series[name] = np.where(np.isfinite(largest), largest, np.nan)
     if a.is_run and b.is_run:
         for name in ENERGIES.values():

@@ -117,7 +117,9 @@ def check_keys(spec: dict, allowed: set[str]) -> None:
     """SceneError naming the first key of a flow table that its type does not take."""
     for key in spec:
         if key not in allowed:
-            raise SceneError(f"flow.{key}", spec[key], f"a {spec.get('type')} flow takes only {sorted(allowed)}")
+            kind = spec.get("type", "none")
+            untyped = "" if "type" in spec else f" (flow.type is not given, so there is no flow; types: {FLOWS.names()})"
+            raise SceneError(f"flow.{key}", spec[key], f"a {kind} flow takes only {sorted(allowed)}{untyped}")
 
 
 def number(spec: dict, key: str, meaning: str, default: float | None = None, positive: bool = False) -> float:

@@ -257,3 +257,37 @@ def test_the_bulk_mean_elongation_is_over_the_particles_present(tmp_path, monkey
     # one of three present: the mean is that one's, not NaN and not a mean over noise
     monkeypatch.setattr(RunData, "elongation", property(lambda self: np.array([[0.1, 0.2, 0.3], [0.4, np.nan, np.nan]])))
     assert run.bulk_elongation().tolist() == pytest.approx([0.2, 0.4])
+
+
+def test_runs_with_vanished_particles_keep_their_frames_in_comparisons_and_figures(tmp_path):
+    # μ = 0: the discs vanish between t = 50 and 100; two time steps give two runs to compare
+    import warnings
+
+    from femphase.compare import compare_runs
+    from femphase.io.reader import open_run
+    from femphase.plot.run import plot_run
+    from femphase.scene import scene_from_dict
+
+    for name, dt in (("a", 10.0), ("b", 5.0)):
+        scene = scene_from_dict({"name": "vanishing", "domain": {"Lx": 60.0, "Ly": 40.0}, "model": {"mu": 0.0},
+                                 "particles": {"layout": "list", "centres": [[10.0, 20.0], [30.0, 20.0],
+                                                                             [50.0, 20.0]]},
+                                 "output": {"fields": False},
+                                 "phases": [{"duration": 100.0, "dt": dt, "frame_interval": 10.0,
+                                             "flow": {"type": "shear", "rate": 0.1}}]})
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # the guard's "vanished" warning
+            run_scene(scene, tmp_path / name, progress=False)
+    run = open_run(tmp_path / "a")
+    gone = np.isnan(run.x).all(axis=1)
+    assert gone[-1] and not gone[0]
+    assert run.complete().time.tolist() == run.time.tolist()  # every row is listed, NaN or not
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no all-NaN or empty-slice warnings on the way
+        result = compare_runs(tmp_path / "a", tmp_path / "b")
+        figures = plot_run(tmp_path / "a", tmp_path / "figures")
+    assert result["time"].tolist() == run.time.tolist()
+    x = result["series"]["x"]
+    assert np.isfinite(x[~gone]).all() and np.isnan(x[gone]).all()
+    assert np.isfinite(result["series"]["area"]).all()  # areas are compared whether a particle is present or not
+    assert all(path.stat().st_size > 0 for path in figures.values())

@@ -60,6 +60,13 @@ def test_invalid_scene_values_name_the_key(tmp_path, assignment, key):
     assert "invalid" in str(info.value)
 
 
+def test_a_flow_without_its_type_is_named_with_the_types(tmp_path):
+    data = {**SMALL, "phases": [SMALL["phases"][0], {**SMALL["phases"][1], "flow": {"kind": "shear", "rate": 0.5}}]}
+    with pytest.raises(SceneError, match=r"flow\.type is not given, so there is no flow; types: .*'shear'") as info:
+        scene_from_dict(data)
+    assert info.value.key == "phases.1.flow.kind"
+
+
 def test_a_bad_option_is_named_as_an_option_and_a_bad_key_as_a_scene_key(tmp_path):
     path = write_scene(tmp_path / "scene.toml")
     with pytest.raises(SceneError, match=r"^option '--set' = 'model\.mu' is invalid"):

@@ -133,8 +133,12 @@ class RunData:
         return self.particles["orientation"]
 
     def complete(self) -> "RunData":
-        """The run on the frames for which particles.csv lists every particle."""
-        keep = np.isfinite(self.particles["x"]).all(axis=1) if "x" in self.particles else np.zeros(0, bool)
+        """The run on the frames for which particles.csv lists every particle. A row is
+        listed where any of its columns is a number: a vanished particle's row has NaN
+        shape columns but its area (:func:`femphase.analysis.shape.present`)."""
+        keep = np.zeros(0, bool)
+        if self.particles:
+            keep = np.any([np.isfinite(values) for values in self.particles.values()], axis=0).all(axis=1)
         return replace(self, time=self.time[keep], particles={k: v[keep] for k, v in self.particles.items()},
                        globals={k: v[keep] for k, v in self.globals.items()})
 
