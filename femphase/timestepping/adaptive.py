@@ -1,9 +1,9 @@
 """The default scheme ``adaptive``: error-controlled substeps of ``sav2`` inside every step of
 the phase (:class:`AdaptiveSAV2`; its docstring gives the substep sizes, the estimate and
 the controller). The phase's dt is the largest substep and the spacing of frames and
-checkpoints; ``numerics.tolerance_t`` is the local error allowed per substep under flow; without,
-a tenth of it at the default, its power 3/4 about the default in general
-(:meth:`femphase.config.Numerics.substep_tolerance`).
+checkpoints; at the default ``numerics.tolerance_t`` is the local error allowed per substep
+under flow, a tenth of it without; about the default the allowed error follows its power 1.15
+under flow and 3/4 without (:meth:`femphase.config.Numerics.substep_tolerance`).
 """
 
 from __future__ import annotations
@@ -25,8 +25,9 @@ __all__ = ["AdaptiveSAV2", "counted_in_phase"]
 class AdaptiveSAV2(RelaxedSAV2):
     """Error-controlled substeps of sav2 inside every step of the phase (frames stay at exact
     times): embedded first/second-order error estimate, PI step controller, rejected substeps
-    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ)
-    under flow; without, a tenth of it at the default, its power 3/4 about the default in general
+    redone; at the default `numerics.tolerance_t` is the local error allowed per substep
+    (max-norm of φ) under flow, a tenth of it without; about the default the allowed error
+    follows its power 1.15 under flow and 3/4 without
     (:meth:`femphase.config.Numerics.substep_tolerance`).
 
     Under flow, consecutive substeps share their half-steps of the split operators: the
