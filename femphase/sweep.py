@@ -194,7 +194,10 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
         raise SweepError("sweep", str(path), f"a readable UTF-8 TOML file ({exc})") from None
     for name, value in document.items():
         if name not in TABLES:
-            raise SweepError(name, value, f"not a known table; valid: {', '.join(f'[{t}]' for t in TABLES)}")
+            scene = "phases" in document or "domain" in document  # a scene given where its sweep belongs
+            raise SweepError(name, value, f"not a known table; valid: {', '.join(f'[{t}]' for t in TABLES)}"
+                             + (f" ('{path}' looks like a scene: a sweep file names its scene in [sweep] and "
+                                "the values to vary in [axes], docs/sweeps.md)" if scene else ""))
         if not isinstance(value, dict):
             raise SweepError(name, value, f"a table [{name}]")
     head = document.get("sweep", {})

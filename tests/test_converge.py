@@ -171,6 +171,9 @@ def test_the_command_refuses_bad_levels_and_observables_before_any_run(tmp_path)
     command = [sys.executable, "-m", "femphase.cli", "converge", str(scene), "-o", str(tmp_path / "s")]
     both = subprocess.run(command + ["--h", "1,0.5", "--dt", "1,0.5"], capture_output=True, text=True)
     assert both.returncode == 2 and "exactly one option with two or more values" in both.stderr
+    assert "'--h 1,0.5 --dt 1,0.5'" in both.stderr
+    one = subprocess.run(command + ["--h", "1"], capture_output=True, text=True)  # nothing refined: name what was given
+    assert one.returncode == 2 and "'--h 1' is invalid" in one.stderr
     unknown = subprocess.run(command + ["--h", "1,0.5", "--observable", "volume"], capture_output=True, text=True)
     assert unknown.returncode == 2 and "volume" in unknown.stderr and "separation" in unknown.stderr
     twice = subprocess.run(command + ["--h", "1,0.5,1"], capture_output=True, text=True)

@@ -113,6 +113,13 @@ def test_schema_errors_name_the_key_before_anything_runs(tmp_path, text, key):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_scene_given_as_a_sweep_is_named_as_one(tmp_path):
+    path = write(tmp_path, 'name = "tiny"\n[[phases]]\nduration = 10.0\ndt = 1.0\nframe_interval = 1.0')
+    with pytest.raises(SweepError, match=r"looks like a scene: a sweep file names its scene in \[sweep\]") as caught:
+        run_sweep(path, tmp_path / "out")
+    assert caught.value.key == "name"
+
+
 def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
     path = write(tmp_path, SWEEP.replace("particles.seed", "particles.sed"))
     assert main(["sweep", str(path), "-o", str(tmp_path / "out")]) == 2

@@ -35,7 +35,9 @@ def run(args: argparse.Namespace) -> int:
     given = {name: getattr(args, name) for name in REFINED if getattr(args, name) is not None}
     refined = [name for name, values in given.items() if len(values) > 1]
     if len(refined) != 1:
-        raise ConvergenceError("--h/--mesh/--tolerance-t/--dt", ", ".join(f"--{n.replace('_', '-')}" for n in refined) or "none",
+        shown = refined or list(given)  # the options that refine, or else those given (with one value each)
+        value = " ".join(f"--{n.replace('_', '-')} {','.join(f'{v:g}' if isinstance(v, float) else str(v) for v in given[n])}" for n in shown) or "none given"
+        raise ConvergenceError("--h/--mesh/--tolerance-t/--dt", value,
                                "exactly one option with two or more values (the refined parameter); the others "
                                "take one value, which every run uses")
     parameter = refined[0]
