@@ -57,10 +57,10 @@ class Numerics:
                     the batched solves use at least 1e-3 of the local error allowed per
                     substep, :meth:`Numerics.krylov_tolerance`)
     tolerance_t     "adaptive" scheme only: the local error allowed per substep (max-norm of φ,
-                    dimensionless) at the default: itself in phases with flow, a tenth of it in
-                    phases without; away from the default it falls as its power 1.15 under
-                    flow and 3/4 without (:meth:`Numerics.substep_tolerance`), so that errors
-                    follow ``tolerance_t`` in proportion. The default, 0.1,
+                    dimensionless) in phases with flow; in phases without a tenth of it at the
+                    default, falling as its power 3/4 about the default
+                    (:meth:`Numerics.substep_tolerance`), so that errors there follow it in
+                    proportion. The default, 0.1,
                     keeps the time error below the spatial error at h = 1: the lattice's
                     r(t) within 1.2 % (h-error 12 %), a relaxing disc's area within 0.06,
                     0.07, 0.11, 0.014 at t = 10, 20, 50, 100 (h = 1 → 0.5 differences 0.15,
@@ -103,9 +103,8 @@ class Numerics:
                     compute in double (their steps must not raise F, checked to 1e-12), and
                     so do meshes with per-box solvers ("direct", "amg": their LU and Padé
                     solves are double only), the finite-difference reference and the adaptive
-                    scheme's flow steps at tolerance_t below 2.5e-4 (an allowed local error
-                    below 1e-4), where single precision's rounding would set the error
-                    (:attr:`Numerics.SINGLE_PRECISION_TOLERANCE`).
+                    scheme's flow steps at tolerance_t below 1e-4, where single precision's
+                    rounding would set the error (:attr:`Numerics.SINGLE_PRECISION_TOLERANCE`).
                     "double": everything in double, for convergence studies whose errors
                     reach ~1e-5 (verification/mms.py sets it) and for time-converged
                     references at fixed dt: the rounding of many small steps adds up (the
@@ -181,52 +180,41 @@ class Numerics:
     #: lattice's r(t): 1.2 % against 12 %), and a tenth there costs 1.68× the CPU of the
     #: protocol's run (benchmarks/tolerance.py, docs/decisions/0017-tolerance-by-phase.md).
     STILL_FRACTION = 0.1
-    #: The allowed local error follows ``tolerance_t`` to a power about TOLERANCE_ANCHOR (the
-    #: default ``tolerance_t``, where every run is unchanged by it): A · (tolerance_t/A)^β
-    #: under flow, STILL_FRACTION · A · (tolerance_t/A)^β without. The estimate is a
-    #: first-order step's local error, O(h²), so the mean substep follows the allowed error
-    #: as its power 1/2, and an observable of order p in the substep as its power p/2; the
-    #: power β = 2/p puts its global error in proportion to ``tolerance_t``.
-    #: Without flow the step takes a second corrector pass
-    #: (docs/decisions/0030-second-corrector-pass.md), and its observables converge at order
-    #: p ≈ 2.5 (a relaxing disc's area) to 2.8 (two discs' separation): at β = 1 their errors
-    #: fell as tolerance^1.15 and tolerance^1.31; β = 3/4 gives 0.84 and 1.04
-    #: (docs/decisions/0044-still-tolerance-power.md).
+    #: Without flow the allowed local error follows ``tolerance_t`` to the power
+    #: STILL_EXPONENT about STILL_ANCHOR (the default ``tolerance_t``, where it is
+    #: STILL_FRACTION of it): STILL_FRACTION · A · (tolerance_t/A)^STILL_EXPONENT. The step
+    #: without flow takes a second corrector pass (docs/decisions/0030-second-corrector-pass.md),
+    #: and its observables converge at order p ≈ 2.5 (a relaxing disc's area) to 2.8 (two
+    #: discs' separation) in the substep, while the estimate is a first-order step's local
+    #: error, O(h²): at a tolerance in proportion their errors fell as tolerance^(p/2), slopes
+    #: 1.15 and 1.31. The power 2/p ≈ 3/4 brings them to 0.84 and 1.04
+    #: (docs/decisions/0044-still-tolerance-power.md); the default is unchanged.
     STILL_EXPONENT = 0.75
-    #: Under flow the sheared lattice's r̄(t) converges at order p ≈ 1.7 in the mean substep:
-    #: at β = 1 its error fell as tolerance^0.83; β = 1.15 gives 0.96
-    #: (docs/decisions/0045-flow-tolerance-power.md).
-    FLOW_EXPONENT = 1.15
-    TOLERANCE_ANCHOR = 0.1
+    STILL_ANCHOR = 0.1
 
     def substep_tolerance(self, still: bool) -> float:
-        """The local error the adaptive scheme allows per substep (max-norm of φ): in phases
-        with flow A · (``tolerance_t``/A)^FLOW_EXPONENT, in phases without (``still``)
-        STILL_FRACTION · A · (``tolerance_t``/A)^STILL_EXPONENT, A = TOLERANCE_ANCHOR. At the
-        default 0.1 that is ``tolerance_t`` under flow and a tenth of it without; at 1e-2,
-        1e-3, 1e-4, 1e-5: 7.1e-3, 5.0e-4, 3.5e-5, 2.5e-6 under flow, 1.8e-3, 3.2e-4, 5.6e-5,
-        1e-5 without."""
-        anchor = self.TOLERANCE_ANCHOR
+        """The local error the adaptive scheme allows per substep (max-norm of φ): ``tolerance_t``
+        in phases with flow; in phases without (``still``) STILL_FRACTION · A ·
+        (``tolerance_t``/A)^STILL_EXPONENT, A = STILL_ANCHOR (a tenth of ``tolerance_t`` at the
+        default 0.1; 1.8e-3 at 1e-2, 3.2e-4 at 1e-3, 1e-5 at 1e-5)."""
         if not still:
-            return anchor * (self.tolerance_t / anchor) ** self.FLOW_EXPONENT
+            return self.tolerance_t
+        anchor = self.STILL_ANCHOR
         return self.STILL_FRACTION * anchor * (self.tolerance_t / anchor) ** self.STILL_EXPONENT
 
-    #: The smallest local error allowed per substep under flow (:meth:`substep_tolerance`) at
-    #: which "mixed" precision still computes flow steps in single precision under the
-    #: adaptive scheme; below it they compute in double (:meth:`single_precision_allowed`).
-    #: Their rounding otherwise sets a floor: the sheared lattice's r̄(t) error against a
-    #: double-precision reference was 8.1e-5 of max r̄ at 1e-4 (double: 7.7e-5) and 9.8e-5 at
-    #: 1e-5 (double: 9.7e-6; docs/decisions/0018-nyquist-mode.md), and 2.6e-4 at 1.8e-5
-    #: (double: 1.6e-5; docs/decisions/0045-flow-tolerance-power.md).
+    #: The tightest ``tolerance_t`` at which "mixed" precision still computes flow steps in
+    #: single precision under the adaptive scheme; below it they compute in double
+    #: (:meth:`single_precision_allowed`). Their rounding otherwise sets a floor: the sheared
+    #: lattice's r̄(t) error against a double-precision reference was 8.1e-5 of max r̄ at 1e-4
+    #: (double: 7.7e-5) and 9.8e-5 at 1e-5 (double: 9.7e-6; docs/decisions/0018-nyquist-mode.md).
     SINGLE_PRECISION_TOLERANCE = 1e-4
 
     def single_precision_allowed(self, scheme: str) -> bool:
         """Whether flow steps of ``scheme`` (the one the stepper runs, which ``--method`` may
         set apart from ``self.scheme``) may compute in single precision: ``precision =
-        "mixed"``, and for "adaptive" a local error allowed under flow of at least
-        SINGLE_PRECISION_TOLERANCE (``tolerance_t`` ≥ 2.5e-4)."""
-        return self.precision == "mixed" and (
-            scheme != "adaptive" or self.substep_tolerance(still=False) >= self.SINGLE_PRECISION_TOLERANCE)
+        "mixed"``, and for "adaptive" a ``tolerance_t`` of at least SINGLE_PRECISION_TOLERANCE."""
+        return self.precision == "mixed" and (scheme != "adaptive"
+                                               or self.tolerance_t >= self.SINGLE_PRECISION_TOLERANCE)
 
     def krylov_tolerance(self, still: bool) -> float:
         """Relative tolerance of the batched Krylov solves of the window systems:

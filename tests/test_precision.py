@@ -114,15 +114,14 @@ def test_an_unknown_precision_is_refused_by_name():
 
 
 def test_tight_adaptive_tolerances_step_in_double_under_mixed_precision():
-    # below SINGLE_PRECISION_TOLERANCE of local error under flow (tolerance_t 2.5e-4) single
-    # precision's rounding would set the error
+    # below SINGLE_PRECISION_TOLERANCE single precision's rounding would set the error
     domain, state = small_system([[13.0, 19.0]])
     single = {}
-    for tolerance in (1e-3, 2.6e-4, 2.4e-4, 1e-4, 1e-5):
+    for tolerance in (1e-3, Numerics.SINGLE_PRECISION_TOLERANCE, 1e-5):
         numerics = Numerics(scheme="adaptive", tolerance_t=tolerance)
         single[tolerance] = Stepper(domain, ModelParameters(), numerics, 2.0, linear_shear(1.0, 40.0),
                                     state.radii).single_precision
-    assert single == {1e-3: True, 2.6e-4: True, 2.4e-4: False, 1e-4: False, 1e-5: False}
+    assert single == {1e-3: True, Numerics.SINGLE_PRECISION_TOLERANCE: True, 1e-5: False}
     assert not Numerics(scheme="adaptive", tolerance_t=1e-5, precision="double").single_precision_allowed("adaptive")
     assert Numerics(scheme="sav2", tolerance_t=1e-5).single_precision_allowed("sav2")  # fixed dt: the user's choice
     # the scheme the stepper runs decides, not the scene's (a method override)

@@ -140,13 +140,34 @@ def test_the_repulsion_split_flow_step_is_second_order_and_more_accurate_than_th
 
 
 def test_the_adaptive_scheme_with_the_repulsion_split_follows_its_tolerance():
-    # its substeps share their half-decays (one decay after each advection, the two commute
-    # up to the row shift's interpolation). Measured: 2.9e-3 at 3e-2 (13 substeps) and
-    # 5.3e-4 at 1e-3 (44); with a half-decay missing from every substep, 4e-2
+    # at both each substep decays on both sides of its midpoint step (below the default's
+    # merge). Measured: 2.5e-3 and 3.5e-4; with a half-decay missing from every substep, 4e-2
     reference = _pressed_pair_under_shear(0.0625)
     loose, tight = (_max_difference(_pressed_pair_under_shear(4.0, tolerance=t), reference) for t in (3e-2, 1e-3))
     assert tight < loose / 3
     assert tight < 1e-3
+
+
+def test_below_the_default_tolerance_the_half_decays_are_not_moved_across_the_advection(monkeypatch):
+    # a pointwise decay commutes with the exact transport, not with the row shift's
+    # interpolation. Measured, merged across the advection against split: 4.9e-4 and 3.5e-4
+    # at 1e-3, 8.7e-5 and 4.7e-5 at 1e-4 (the merge's error is first order in the substep)
+    from femphase.timestepping.adaptive import AdaptiveSAV2
+
+    reference = _pressed_pair_under_shear(0.0625)
+    split = _max_difference(_pressed_pair_under_shear(4.0, tolerance=1e-4), reference)
+    monkeypatch.setattr(AdaptiveSAV2, "MERGED_DECAY_TOLERANCE", 0.0)
+    _pressed_pair_under_shear.cache_clear()
+    merged = _max_difference(_pressed_pair_under_shear(4.0, tolerance=1e-4), reference)
+    _pressed_pair_under_shear.cache_clear()
+    assert split < 0.7 * merged
+
+
+def test_the_default_tolerance_merges_the_half_decays_and_a_tighter_one_does_not():
+    domain, state = small_system([[14.0, 17.0], [27.0, 23.0]])
+    merges = {t: Stepper(domain, ModelParameters(), Numerics(scheme="adaptive", tolerance_t=t), 4.0,
+                         linear_shear(2.0, 40.0), state.radii).scheme.merges_decays for t in (0.2, 0.1, 0.05, 0.03)}
+    assert merges == {0.2: True, 0.1: True, 0.05: True, 0.03: False}
 
 
 def test_the_area_mode_implicit_in_the_predictor_keeps_large_steps_accurate():

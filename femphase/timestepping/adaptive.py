@@ -1,9 +1,9 @@
 """The default scheme ``adaptive``: error-controlled substeps of ``sav2`` inside every step of
 the phase (:class:`AdaptiveSAV2`; its docstring gives the substep sizes, the estimate and
 the controller). The phase's dt is the largest substep and the spacing of frames and
-checkpoints; at the default ``numerics.tolerance_t`` is the local error allowed per substep
-under flow, a tenth of it without; about the default the allowed error follows its power 1.15
-under flow and 3/4 without (:meth:`femphase.config.Numerics.substep_tolerance`).
+checkpoints; ``numerics.tolerance_t`` is the local error allowed per substep under flow; without,
+a tenth of it at the default, its power 3/4 about the default in general
+(:meth:`femphase.config.Numerics.substep_tolerance`).
 """
 
 from __future__ import annotations
@@ -25,18 +25,22 @@ __all__ = ["AdaptiveSAV2", "counted_in_phase"]
 class AdaptiveSAV2(RelaxedSAV2):
     """Error-controlled substeps of sav2 inside every step of the phase (frames stay at exact
     times): embedded first/second-order error estimate, PI step controller, rejected substeps
-    redone; at the default `numerics.tolerance_t` is the local error allowed per substep
-    (max-norm of φ) under flow, a tenth of it without; about the default the allowed error
-    follows its power 1.15 under flow and 3/4 without
+    redone; `numerics.tolerance_t` is the local error allowed per substep (max-norm of φ)
+    under flow; without, a tenth of it at the default, its power 3/4 about the default in general
     (:meth:`femphase.config.Numerics.substep_tolerance`).
 
     Under flow, consecutive substeps share their half-steps of the split operators: the
     second half-advection of one substep and the first of the next are one advection
-    (:meth:`_advection`), and so are the two half-decays of the repulsion (one decay after
-    that advection: a pointwise decay and a transport of all fields alike commute). A
-    substep then costs one advection and one decay instead of two of each (the decay's
-    merge, with its arithmetic in place: 0.87× the CPU per time unit on the lattice, a
-    same-run ratio).
+    (:meth:`_advection`). Where the local error allowed is at least MERGED_DECAY_TOLERANCE
+    (at the default), so are the two half-decays of the repulsion, one decay after that
+    advection: a substep then costs one advection and one decay instead of two of each
+    (the decay's merge, with its arithmetic in place: 0.87× the CPU per time unit on the
+    lattice, a same-run ratio). The merge moves a decay across an advection, and a pointwise
+    decay commutes with the exact transport but not with its discretisation (the row
+    shift's interpolation of the product): an error of first order in the substep, which at
+    tighter tolerances held the sheared lattice's peak times near 0.01 time units and its
+    r̄(t) at order 1.7 (docs/decisions/0046-decays-split-below-the-default.md). Below it each
+    substep decays before and after its midpoint step, as sav2 does.
 
     Substep sizes: dt/m with m = 2^k or 3·2^k (10, 5, 3.33, 2.5, 1.67, 1.25, … at dt = 10),
     each substep starting at a multiple of its own size, so that substeps tile the step
@@ -81,10 +85,16 @@ class AdaptiveSAV2(RelaxedSAV2):
     #: with the mode's small amplitude and does not stop it (measured: at tolerance 0.1 the
     #: slab with μ × 10 sheared at γ̇ = 1 drifted in area by 3.9 % without this bound).
     RANK_ONE_STEP = 1.5
+    #: The smallest local error allowed under flow at which the half-decays of consecutive
+    #: substeps are merged across their shared advection (class docstring): the default 0.1
+    #: merges them, 0.03 does not
+    MERGED_DECAY_TOLERANCE = 0.05
 
     def __init__(self, stepper: StepperProtocol) -> None:
         super().__init__(stepper)
         self.tolerance = stepper.numerics.substep_tolerance(stepper.flow.is_still)
+        #: whether consecutive substeps' half-decays are one decay (class docstring)
+        self.merges_decays = self.tolerance >= self.MERGED_DECAY_TOLERANCE
         #: one advection per combination of half substeps in use, in the domain's budget (on a
         #: mesh they share the flow's matrices; with per-window solvers each keeps a complex
         #: LU per window there too)
@@ -175,10 +185,11 @@ class AdaptiveSAV2(RelaxedSAV2):
             lag = 0.5 * dt / owed[0] if owed else 0.0
             if advection is not None:
                 trial, trial_layout = advection.advect(trial, trial_layout, time - lag)
-            # the previous substep's second half-decay and this one's first are one decay, after
-            # the advection: pointwise decay and transport commute (both act on all fields alike)
+            # merged: the previous substep's second half-decay and this one's first are one
+            # decay, after the advection (class docstring)
+            decays = (lag + 0.5 * h, 0.0) if self.merges_decays else (0.5 * h, 0.5 * h)
             new, new_r, error = self.relax(trial, trial_layout, time, state.radii, r, h,
-                                           decay_before=lag + 0.5 * h, decay_after=0.0)
+                                           decay_before=decays[0], decay_after=decays[1])
             if not np.isfinite(error):  # NaN > tolerance is False: it would pass as accepted
                 raise BlowUpError(state.step + done // self.UNITS + 1, time + h,
                                   f"φ is not finite (NaN or inf) after a substep of {h:g} from t = {time:g}")
@@ -210,7 +221,7 @@ class AdaptiveSAV2(RelaxedSAV2):
             m, capped = self.capped_divisions(factor / m, largest, done)
             layout, phi = stepper.refit(layout, phi)
         lag = 0.5 * dt / owed[0]
-        if self.decaying:
+        if self.decaying and self.merges_decays:
             phi = self.decay(phi, layout, state.radii, lag)
         advection = self._advection(owed)
         if advection is not None:
