@@ -31,7 +31,10 @@ a log–log slope of error against tolerance near 1 over the window (proportiona
 slope near 0 means something else sets the step. The disc and the pair run without flow,
 where the scheme allows 0.01·(tolerance_t/0.1)^(3/4) per substep, a tenth of it at the
 default (:meth:`femphase.config.Numerics.substep_tolerance`,
-docs/decisions/0044-still-tolerance-power.md). The pair's window starts at 1e-4: from 1e-3
+docs/decisions/0044-still-tolerance-power.md); the lattice's shear allows the tolerance itself,
+and below the default its substeps decay on both sides of their midpoint steps instead of
+merging their half-decays across the advection, a first-order error
+(docs/decisions/0046-decays-split-below-the-default.md). The pair's window starts at 1e-4: from 1e-3
 up its estimate at the substep 3.33 is below the tolerance (the area-mode ceiling caps the
 substeps the controller would grow), so every looser tolerance runs about the same
 substeps and gives about the same error (1.4e-3). The lattice's starts at 1e-2: at 0.1
