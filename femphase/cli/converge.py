@@ -35,8 +35,12 @@ def run(args: argparse.Namespace) -> int:
     given = {name: getattr(args, name) for name in REFINED if getattr(args, name) is not None}
     refined = [name for name, values in given.items() if len(values) > 1]
     if len(refined) != 1:
-        shown = refined or list(given)  # the options that refine, or else those given (with one value each)
-        value = " ".join(f"--{n.replace('_', '-')} {','.join(f'{v:g}' if isinstance(v, float) else str(v) for v in given[n])}" for n in shown) or "none given"
+        def option(name: str) -> str:  # as given: "--h 1,0.5"
+            values = ",".join(f"{v:g}" if isinstance(v, float) else str(v) for v in given[name])
+            return f"--{name.replace('_', '-')} {values}"
+
+        # the options that refine, or else those given (with one value each)
+        value = " ".join(option(name) for name in refined or given) or "none given"
         raise ConvergenceError("--h/--mesh/--tolerance-t/--dt", value,
                                "exactly one option with two or more values (the refined parameter); the others "
                                "take one value, which every run uses")
