@@ -122,3 +122,25 @@ def test_a_disc_carried_at_courant_numbers_above_two_keeps_its_speed_and_shape(m
     semi, galerkin = carried(monkeypatch, semi_lagrangian.COURANT), carried(monkeypatch, np.inf)
     assert abs(semi[0]) < 0.005  # the meshes' bound on a translating particle's speed
     assert abs(semi[1]) <= abs(galerkin[1])
+
+
+def test_a_disc_carried_past_its_margin_in_one_substep_keeps_its_field():
+    # u = 8 at dt = 10: each of the adaptive scheme's advections carries the disc several
+    # margins (4), so the refit before each gives its box room for that motion; without it
+    # the field beyond the box was cut away and the disc vanished within a few steps
+    domain = straight(120.0, 24.0)
+    state = discs(domain, [[30.0, 12.0]])
+    relax = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
+    for _ in range(40):
+        relax.step(state)
+    start = shape_observables(state)
+    stepper = Stepper(domain, PARAMS, Numerics(), 10.0, python_flow(lambda x, y: (np.full_like(x, 8.0), 0 * y)),
+                      state.radii)
+    assert stepper.roomless and isinstance(stepper.advection, SemiLagrangian)
+    for _ in range(3):
+        stepper.step(state)
+        assert min(float(field.min()) for field in state.fields) > -1e-3
+    end = shape_observables(state)
+    assert end.area[0] == pytest.approx(start.area[0], rel=0.01)
+    lag = (end.x[0] - start.x[0] - 240.0 + 60.0) % 120.0 - 60.0  # two periods travelled
+    assert abs(lag) < 0.5

@@ -168,6 +168,8 @@ class AdaptiveSAV2(RelaxedSAV2):
         m, capped = self.capped_divisions(1.0 / carried, largest, 0)
         capped = capped or (stored.size > 1 and bool(stored[1]) and m == carried)
         previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
+        if stepper.roomless:  # room for the first advection, which the call's refit left out
+            layout, phi = stepper.refit(layout, phi, state.time, span=0.5 * dt / m)
         r = self.auxiliary(phi, layout, state)
         done = 0  # units (dt/UNITS) done in this step
         accepted = rejected = at_ceiling = 0  # at_ceiling: accepted substeps the ceiling set (capped_divisions)
@@ -219,7 +221,9 @@ class AdaptiveSAV2(RelaxedSAV2):
             factor = min(self.GROWTH, max(self.SHRINK, factor))
             previous_error = error
             m, capped = self.capped_divisions(factor / m, largest, done)
-            layout, phi = stepper.refit(layout, phi)
+            # room for the next advection: this substep's second half and the next one's first
+            layout, phi = stepper.refit(layout, phi, state.time + dt * done / self.UNITS,
+                                        span=0.5 * (dt / owed[0] + dt / m))
         lag = 0.5 * dt / owed[0]
         if self.decaying and self.merges_decays:
             phi = self.decay(phi, layout, state.radii, lag)

@@ -79,6 +79,8 @@ class Stepper:
         self.krylov_iterations = 0
         #: the last batched solve's right-hand side and final residual (:meth:`last_product`)
         self._last_solve: tuple[np.ndarray, np.ndarray] | None = None
+        #: (time, or None for a steady flow; the flow's largest nodal speed) (:meth:`_largest_speed`)
+        self._speed: tuple[float | None, float] | None = None
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
@@ -235,22 +237,57 @@ class Stepper:
             state.windows, state.fields = list(layout.windows), layout.scatter(phi.astype(np.float64, copy=False))
             state.time, state.step = end, state.step + per_call
 
-    def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None) -> tuple[Layout, np.ndarray]:
-        """(layout, φ) after refitting the windows that no longer fit their fields; with
-        ``time``, windows leave room for the motion of a step from then (meshes), so that a
-        particle stays inside its window over the step and a window's solvers last. Windows
+    @property
+    def roomless(self) -> bool:
+        """Whether the windows take no room for a step's motion at a call's refit: windows
         solved all at once under a scheme that refits between its substeps
-        (:attr:`~femphase.timestepping.base.TimeScheme.refits_substeps`) get none: they have
-        no solvers to keep, each substep starts from a refit, and the room, taken at calls
-        and given back at the substeps' refits, made 112 layouts where 66 came without it
-        (examples/straight_mesh.toml, 800 time units of flow)."""
-        roomless = self.batched and self.scheme.refits_substeps
-        motion = None if time is None or roomless else (lambda: self._motion(layout, phi, time))
+        (:attr:`~femphase.timestepping.base.TimeScheme.refits_substeps`). They have no
+        solvers to keep and each substep starts from a refit; the room, taken at calls and
+        given back at the substeps' refits, made 112 layouts where 66 came without it
+        (examples/straight_mesh.toml, 800 time units of flow). Such a scheme asks for room
+        before each advection instead (:meth:`refit` with ``span``)."""
+        return self.batched and self.scheme.refits_substeps
+
+    def refit(self, layout: Layout, phi: np.ndarray, time: float | None = None,
+              span: float | None = None) -> tuple[Layout, np.ndarray]:
+        """(layout, φ) after refitting the windows that no longer fit their fields, leaving
+        room for the motion from ``time`` on:
+
+        * ``time`` alone (a call's refit): room for a step's motion (dt), so that a particle
+          stays inside its window over the step and a window's solvers last; none where
+          :attr:`roomless`;
+        * ``time`` and ``span`` (a scheme's refit before an advection over ``span`` time
+          units): where :attr:`roomless`, room for that motion once the flow can carry a
+          particle farther than the policy's ``room`` within it (below that the margin takes
+          the motion); other windows keep the room of the call's refit and get none;
+        * neither: no room.
+
+        Without room before each advection, a fast flow's advection carried particles out of
+        their windows and their fields were cut away: at max_velocity 10 on
+        examples/straight_mesh.toml three of ten particles vanished within the first
+        substep of flow."""
+        if time is None:
+            motion = None
+        elif span is None:
+            motion = None if self.roomless else (lambda: self._motion(layout, phi, time, self.dt))
+        elif self.roomless and self._largest_speed(time) * span > self.policy.room:
+            motion = lambda: self._motion(layout, phi, time, span)  # noqa: E731
+        else:
+            motion = None
         return self.domain.refit(layout, phi, self.policy, motion)
 
-    def _motion(self, layout: Layout, phi: np.ndarray, time: float) -> np.ndarray:
-        """(N, 2): each particle's displacement over the coming step, its φ²-weighted mean
-        velocity × dt (particle order)."""
+    def _largest_speed(self, time: float) -> float:
+        """The flow's largest nodal speed over the step from ``time`` (kept for a steady flow)."""
+        if self.advection is None:
+            return 0.0
+        key = None if self.flow.steady else time
+        if self._speed is None or self._speed[0] != key:
+            self._speed = (key, float(np.max(np.hypot(*self.advection.velocity(time)))))
+        return self._speed[1]
+
+    def _motion(self, layout: Layout, phi: np.ndarray, time: float, span: float) -> np.ndarray:
+        """(N, 2): each particle's displacement over ``span`` time units from ``time``, its
+        φ²-weighted mean velocity × span (particle order)."""
         out = np.zeros((len(layout.windows), 2))
         if self.advection is None:
             return out
@@ -258,5 +295,5 @@ class Stepper:
         total = np.maximum(layout.reduce(np.add, weight), 1e-300)
         velocity = np.take(self.advection.velocity(time), layout.node_index, axis=1)
         for axis in range(2):
-            out[layout.order, axis] = self.dt * layout.reduce(np.add, weight * velocity[axis]) / total
+            out[layout.order, axis] = span * layout.reduce(np.add, weight * velocity[axis]) / total
         return out

@@ -89,14 +89,19 @@ class BoxPolicy:
     def for_spacing(cls, h: float, *, threshold: float = 0.01, margin: float = 4.0,
                     enabled: bool = True, together: bool = True) -> "BoxPolicy":
         """The structured policy's margins at mesh spacing h (room h, slack ≥ 4h); with
-        ``together``, boxes refitted :data:`EARLY_SPACINGS` h early. Windows with a solver
-        each want none: every box refitted early is one more factorisation, and under flow
-        the per-box LUs ran at 0.66× the CPU without (examples/straight_mesh.toml, 400 time
-        units of flow, ``numerics.solver = "direct"``: 62 and 50 against 88 and 82 ms per
-        time unit, two runs each, alternating)."""
+        ``together``, boxes refitted :data:`EARLY_SPACINGS` h early and room for one step's
+        motion ahead (``lookahead`` 1). Windows with a solver each want neither: every box
+        refitted early is one more factorisation, and under flow the per-box LUs ran at
+        0.66× the CPU without (examples/straight_mesh.toml, 400 time units of flow,
+        ``numerics.solver = "direct"``: 62 and 50 against 88 and 82 ms per time unit, two
+        runs each, alternating); their solvers last several steps with room for twelve.
+        Windows solved all at once have no solvers to keep: with room for twelve steps the
+        straight mesh's random packing at max_velocity 1 carried 1.30× the positions of room
+        for one and took 1.07× its CPU under flow (400 time units, two runs each)."""
         margin = h * math.ceil(margin / h - 1e-9)
         return cls(threshold=threshold, margin=margin, room=max(h, margin / 4), slack=max(4.0 * h, margin),
-                   early=cls.EARLY_SPACINGS * h if together else 0.0, enabled=enabled)
+                   lookahead=1.0 if together else cls.lookahead, early=cls.EARLY_SPACINGS * h if together else 0.0,
+                   enabled=enabled)
 
     def allowance(self, step: np.ndarray) -> np.ndarray:
         """Room ahead of a particle moving by ``step`` per time step (any shape)."""
