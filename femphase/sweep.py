@@ -75,7 +75,6 @@ another worker; a lock per run keeps two processes out of one run directory.
 
 from __future__ import annotations
 
-import fcntl
 import gc
 import hashlib
 import itertools
@@ -85,14 +84,14 @@ import re
 import shutil
 import time as wallclock
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from femphase import tomlio
 from femphase.errors import FemphaseError, Interrupted, SceneError
-from femphase.io.files import atomic_write, jsonable, output_directory
+from femphase.io.files import atomic_write, jsonable, locked, output_directory
 from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
 from femphase.run.runner import run_scene
 from femphase.scene import Scene, read_scene_data, scene_from_dict, set_value
@@ -324,24 +323,6 @@ def _write_index(directory: Path, index: dict) -> None:
     atomic_write(directory / "sweep.json", json.dumps(index, indent=2, default=jsonable) + "\n")
 
 
-@contextmanager
-def _locked(path: Path, blocking: bool = True) -> Iterator[bool]:
-    """An exclusive ``flock`` on ``path`` (created) while inside; yields False when
-    ``blocking`` is off and another process holds it. The kernel drops the lock when its
-    process dies, so a killed worker never leaves a stale lock."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    try:
-        try:
-            fcntl.flock(handle, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
-        except BlockingIOError:
-            yield False
-            return
-        yield True
-    finally:
-        os.close(handle)  # releases the lock
-
-
 def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     """The runs recorded in an existing sweep directory (id → entry of sweep.json); refuses
     a sweep file that changed other than by adding values, or a changed base scene."""
@@ -466,7 +447,7 @@ def _outcome(action: Callable[[], None]) -> dict:
 def _execute_shared(data: dict, base_dir: str, directory: str) -> dict:
     """Dask task: the shared relaxation of ``data``'s scene into ``directory``, once."""
     directory = Path(directory)
-    with _locked(directory.parent.parent / "locks" / f"shared-{directory.name}.lock"):
+    with locked(directory.parent.parent / "locks" / f"shared-{directory.name}.lock"):
         return _outcome(lambda: _ensure(_relaxation(scene_from_dict(data, base_dir)), directory))
 
 
@@ -480,7 +461,7 @@ def _execute_run(data: dict, base_dir: str, directory: str, shared: str | None =
                 f"{relaxation['error']}", "seconds": 0.0, "cpu_seconds": 0.0}
     fresh = (lambda: _branch(Path(shared), directory)) if shared else None
     # one process per run directory, even when a worker thought dead is still running
-    with _locked(directory.parent.parent / "locks" / f"{directory.name}.lock"):
+    with locked(directory.parent.parent / "locks" / f"{directory.name}.lock"):
         # the scene is built inside: an error there (a mesh file missing on this node) is the run's
         return _outcome(lambda: _ensure(scene_from_dict(data, base_dir), directory, fresh))
 
@@ -556,7 +537,7 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep, assignments)
     directory = output_directory(directory).resolve()  # "" is refused, not taken for "."
     recorded = _check_directory(sweep, directory)
-    with _locked(directory / "locks" / "sweep.lock", blocking=False) as mine:
+    with locked(directory / "locks" / "sweep.lock", blocking=False) as mine:
         if not mine:
             raise SweepError("-o", str(directory), "a sweep directory no other femphase sweep is running on")
         atomic_write(directory / "sweep.toml", sweep.text)

@@ -3,14 +3,15 @@
 Every refusal is checked to leave the directory byte for byte as it was."""
 
 import json
+import os
 from pathlib import Path
 
 import pytest
 
 from femphase.cli import main
 from femphase.errors import SceneError
-from femphase.io.files import read_csv
-from femphase.io.rundir import resume_position
+from femphase.io.files import FileLock, read_csv
+from femphase.io.rundir import LOCK, resume_position
 
 SCENE = """
 name = "tiny"
@@ -63,6 +64,28 @@ def test_an_existing_run_is_refused_without_resume_or_overwrite(scene, tmp_path,
     assert (run / "notes.txt").read_text() == "mine"  # only femphase's files are replaced
     assert read_csv(run / "global.csv")["time"][-1] == 30.0
 
+
+
+def test_a_directory_another_process_runs_in_is_refused_and_left_alone(scene, tmp_path, capsys):
+    # two resumes of one run appended every frame twice; an overwrite deleted the running
+    # run's files. The holder here is a second open file description of the lock, which
+    # flock treats as another process would be treated.
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    holder = FileLock(run / LOCK)
+    assert holder.acquire(blocking=False)
+    before = _snapshot(run)
+    try:
+        for flags in (["--resume", "--set", "phases.1.duration=40"], ["--overwrite"]):
+            capsys.readouterr()
+            assert _run(scene, run, *flags) == 2
+            message = capsys.readouterr().err
+            assert "no other femphase process" in message and f"pid {os.getpid()}" in message
+            assert _snapshot(run) == before
+    finally:
+        holder.release()
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=40") == 0
+    assert read_csv(run / "global.csv")["time"].max() == 60.0
 
 @pytest.mark.parametrize("target", ["file", "/proc/femphase-cannot-write-here"])
 def test_an_unusable_output_path_is_one_clear_message(scene, tmp_path, capsys, target):

@@ -4,23 +4,28 @@
 reader sees the old or the new file, never a part; :func:`write_json` writes JSON so;
 :func:`read_csv` reads ``particles.csv`` and ``global.csv`` (columns in ``docs/outputs.md``);
 :func:`failpoint` is the fault injection of the kill tests; :func:`output_directory` checks a
-command's ``-o`` before anything is computed. What a run directory holds, and its guarantees,
-is in :mod:`femphase.io.rundir`.
+command's ``-o`` before anything is computed; :class:`FileLock` and :func:`locked` keep two
+processes out of one directory. What a run directory holds, and its guarantees, is in
+:mod:`femphase.io.rundir`.
 """
 
 from __future__ import annotations
 
 import csv
+import fcntl
 import json
 import os
 import signal
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
 from femphase.errors import SceneError
 
-__all__ = ["atomic_write", "failpoint", "jsonable", "output_directory", "read_csv", "write_json"]
+__all__ = ["FileLock", "atomic_write", "failpoint", "jsonable", "locked", "output_directory", "read_csv",
+           "write_json"]
 
 
 _FAILPOINT_PASSES: dict[str, int] = {}
@@ -87,3 +92,52 @@ def output_directory(path: str | Path) -> Path:
     if path.exists() and not path.is_dir():
         raise SceneError("-o", str(path), "a directory (this path is a file)")
     return path
+
+
+class FileLock:
+    """An exclusive ``flock`` on ``path`` (created), held from :meth:`acquire` until
+    :meth:`release`. The kernel drops it when its process dies, so a killed process never
+    leaves a stale lock; the file stays, holding the last holder's pid and host for the
+    message of a process refused it (:meth:`holder`)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._handle: int | None = None
+
+    def acquire(self, blocking: bool = True) -> bool:
+        """Take the lock (waiting for it when ``blocking``); False when another process holds it."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        handle = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX | (0 if blocking else fcntl.LOCK_NB))
+        except BlockingIOError:
+            os.close(handle)
+            return False
+        os.ftruncate(handle, 0)
+        os.write(handle, f"pid {os.getpid()} on {os.uname().nodename}\n".encode())
+        self._handle = handle
+        return True
+
+    def release(self) -> None:
+        """Give the lock up (nothing when not held)."""
+        if self._handle is not None:
+            os.close(self._handle)  # releases the lock
+            self._handle = None
+
+    def holder(self) -> str:
+        """Who took the lock last ("pid N on HOST"), as its file says."""
+        try:
+            return self.path.read_text().strip() or "another process"
+        except OSError:
+            return "another process"
+
+
+@contextmanager
+def locked(path: Path, blocking: bool = True) -> Iterator[bool]:
+    """A :class:`FileLock` on ``path`` while inside; yields False when ``blocking`` is off
+    and another process holds it."""
+    lock = FileLock(path)
+    try:
+        yield lock.acquire(blocking)
+    finally:
+        lock.release()

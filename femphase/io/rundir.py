@@ -19,6 +19,9 @@ DIR/ ::
                      atomically at every frame
   run.log            the log (:class:`RunLog`): a header line per segment, status lines,
                      warnings, how each segment ended; appended, never cut
+  .femphase.lock     held (``flock``) by the process writing the run: a second ``femphase
+                     run`` into the directory (a resume, an overwrite) is refused while it
+                     runs; holds that process's pid and host
 
 Guarantees. Every file is either appended (the CSVs, flushed at every frame) or replaced
 atomically (write to a temporary name, then ``os.replace``), so a kill at any instant leaves
@@ -46,14 +49,16 @@ import numpy as np
 
 from femphase import tomlio
 from femphase.errors import SceneError
-from femphase.io.files import atomic_write, failpoint, jsonable, output_directory
+from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, output_directory
 from femphase.io.provenance import now
 
-__all__ = ["CHECKPOINT", "FIELDS_DIR", "FROZEN_TABLES", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog", "Status",
+__all__ = ["CHECKPOINT", "FIELDS_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog", "Status",
            "prepare_directory", "resume_position"]
 
 CHECKPOINT = "checkpoint.h5"
 RUN_LOG = "run.log"
+#: The lock file of the process writing a run (:func:`prepare_directory`); never deleted.
+LOCK = ".femphase.lock"
 #: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
 OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json", RUN_LOG)
 FIELDS_DIR = "fields"
@@ -70,12 +75,15 @@ def _written_without_checkpoints(directory: Path) -> bool:
         return False
 
 
-def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None:
-    """Create the run directory, or check that an existing one may be used; nothing is
-    written or removed before every check has passed.
+def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> FileLock:
+    """Create the run directory, or check that an existing one may be used, and take its
+    lock (:data:`LOCK`); nothing is written or removed before every check has passed.
+    Returns the lock, held: the caller releases it when the run ends.
 
     A directory holding femphase outputs is refused unless ``resume`` (continue it) or
-    ``overwrite`` (delete femphase's files in it, and only those)."""
+    ``overwrite`` (delete femphase's files in it, and only those); a directory another
+    process is running in is refused either way (two resumes of one run appended every frame
+    twice; an overwrite deleted the files of the run under way)."""
     directory = output_directory(directory)
     existing = [name for name in OUTPUTS if (directory / name).exists()]
     if resume:
@@ -94,6 +102,11 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None
         probe.unlink()
     except OSError as exc:
         raise SceneError("-o", str(directory), f"a directory femphase can write to ({exc.strerror or exc})") from None
+    lock = FileLock(directory / LOCK)
+    if not lock.acquire(blocking=False):
+        raise SceneError("-o", str(directory), f"a directory no other femphase process is writing to: {lock.holder()} "
+                         "is running a run there; wait for it to end, or stop it with Ctrl-C or kill (it keeps its "
+                         "last checkpoint)")
     if overwrite and not resume:
         for name in existing:
             target = directory / name
@@ -103,6 +116,7 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> None
                 target.rmdir()
             else:
                 target.unlink()
+    return lock
 
 
 class Outputs:

@@ -15,7 +15,7 @@ from femphase.analysis.observables import OBSERVABLES
 from femphase.errors import Interrupted
 from femphase.io.checkpoints import save_checkpoint
 from femphase.io.fields import point_data
-from femphase.io.files import atomic_write, output_directory
+from femphase.io.files import FileLock, atomic_write, output_directory
 from femphase.io.provenance import provenance
 from femphase.io.rundir import CHECKPOINT, Outputs, RunLog, Status, prepare_directory
 from femphase.run.simulation import Frame, Simulation, Tracker
@@ -34,19 +34,24 @@ class RunDirectory(Tracker):
     it); ``changes``: what the resumed scene changed; ``argv``: the command line (without
     the program) and ``sets``: its ``--set`` assignments (run.json's segment records all
     three); ``overwrite``: replace a run already in the directory (else it is refused,
-    :func:`femphase.io.rundir.prepare_directory`)."""
+    :func:`femphase.io.rundir.prepare_directory`); ``lock``: the directory's lock where the
+    caller prepared the directory and holds it (else :meth:`start` prepares it and takes the
+    lock, and :meth:`finish` releases it)."""
 
     def __init__(self, directory: str | Path, resume_from: dict | None = None, changes: list[str] | None = None,
-                 argv: list[str] | None = None, overwrite: bool = False, sets: list[str] | None = None) -> None:
+                 argv: list[str] | None = None, overwrite: bool = False, sets: list[str] | None = None,
+                 lock: FileLock | None = None) -> None:
         self.directory = output_directory(directory)
         self.resume_from, self.changes, self.argv, self.overwrite = resume_from, list(changes or []), argv, overwrite
         self.sets = list(sets or [])
         self.needs = frozenset(OBSERVABLES.names())
+        self.lock, self._owns_lock = lock, lock is None
 
     def start(self, simulation: Simulation, state: State) -> None:
         scene = simulation.scene
         self.simulation = simulation
-        prepare_directory(self.directory, resume=self.resume_from is not None, overwrite=self.overwrite)
+        if self._owns_lock:
+            self.lock = prepare_directory(self.directory, resume=self.resume_from is not None, overwrite=self.overwrite)
         particle_columns, global_columns = simulation.columns()
         self.outputs = Outputs(self.directory, particle_columns, global_columns, scene.output.fields)
         self.particle_columns, self.global_columns = particle_columns, global_columns
@@ -134,3 +139,5 @@ class RunDirectory(Tracker):
             self.log.close(level, f"=== segment {len(self.status.data['segments'])} {status} after step {state.step} "
                                   f"(t = {state.time:g}), {segment['wall_time_s']:.1f} s wall time"
                                   + (f": {message}" if message else "") + " ===")
+            if self._owns_lock:
+                self.lock.release()

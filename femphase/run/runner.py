@@ -57,35 +57,41 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
 
     A directory that already holds a run is refused unless ``resume`` (continue from its
     checkpoint; the scene may change only compatibly, :func:`femphase.io.rundir.resume_position`)
-    or ``overwrite``. Nothing in the directory is touched before every check has passed.
+    or ``overwrite``, and so is a directory another process is running in (its lock,
+    :func:`femphase.io.rundir.prepare_directory`, held until the run ends). Nothing in the
+    directory is touched before every check has passed.
     ``progress``: the tqdm bar (None: only on a terminal); ``argv`` and ``sets``: the command
     line and its ``--set`` assignments, for run.json; ``status_interval``: seconds of wall
     time between status lines in the log (:class:`femphase.run.trackers.StatusLog`; None: none)."""
     directory = output_directory(directory)  # "" is refused here, before Path makes it "."
     simulation = Simulation(scene, method)
     check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
-    prepare_directory(directory, resume=resume, overwrite=overwrite)
-    record, changes = None, []
-    if resume:
-        checkpoint = directory / CHECKPOINT
-        metadata = read_checkpoint_metadata(checkpoint)
-        if not {"scene", "outputs", "time"} <= set(metadata):
-            raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
-        if metadata.get("method", "fem") != method:
-            raise SceneError("--method", method, f"{metadata.get('method')!r}, the method the run was started with")
-        # the scene first: its message names the key that changed
-        phase, phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), metadata["time"])
-        state, observers = load_checkpoint(checkpoint, simulation.domain)
-        state.phase, state.phase_step = phase, phase_step
-        simulation.restore_observers(observers)
-        record = metadata["outputs"]
-    else:
-        state = scene.initial_state()
-    trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite, sets)]
-    if progress is not False:
-        trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))
-    if status_interval is not None:
-        trackers.append(StatusLog(status_interval))  # after RunDirectory: its first line goes to run.log
-    trackers.append(AccuracyGuard())  # last: a frame is written before a strict stop
-    with stop_on_signals() as stop:
-        return simulation.run(state, trackers, initial_frame=not resume, stop=stop)
+    lock = prepare_directory(directory, resume=resume, overwrite=overwrite)
+    try:
+        record, changes = None, []
+        if resume:
+            checkpoint = directory / CHECKPOINT
+            metadata = read_checkpoint_metadata(checkpoint)
+            if not {"scene", "outputs", "time"} <= set(metadata):
+                raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
+            if metadata.get("method", "fem") != method:
+                raise SceneError("--method", method,
+                                 f"{metadata.get('method')!r}, the method the run was started with")
+            # the scene first: its message names the key that changed
+            phase, phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), metadata["time"])
+            state, observers = load_checkpoint(checkpoint, simulation.domain)
+            state.phase, state.phase_step = phase, phase_step
+            simulation.restore_observers(observers)
+            record = metadata["outputs"]
+        else:
+            state = scene.initial_state()
+        trackers: list[Tracker] = [RunDirectory(directory, record, changes, argv, overwrite, sets, lock)]
+        if progress is not False:
+            trackers.insert(0, ProgressBar(disable=None if progress is None else not progress))
+        if status_interval is not None:
+            trackers.append(StatusLog(status_interval))  # after RunDirectory: its first line goes to run.log
+        trackers.append(AccuracyGuard())  # last: a frame is written before a strict stop
+        with stop_on_signals() as stop:
+            return simulation.run(state, trackers, initial_frame=not resume, stop=stop)
+    finally:
+        lock.release()
