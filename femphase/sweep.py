@@ -477,18 +477,28 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
         return
     from dask.distributed import Client, LocalCluster
 
+    import dask
+
     if scheduler is not None:
+        before = {key: dask.config.config.get(key) for key in ("scheduler", "shuffle")}
         try:
             connected = Client(scheduler)
         except (OSError, TimeoutError, ValueError, TypeError) as exc:  # unreachable, or not an address
+            # a Client that failed to connect has already made itself Dask's default scheduler and
+            # undoes that only when collected; a client opened before then restores the dead one's
+            # setting when it closes, and xarray's netCDF writes (femphase converge's tables) then
+            # asked for a distributed scheduler that was gone
+            for key, value in before.items():
+                if value is None:
+                    dask.config.config.pop(key, None)
+                else:
+                    dask.config.config[key] = value
             raise SweepError("--scheduler", scheduler, "the address of a running Dask scheduler, e.g. "
                              f"tcp://host:8786 (connecting failed: {type(exc).__name__}: {exc})") from None
         with connected:
             log(f"femphase sweep: using the Dask cluster at {scheduler}")
             yield connected
         return
-    import dask
-
     n = workers or os.cpu_count() or 1
     # workers inherit this process's environment, where an earlier Dask cluster may have
     # left SLOW_MALLOC (its nannies set their pre-spawn environment here, for good)

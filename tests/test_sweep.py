@@ -136,10 +136,14 @@ def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
 def test_a_scheduler_that_cannot_be_reached_is_named_as_the_option(tmp_path, address, cause):
     import dask
 
+    before = dask.config.get("scheduler", None)
     with dask.config.set({"distributed.comm.timeouts.connect": "1s"}), pytest.raises(SweepError) as caught:
         run_sweep(write(tmp_path), tmp_path / "out", scheduler=address)
     assert (caught.value.key, caught.value.value) == ("--scheduler", address)
     assert f"connecting failed: {cause}" in str(caught.value)
+    # the failed Client, alive while its exception is, is not left as Dask's default scheduler
+    # (femphase converge's netCDF write in the same process then asked for it)
+    assert dask.config.get("scheduler", None) == before
 
 
 def test_run_ids_labels_zip_and_sharing(tmp_path):
