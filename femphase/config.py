@@ -259,7 +259,7 @@ class Numerics:
         if not (isinstance(self.merged_steps, int) and not isinstance(self.merged_steps, bool)
                 and self.merged_steps >= 1):
             raise SceneError("numerics.merged_steps", self.merged_steps, "a whole number ≥ 1")
-        for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, np.inf),
+        for key, low, high in (("threshold", 0.0, 0.5), ("margin", 0.0, np.inf), ("tolerance", 0.0, 1.0),
                                ("tolerance_t", 0.0, 1.0), ("blowup_margin", 0.0, np.inf),
                                ("cache_mib", 0.0, np.inf)):
             value = getattr(self, key)

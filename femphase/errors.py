@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["BlowUpError", "FemphaseError", "FlowWarning", "InputError", "Interrupted", "ModelWarning",
+__all__ = ["BlowUpError", "FemphaseError", "FlowError", "FlowWarning", "InputError", "Interrupted", "ModelWarning",
            "ResolutionWarning", "SceneError", "StiffnessWarning"]
 
 
@@ -31,6 +31,16 @@ class BlowUpError(FemphaseError, RuntimeError):
     def __init__(self, step: int, time: float, reason: str) -> None:
         self.step, self.time, self.reason = step, time, reason
         super().__init__(f"the run blew up at step {step} (t = {time:g}): {reason}")
+
+
+class FlowError(FemphaseError, RuntimeError):
+    """A user's flow function (``type = "python"``) failed during a run: it raised, or gave
+    NaN or inf. ``step``: the last step the run completed, once the stepper knows it."""
+
+    def __init__(self, function: str, time: float, reason: str, step: int | None = None) -> None:
+        self.function, self.time, self.reason, self.step = function, time, reason, step
+        where = f"t = {time:g}" + ("" if step is None else f", after step {step}")
+        super().__init__(f"the flow function {function} failed at {where}: {reason}")
 
 
 class Interrupted(FemphaseError, RuntimeError):

@@ -20,7 +20,7 @@ from typing import Callable, Protocol
 
 import numpy as np
 
-from femphase.errors import SceneError
+from femphase.errors import FlowError, SceneError
 from femphase.registry import Registry
 
 __all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "linear_shear", "no_flow",
@@ -102,15 +102,28 @@ def poiseuille(rate: float, width: float, y0: float = 0.0) -> Flow:
     return row_flow("poiseuille", lambda y, t: 4.0 * rate * (y - y0) * (width - y + y0) / width**2)
 
 
-def python_flow(function: Callable, row: bool = False, steady: bool = True) -> Flow:
+def python_flow(function: Callable, row: bool = False, steady: bool = True, name: str | None = None) -> Flow:
     """Any callable. With row=True, ``function(y)`` is u(y) (``function(y, t)`` when not
     steady) and v = 0; otherwise ``function(x, y)`` (or ``function(x, y, t)``) returns
-    (u, v) for arrays x, y of the same shape."""
+    (u, v) for arrays x, y of the same shape. A call that raises or gives NaN or inf stops
+    the run with a :class:`~femphase.errors.FlowError` naming ``name`` (default: the
+    callable's qualified name) and the time."""
+    name = name or getattr(function, "__qualname__", repr(function))
+
+    def checked(*arguments):  # the last argument is the time t, whether the function takes it or not
+        time = arguments[-1]
+        try:
+            with np.errstate(all="ignore"):
+                values = function(*arguments) if not steady else function(*arguments[:-1])
+        except Exception as exc:  # the user's code may raise anything
+            raise FlowError(name, time, f"it raised {type(exc).__name__}: {exc}") from exc
+        if not all(np.isfinite(np.asarray(w, dtype=float)).all() for w in ((values,) if row else values)):
+            raise FlowError(name, time, "it returned NaN or inf")
+        return values
+
     if row:
-        return row_flow("python", function if not steady else (lambda y, t: function(y)), steady)
-    if steady:
-        return Flow("python", lambda x, y, t: function(x, y))
-    return Flow("python", function, steady=False)
+        return row_flow("python", checked, steady)
+    return Flow("python", checked, steady=steady)
 
 
 def check_keys(spec: dict, allowed: set[str]) -> None:
@@ -196,7 +209,7 @@ def _python(spec: dict, domain: FlowDomain) -> Flow:
                          f"{exc})") from None
     if not callable(function):
         raise SceneError("flow.function", target, f"a callable; {target} is a {type(function).__name__}")
-    flow = python_flow(function, spec.get("row_flow", False), spec.get("steady", True))
+    flow = python_flow(function, spec.get("row_flow", False), spec.get("steady", True), target)
     _try_flow(flow, spec, domain)
     return flow
 
@@ -211,12 +224,12 @@ def _try_flow(flow: Flow, spec: dict, domain: FlowDomain) -> None:
         with np.errstate(all="ignore"):
             u, v = flow.velocity(x, y, 0.0)
             u, v = (np.broadcast_to(np.asarray(w, dtype=float), x.shape) for w in (u, v))
-    except Exception as exc:  # the user's code: any failure is a bad flow.function
+    except FlowError as exc:  # it raised, or gave NaN or inf (python_flow's check)
+        raise SceneError("flow.function", spec.get("function"), f"a callable computing a finite {signature} for "
+                         f"arrays ({exc.reason})") from None
+    except Exception as exc:  # no (u, v) of the points' shape
         raise SceneError("flow.function", spec.get("function"), f"a callable computing {signature} for arrays "
                          f"(calling it failed: {type(exc).__name__}: {exc})") from None
-    if not (np.isfinite(u).all() and np.isfinite(v).all()):
-        raise SceneError("flow.function", spec.get("function"), f"a callable computing a finite {signature} "
-                         "(it gave NaN or inf)")
 
 
 #: Normal velocity at the walls, or jump across the period, relative to the flow's largest

@@ -21,7 +21,7 @@ from femphase.analysis.observables import OBSERVABLES
 from femphase.config import Numerics
 from femphase.domains import DOMAINS, Domain, domain_from_table
 from femphase.domains.mesh.stokes import stokes_drive
-from femphase.errors import FlowWarning, ModelWarning, ResolutionWarning, SceneError, StiffnessWarning
+from femphase.errors import FlowError, FlowWarning, ModelWarning, ResolutionWarning, SceneError, StiffnessWarning
 from femphase.flows import FLOWS, Flow, flow_defects, flow_from_spec
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
 from femphase.placement import hexagonal_centres
@@ -279,9 +279,13 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     for i, phase in enumerate(phases):
         try:
             flow = check_flow(phase.flow, scene.domain)
+            _warn_flow_defects(flow, scene.domain, f"phases.{i}.flow")
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
-        _warn_flow_defects(flow, scene.domain, f"phases.{i}.flow")
+        except FlowError as exc:  # a python flow that failed on the walls' or the period's points
+            raise SceneError(f"phases.{i}.flow.function", exc.function, f"a callable computing a finite velocity "
+                             f"at every point of the domain ({exc.reason}, checking the walls and the period at "
+                             f"t = {exc.time:g})") from None
         if flow is not None and not flow.steady and scene.numerics.mesh_advection == "semi-lagrangian" \
                 and scene.domain.kind == "mesh":
             raise SceneError("numerics.mesh_advection", "semi-lagrangian",

@@ -182,6 +182,8 @@ def test_the_command_refuses_bad_levels_and_observables_before_any_run(tmp_path)
     assert lone.returncode == 2 and "a two-particle scene (this one has 1)" in lone.stderr
     idle = subprocess.run(command + ["--h", "1,0.5", "--workers", "0"], capture_output=True, text=True)
     assert idle.returncode == 2 and "'--workers' = 0" in idle.stderr
+    gap = subprocess.run(command + ["--h", "1,,0.5"], capture_output=True, text=True)  # was read as 1,0.5
+    assert gap.returncode == 2 and "'1,,0.5' has an empty entry" in gap.stderr
     assert not (tmp_path / "s" / "runs").exists()
 
 

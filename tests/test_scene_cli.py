@@ -1,6 +1,7 @@
 """Scenes, their errors, and the command line: run, resume, blow-up."""
 
 import json
+import re
 import subprocess
 import sys
 import warnings
@@ -50,6 +51,7 @@ def write_scene(path: Path, data: dict = SMALL) -> Path:
         ("phases.1.dt=0.7", "phases.1.duration"),
         ("phases.1.flow.type='vortex'", "phases.1.flow.type"),
         ("numerics.mass='heavy'", "numerics.mass"),
+        ("numerics.tolerance=2", "numerics.tolerance"),  # a relative residual: below 1
     ],
 )
 def test_invalid_scene_values_name_the_key(tmp_path, assignment, key):
@@ -468,3 +470,39 @@ def test_a_flow_through_the_walls_or_across_the_seam_warns_on_loading(tmp_path, 
                  {"type": "oscillating_shear", "rate": 0.5, "frequency": 0.1}):
         assert caught(flow) == []
         assert len(caught(flow, {"kind": "mesh", "mesh": "obstacle.vtu"})) == 1
+
+
+def test_a_python_flow_that_fails_during_the_run_stops_it_naming_the_function_time_and_step(tmp_path, monkeypatch,
+                                                                                             capsys):
+    # the user's code, not femphase's: exit 3 with the function, the time and the last step
+    # done, and the checkpoint of that step kept (it was "internal error … this is a bug")
+    (tmp_path / "lateflows.py").write_text(
+        "import numpy as np\n"
+        "def late_nan(x, y, t):\n    return (np.nan if t > 32 else 0.01) + 0 * x, 0 * y\n"
+        "def late_raise(x, y, t):\n    if t > 32:\n        raise RuntimeError('no data past t = 32')\n"
+        "    return 0.01 + 0 * x, 0 * y\n"
+        "def raise_on_many_points(x, y):\n    if x.size > 100:\n        raise RuntimeError('too many')\n"
+        "    return 0 * x, 0 * y\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for name, reason in (("late_nan", "it returned NaN or inf"), ("late_raise", "it raised RuntimeError: no data")):
+        flow = {"type": "python", "function": f"lateflows:{name}", "steady": False}
+        scene = write_scene(tmp_path / f"{name}.toml", {**SMALL, "phases": [SMALL["phases"][0],
+                                                                           {**SMALL["phases"][1], "flow": flow}]})
+        run = tmp_path / name
+        assert main(["run", str(scene), "-o", str(run), "-q"]) == 3
+        message = capsys.readouterr().err
+        # t: where the scheme first asked for the flow past 32; step 30: the last step done (the
+        # adaptive scheme runs the steps to the next frame in one call)
+        found = re.search(rf"the flow function lateflows:{name} failed at t = ([0-9.]+), after step 30: {reason}",
+                          message)
+        assert found and 32 < float(found.group(1)) <= 35
+        assert "this is a bug" not in message
+        status = json.loads((run / "run.json").read_text())
+        assert status["status"] == "failed" and status["time"] == 30.0  # the last frame's checkpoint
+    # failing on the points of the loading checks: a bad scene key, nothing run
+    flow = {"type": "python", "function": "lateflows:raise_on_many_points"}
+    scene = write_scene(tmp_path / "many.toml", {**SMALL, "phases": [SMALL["phases"][0],
+                                                                    {**SMALL["phases"][1], "flow": flow}]})
+    assert main(["run", str(scene), "-o", str(tmp_path / "many"), "-q"]) == 2
+    assert "'phases.1.flow.function' = 'lateflows:raise_on_many_points' is invalid" in capsys.readouterr().err
+    assert not (tmp_path / "many").exists()

@@ -41,7 +41,7 @@ import warnings
 from femphase import __version__
 from femphase.cli import aggregate, compare, converge, ode, plot, run, sweep
 from femphase.cli.console import console_handler
-from femphase.errors import BlowUpError, FemphaseError, Interrupted
+from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -104,7 +104,7 @@ def _report(exc: BaseException) -> tuple[int | None, str]:
         return exc.exit_code, f"{exc}; the checkpoint of that step is kept (continue with --resume)"
     if isinstance(exc, KeyboardInterrupt):
         return 130, "interrupted; the last checkpoint is kept (continue with --resume)"
-    if isinstance(exc, BlowUpError):
+    if isinstance(exc, (BlowUpError, FlowError)):
         return 3, f"error: {exc}. The last good checkpoint is kept."
     if isinstance(exc, FemphaseError):
         return 2, f"error: {exc}"

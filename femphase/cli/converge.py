@@ -14,18 +14,22 @@ __all__ = ["register", "run"]
 REFINED = {"h": "h", "mesh": "mesh", "tolerance_t": "tolerance_t", "dt": "dt"}
 
 
+def _items(text: str) -> list[str]:
+    """The entries of a comma-separated list; an empty one ("1,,0.5") is refused, not skipped."""
+    items = [item.strip() for item in text.split(",")]
+    if not any(items):
+        raise argparse.ArgumentTypeError("give at least one value")
+    if not all(items):
+        raise argparse.ArgumentTypeError(f"{text!r} has an empty entry; separate the values by single commas")
+    return items
+
+
 def _numbers(text: str) -> list[float]:
+    items = _items(text)
     try:
-        values = [float(item) for item in text.split(",") if item.strip()]
+        return [float(item) for item in items]
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers, e.g. 1,0.5,0.25")
-    if not values:
-        raise argparse.ArgumentTypeError("give at least one number")
-    return values
-
-
-def _files(text: str) -> list[str]:
-    return [item.strip() for item in text.split(",") if item.strip()]
 
 
 def run(args: argparse.Namespace) -> int:
@@ -92,7 +96,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("-o", "--output", required=True, help="study directory (rerun the command to continue it)")
     parser.add_argument("--h", type=_numbers, default=None, metavar="H1,H2,...",
                         help="mesh spacings (domain.h, lattice units), e.g. 1,0.5,0.25")
-    parser.add_argument("--mesh", type=_files, default=None, metavar="FILE1,FILE2,...",
+    parser.add_argument("--mesh", type=_items, default=None, metavar="FILE1,FILE2,...",
                         help="mesh files of a meshed scene's domain, coarse to fine (domain.mesh)")
     parser.add_argument("--tolerance-t", dest="tolerance_t", type=_numbers, default=None, metavar="T1,T2,...",
                         help="the adaptive scheme's tolerances (numerics.tolerance_t), e.g. 0.1,0.01,0.001")

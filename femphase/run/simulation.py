@@ -17,7 +17,7 @@ import numpy as np
 from femphase.analysis.observables import OBSERVABLES, Observable, resolve
 from femphase.analysis.shape import ShapeObservables
 from femphase.config import Numerics
-from femphase.errors import Interrupted, SceneError
+from femphase.errors import FlowError, Interrupted, SceneError
 from femphase.model.energy import FreeEnergy
 from femphase.scene import Phase, Scene
 from femphase.state import State
@@ -163,6 +163,9 @@ class Simulation:
                         raise Interrupted(signal.Signals(number).name, 128 + number, state.step, state.time)
                     if finished:
                         break
+        except FlowError as exc:  # a user's flow function failed: name the step the run stands at
+            error = FlowError(exc.function, exc.time, exc.reason, state.step)
+            raise error from exc.__cause__
         except BaseException as exc:  # interrupted runs are recorded as failed too
             error = exc
             raise
