@@ -30,8 +30,8 @@ from femphase.state import State, discs_state
 from femphase.timestepping import SCHEMES, Stepper
 
 __all__ = ["LAYOUTS", "MAX_AREA_FRACTION", "MAX_PARTICLES", "MAX_PHASE_STEPS", "check_flow", "check_numerics",
-           "initial_centres", "load_scene", "Output", "Particles", "Phase", "read_scene_data", "registries", "Scene",
-           "scene_from_dict", "set_value"]
+           "initial_centres", "load_scene", "Output", "Particles", "Phase", "placed_count", "read_scene_data",
+           "registries", "Scene", "scene_from_dict", "set_value"]
 
 
 def registries() -> tuple[Registry, ...]:
@@ -56,7 +56,9 @@ MAX_PHASE_STEPS = 10**12
 class Particles:
     """Initial particles. ``layout``: single | hexagonal | random | list.
 
-    N               number of particles (hexagonal, random)
+    N               number of particles (hexagonal, random; single and list place 1 and one per
+                    centre, and an N given with them must say the same; the resolved scene
+                    keeps the default N for them)
     initial_radius  radius of the initial discs (default R/2, as in the paper)
     seed            random seed (random layout)
     centres         [[x, y], ...] (list and single layouts; single defaults to the centre)
@@ -140,7 +142,8 @@ class Scene:
             "name": self.name,
             "model": asdict(self.model),
             "domain": table,
-            "particles": {k: v for k, v in asdict(self.particles).items() if v is not None},
+            # N as placed: the single and list layouts do not read it
+            "particles": {k: v for k, v in asdict(self.particles).items() if v is not None} | {"N": self.n_particles},
             "numerics": asdict(self.numerics),
             "output": {**asdict(self.output), "observables": list(self.output.observables)},
             "phases": [asdict(p) for p in self.phases],
@@ -154,12 +157,8 @@ class Scene:
 
     @property
     def n_particles(self) -> int:
-        p = self.particles
-        if p.layout == "single":
-            return 1
-        if p.layout == "list":
-            return len(p.centres or [])
-        return p.N
+        placed = placed_count(asdict(self.particles))
+        return self.particles.N if placed is None else placed
 
     def flow(self, phase: Phase) -> Flow:
         return flow_from_spec(phase.flow, self.domain)
@@ -252,6 +251,7 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     particles_table = _table(data, "particles")
     _check_keys(Particles, particles_table, "particles")
     _check_particle_types(particles_table)
+    _check_given_count(particles_table)
     particles = _from_table(Particles, particles_table, "particles")
     numerics_table = _table(data, "numerics")
     _check_keys(Numerics, numerics_table, "numerics")
@@ -421,6 +421,23 @@ def _check_particle_types(table: dict) -> None:
         radii = table["radii"]
         if not isinstance(radii, (list, tuple)) or not all(_is_number(r) and r > 0 for r in radii):
             raise SceneError("particles.radii", radii, "a list of finite numbers > 0, one per particle")
+
+
+def placed_count(particles: dict) -> int | None:
+    """The number of particles a [particles] table's layout places without reading N
+    (single: 1, list: one per centre); None for the layouts that read N."""
+    layout = particles.get("layout", Particles.layout)
+    return {"single": 1, "list": len(particles.get("centres") or [])}.get(layout)
+
+
+def _check_given_count(table: dict) -> None:
+    """An N given in the [particles] table of a layout that does not read it must say what the
+    layout places (it would be ignored: single places 1, list one per centre)."""
+    layout, placed = table.get("layout", Particles.layout), placed_count(table)
+    if "N" in table and placed is not None and table["N"] != placed:
+        raise SceneError("particles.N", table["N"], f"{placed}, or no N: the {layout} layout places "
+                         + ("one particle" if layout == "single" else "one particle per centre")
+                         + " (particles.N counts the random and hexagonal layouts')")
 
 
 def _check_domain_types(table: dict) -> None:

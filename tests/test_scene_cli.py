@@ -52,6 +52,7 @@ def write_scene(path: Path, data: dict = SMALL) -> Path:
         ("phases.1.flow.type='vortex'", "phases.1.flow.type"),
         ("numerics.mass='heavy'", "numerics.mass"),
         ("numerics.tolerance=2", "numerics.tolerance"),  # a relative residual: below 1
+        ("particles.N=5", "particles.N"),  # two centres: N = 5 was ignored, and recorded
     ],
 )
 def test_invalid_scene_values_name_the_key(tmp_path, assignment, key):
@@ -506,3 +507,21 @@ def test_a_python_flow_that_fails_during_the_run_stops_it_naming_the_function_ti
     assert main(["run", str(scene), "-o", str(tmp_path / "many"), "-q"]) == 2
     assert "'phases.1.flow.function' = 'lateflows:raise_on_many_points' is invalid" in capsys.readouterr().err
     assert not (tmp_path / "many").exists()
+
+
+def test_the_fd_method_is_recorded_as_the_scheme_it_runs_and_says_so(tmp_path, capsys):
+    # --method fd runs "fd-heun" whatever numerics.scheme says: scene.toml and run.json said
+    # "adaptive" (or the "euler" the scene set, which did not run, without a word)
+    phases = [{"name": "relax", "duration": 1.0, "dt": 0.1, "frame_interval": 0.5}]
+    scene = write_scene(tmp_path / "fd.toml", {**SMALL, "phases": phases})
+    assert main(["run", str(scene), "-o", str(tmp_path / "fd"), "-q", "--method", "fd"]) == 0
+    resolved = load_scene(tmp_path / "fd" / "scene.toml")  # loads: its N is the list's two centres, not 100
+    assert resolved.numerics.scheme == "fd-heun" and resolved.particles.N == 2
+    assert json.loads((tmp_path / "fd" / "run.json").read_text())["settings"]["numerics"]["scheme"] == "fd-heun"
+    assert main(["run", str(scene), "-o", str(tmp_path / "fd"), "-q", "--method", "fd", "--resume",
+                 "--set", "phases.0.duration=2.0"]) == 0  # the recorded scheme is the one it resumes with
+    capsys.readouterr()
+    assert main(["run", str(scene), "-o", str(tmp_path / "euler"), "-q", "--method", "fd",
+                 "--set", 'numerics.scheme="euler"']) == 0  # the same scene, cross-checked: said, and recorded
+    assert "numerics.scheme = 'euler' is not used: --method fd runs the scheme 'fd-heun'" in capsys.readouterr().err
+    assert load_scene(tmp_path / "euler" / "scene.toml").numerics.scheme == "fd-heun"

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 __all__ = ["register", "run"]
@@ -16,7 +17,15 @@ def run(args: argparse.Namespace) -> int:
     from femphase.run.runner import run_scene
     from femphase.scene import read_scene_data, scene_from_dict
 
-    scene = scene_from_dict(read_scene_data(args.scene, args.set), Path(args.scene).parent)
+    from femphase.run.simulation import METHODS
+
+    data = read_scene_data(args.scene, args.set)
+    numerics, forced = data.get("numerics"), METHODS.get(args.method)
+    given = numerics.get("scheme") if isinstance(numerics, dict) else None
+    if forced is not None and given not in (None, forced):  # the same scene, cross-checked by the method
+        warnings.warn(f"numerics.scheme = {given!r} is not used: --method {args.method} runs the scheme "
+                      f"{forced!r} (the run's scene.toml records it)", stacklevel=2)
+    scene = scene_from_dict(data, Path(args.scene).parent)
     progress = False if args.quiet else None
     state = run_scene(scene, args.output, resume=args.resume, overwrite=args.overwrite, method=args.method,
                       progress=progress, argv=sys.argv[1:] if args.argv is None else args.argv, sets=args.set,

@@ -67,10 +67,10 @@ class RunDirectory(Tracker):
                 warnings.warn(f"{self.directory / 'run.json'} is missing or not JSON: the resumed run writes a new "
                               "one, without the earlier segments' history (start, hosts, CPU times); the data and "
                               "the checkpoint are intact", stacklevel=2)
-        atomic_write(self.directory / "scene.toml", to_toml(scene.to_dict()))
+        atomic_write(self.directory / "scene.toml", to_toml(simulation.settings()))
         self.status = Status(self.directory, {
             "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
-            "settings": scene.to_dict(),
+            "settings": simulation.settings(),
         }, previous)
         origin = provenance()
         self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
@@ -117,7 +117,7 @@ class RunDirectory(Tracker):
 
     def _checkpoint(self, state: State) -> None:
         save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {
-            "scene": self.simulation.scene.to_dict(), "outputs": self.outputs.record(),
+            "scene": self.simulation.settings(), "outputs": self.outputs.record(),
             "method": self.simulation.method, "time": state.time,
         })
 

@@ -17,7 +17,7 @@ from femphase.run.directory import RunDirectory
 from femphase.run.guards import AccuracyGuard
 from femphase.run.simulation import METHODS, Simulation, Tracker
 from femphase.run.trackers import ProgressBar, StatusLog
-from femphase.scene import Scene, check_numerics
+from femphase.scene import Scene, check_numerics, placed_count
 from femphase.state import State
 
 __all__ = ["run_scene", "stop_on_signals"]
@@ -77,8 +77,13 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
             if metadata.get("method", "fem") != method:
                 raise SceneError("--method", method,
                                  f"{metadata.get('method')!r}, the method the run was started with")
-            # the scene first: its message names the key that changed
-            phase, phase_step, changes = resume_position(metadata["scene"], scene.to_dict(), metadata["time"])
+            # the scene first: its message names the key that changed. A layout that places its
+            # particles without N is compared by its centres (checkpoints recorded the default N)
+            saved, current = metadata["scene"], simulation.settings()
+            for settings in (saved, current):
+                if placed_count(settings.get("particles", {})) is not None:
+                    settings["particles"].pop("N", None)
+            phase, phase_step, changes = resume_position(saved, current, metadata["time"])
             state, observers = load_checkpoint(checkpoint, simulation.domain)
             state.phase, state.phase_step = phase, phase_step
             simulation.restore_observers(observers)

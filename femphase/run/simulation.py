@@ -76,6 +76,15 @@ class Simulation:
     def numerics(self) -> Numerics:
         return self.scene.numerics
 
+    def settings(self) -> dict:
+        """The resolved scene as this simulation runs it (a run directory's scene.toml and
+        run.json's settings): :meth:`~femphase.scene.Scene.to_dict` with the time scheme the
+        method forces (``--method fd``: "fd-heun"), not the scene's."""
+        settings = self.scene.to_dict()
+        if METHODS[self.method] is not None:
+            settings["numerics"]["scheme"] = METHODS[self.method]
+        return settings
+
     def observer_state(self) -> dict[str, np.ndarray]:
         """The observables' running state, for a checkpoint."""
         out: dict[str, np.ndarray] = {}
