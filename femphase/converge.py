@@ -63,13 +63,13 @@ from collections.abc import Callable
 
 import numpy as np
 
-from femphase.errors import SceneError
+from femphase.errors import FemphaseError, SceneError
 from femphase.io.files import atomic_write, output_directory
 from femphase.io.reader import RunData, mean_present, open_run
 from femphase.tomlio import toml_value
 
-__all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "analyse", "last_phase_substeps",
-           "richardson", "run_convergence", "same_substeps", "study_sweep"]
+__all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "StudyIncomplete", "analyse",
+           "last_phase_substeps", "richardson", "run_convergence", "same_substeps", "study_sweep"]
 
 #: Refinement parameters: command-line name → (scene key, its unit). For "mesh" the values are
 #: mesh files and s is each run's effective spacing √(area / dofs).
@@ -84,6 +84,11 @@ FORMAL_ORDER = {"h": 2.0, "mesh": 2.0, "dt": 2.0, "tolerance_t": 1.0}
 
 class ConvergenceError(SceneError):
     """A convergence study that cannot be run or analysed as asked (names the option)."""
+
+
+class StudyIncomplete(FemphaseError):
+    """Some runs of a study did not finish (failed, interrupted or pending): nothing to
+    analyse yet. The message names each with its status and error."""
 
 
 @dataclass(frozen=True)
@@ -426,7 +431,14 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
         sweep_file.write_text(study_sweep(Path(scene), parameter, values, phases))
         index = run_sweep(sweep_file, directory, client, assignments=list(assignments), scheduler=scheduler,
                           workers=workers, log=log)
-    failed = [run["id"] for run in index["runs"] if run["status"] != "done"]
-    if failed:
-        raise ConvergenceError("runs", failed, "every run done (rerun the command to continue the study)")
+    unfinished = [run for run in index["runs"] if run["status"] != "done"]
+    if unfinished:
+        listed = "; ".join(f"{run['id']} {run['status']}" + (f" ({run['error']})" if run.get("error") else "")
+                           for run in unfinished)
+        advice = ("failed runs start again when the command is given again, so first change what made them fail "
+                  "(e.g. --set a smaller phases.N.dt); " if any(run["status"] == "failed" for run in unfinished)
+                  else "")
+        raise StudyIncomplete(f"{len(unfinished)} of {len(index['runs'])} runs of the study did not finish, so "
+                              f"there is nothing to analyse: {listed}. The same command continues the study: "
+                              f"{advice}interrupted and pending runs continue (sweep.json in {directory})")
     return analyse(directory, parameter, observables, expected_order)

@@ -252,3 +252,17 @@ def test_a_dt_study_warns_under_the_adaptive_scheme_only(tmp_path):
         warnings.simplefilter("error", UserWarning)
         run_convergence(scene, tmp_path / "sav2", "dt", [1.0, 0.5], ["area"], [*quick, 'numerics.scheme="sav2"'],
                         workers=1, log=lambda line: None)
+
+
+def test_a_study_whose_runs_fail_lists_them_and_exits_4(tmp_path, capsys):
+    # every run blows up at its first step: the message named "scene key 'runs'" and said to
+    # rerun the command, which failed the same way
+    from femphase.cli import main
+
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    assert main(["converge", str(scene), "-o", str(tmp_path / "s"), "--h", "1,0.5", "--workers", "1",
+                 "--set", "numerics.blowup_margin=1e-9"]) == 4
+    message = capsys.readouterr().err
+    assert "2 of 2 runs of the study did not finish" in message and "h=1.0 failed (the run blew up" in message
+    assert "first change what made them fail" in message and "scene key" not in message

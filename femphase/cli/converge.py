@@ -34,7 +34,8 @@ def _numbers(text: str) -> list[float]:
 
 def run(args: argparse.Namespace) -> int:
     """`femphase converge`: run (or continue) the study, then print its table."""
-    from femphase.converge import PARAMETERS, ConvergenceError, run_convergence
+    from femphase.converge import PARAMETERS, ConvergenceError, StudyIncomplete, run_convergence
+    from femphase.sweep import EXIT_INCOMPLETE
 
     given = {name: getattr(args, name) for name in REFINED if getattr(args, name) is not None}
     refined = [name for name, values in given.items() if len(values) > 1]
@@ -66,6 +67,9 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print(f"femphase converge: interrupted; rerun the same command to continue ({args.output})", file=sys.stderr)
         return 130
+    except StudyIncomplete as exc:  # as femphase sweep: some runs not done
+        print(f"femphase converge: {exc}", file=sys.stderr)
+        return EXIT_INCOMPLETE
     spacing = "effective spacing" if parameter == "mesh" else parameter
     print(f"\n{'observable':<16} {'order':>7} {'limit':>14} {'± error bar':>12}   error of each run ({spacing} = "
           + ", ".join(f"{level['s']:.4g}" for level in result["levels"]) + ")")
