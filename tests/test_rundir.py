@@ -274,3 +274,16 @@ def test_a_moved_mesh_file_resumes_and_another_mesh_is_refused(tmp_path, capsys)
     assert read_csv(run / "global.csv")["time"][-1] == 20.0
     changes = json.loads((run / "run.json").read_text())["segments"][1]["changes"]
     assert any(change.startswith("domain.mesh: ") and change.endswith("b/c.vtu'") for change in changes), changes
+
+
+def test_a_resume_that_changes_numerics_says_so_on_the_console_and_in_the_log(scene, tmp_path, capsys):
+    # a resume takes the scene and --set given now: an earlier --set of numerics not given
+    # again was dropped, recorded only in run.json's segment
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "numerics.tolerance_t=0.01") == 0
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=40") == 0
+    warning = "resumed with numerics other than the checkpoint's: numerics.tolerance_t: 0.01 → 0.1"
+    assert warning in capsys.readouterr().err
+    log = (run / "run.log").read_text()
+    assert warning in log and "resumed with changes: phases.1.duration: 20.0 → 40.0" in log

@@ -19,6 +19,7 @@ from femphase.io.files import FileLock, atomic_write, output_directory
 from femphase.io.provenance import provenance
 from femphase.io.rundir import CHECKPOINT, Outputs, RunLog, Status, prepare_directory
 from femphase.run.simulation import Frame, Simulation, Tracker
+from femphase.run.trackers import LOGGER
 from femphase.state import State
 from femphase.tomlio import to_toml
 
@@ -88,6 +89,20 @@ class RunDirectory(Tracker):
             + (f"; WARNING: source changed since this process imported it: "
                f"{', '.join(origin['source_changed_since_import'])} (it runs the code it imported, not git's)"
                if origin["source_changed_since_import"] else "") + " ==="))
+        self._report_changes()
+
+    def _report_changes(self) -> None:
+        """The resumed scene's changes, into run.log and onto the console: numerics as a
+        warning (a resume takes the scene and ``--set`` given now, and an earlier ``--set``
+        not given again is dropped without a word otherwise), the rest (durations, frames,
+        later phases) as information."""
+        numerics = [change for change in self.changes if change.startswith("numerics.")]
+        if numerics:
+            LOGGER.warning("resumed with numerics other than the checkpoint's: %s (give an earlier --set again to "
+                           "keep its value)", "; ".join(numerics))
+        others = [change for change in self.changes if not change.startswith("numerics.")]
+        if others:
+            LOGGER.info("resumed with changes: %s", "; ".join(others))
 
     def frame(self, frame: Frame) -> None:
         state = frame.state
