@@ -25,9 +25,9 @@ import numpy as np
 from femphase.analysis.lattice import frame_order
 from femphase.analysis.periods import oscillation_period
 from femphase.io.reader import RunData
-from femphase.model.minimal import K_PAPER, MinimalModelParameters, solve_minimal_model
+from femphase.model.minimal import K_PAPER, MAX_HALF_PERIODS, MinimalModelParameters, solve_minimal_model
 
-__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_solution", "order_series"]
+__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_fits", "ode_solution", "order_series"]
 
 def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
     """The minimal model at `rate` with ω = kγ̇, and the simulation time of its t = 0.
@@ -37,16 +37,27 @@ def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
     flow starts the ODE at its first frame).  ``(None, offset)`` when the run ends before
     the ODE would start.
     """
-    if run.t1_times.size:
-        offset = float(run.t1_times[0]) - np.pi / (2 * k * rate)
-    else:
-        offset = run.shear_start if run.flow_phase is not None else float(run.time[0])
-    t_end = float(run.time[-1]) - offset
+    offset, t_end = _ode_span(run, rate, k)
     if t_end <= 0:
         return None, offset
     samples = max(2001, int(40 * t_end * k * rate / np.pi))  # ≥ 40 samples per period
     solution = solve_minimal_model(rate, t_end, parameters=MinimalModelParameters(k=k), n_samples=samples)
     return solution, offset
+
+
+def _ode_span(run: RunData, rate: float, k: float) -> tuple[float, float]:
+    """(the simulation time of the ODE's t = 0, the ODE time the run's frames reach)."""
+    if run.t1_times.size:
+        offset = float(run.t1_times[0]) - np.pi / (2 * k * rate)
+    else:
+        offset = run.shear_start if run.flow_phase is not None else float(run.time[0])
+    return offset, float(run.time[-1]) - offset
+
+
+def ode_fits(run: RunData, rate: float, k: float = K_PAPER) -> bool:
+    """Whether one solve of the minimal model at ``rate`` spans the run: at most
+    :data:`~femphase.model.minimal.MAX_HALF_PERIODS` half periods π/(2kγ̇)."""
+    return _ode_span(run, rate, k)[1] * 2 * k * rate / np.pi <= MAX_HALF_PERIODS
 
 
 def measured_period(run: RunData, t_from: float | None = None) -> float | None:

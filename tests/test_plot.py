@@ -172,3 +172,19 @@ def test_mesh_run_whose_mesh_file_is_gone_is_drawn_from_its_fields(mesh_run, tmp
     (copy / "scene.toml").write_text(scene.replace(mesh_line, f'mesh = "{tmp_path / "gone.vtu"}"'))
     _written(plot_run(copy))
     assert open_run(copy).complete().extent == pytest.approx((0.0, 36.0, -4.0, 20.0))  # from fields.xdmf's nodes
+
+
+def test_a_run_without_fields_or_checkpoint_gets_the_tables_figures_and_a_warning(tiny_run, tmp_path):
+    # output.fields = false and output.checkpoint = false: plot wrote no figure at all
+    run = _copy_run(tiny_run, tmp_path / "run", without=("checkpoint.h5", "fields.xdmf", "fields"))
+    with pytest.warns(UserWarning, match="no snapshot: .* has neither checkpoint.h5 nor fields.xdmf"):
+        paths = plot_run(run, tmp_path / "figures")
+    assert set(paths) == set(FIGURES) - {"snapshot"} and all(path.is_file() for path in paths.values())
+
+
+def test_an_ode_rate_whose_solve_cannot_span_the_run_draws_the_figures_without_it(tiny_run, tmp_path):
+    # γ̇ = 1e7 over the run's span is more than 10⁴ half periods: plot stopped after the
+    # snapshot with an error about a '--t-end' option it does not have
+    with pytest.warns(UserWarning, match=r"no minimal-model curve: at γ̇ = 1e\+07"):
+        paths = plot_run(tiny_run, tmp_path / "figures", ode_rate=1e7)
+    _written(paths)

@@ -31,6 +31,7 @@ figures) and :func:`plot_run` (all four figures of a run directory).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -41,8 +42,8 @@ from femphase.io.checkpoints import load_checkpoint
 from femphase.io.fields import point_data
 from femphase.io.reader import RunData, open_run
 from femphase.io.rundir import CHECKPOINT
-from femphase.model.minimal import ParameterError
-from femphase.oscillations import K_PAPER, ode_solution, order_series
+from femphase.model.minimal import MAX_HALF_PERIODS, ParameterError
+from femphase.oscillations import K_PAPER, ode_fits, ode_solution, order_series
 from femphase.plot.figures import pyplot, save
 
 __all__ = ["FIGURES", "N_SHOWN", "SNAPSHOT_PIXELS", "Snapshot", "draw_elongation", "draw_limit_cycle",
@@ -279,11 +280,12 @@ def plot_order(run: RunData, path: Path) -> Path:
 
 def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rate: float | None = None,
              ode_k: float = K_PAPER, fmt: str = "png") -> dict[str, Path]:
-    """Write all four figures of a run directory; returns {figure name: path}.
+    """Write the four figures of a run directory; returns {figure name: path}.
 
     `output` defaults to DIR/figures; `ode_rate` to the run's shear rate (no ODE when the
-    run has no flow and none is given).
-    """
+    run has no flow and none is given, or when one solve of it would not span the run,
+    :func:`~femphase.oscillations.ode_fits`: a warning says so). A run written without
+    fields and checkpoint has no snapshot: the other three, and a warning."""
     run = open_run(directory).complete()
     if len(run.time) == 0:
         raise ValueError(f"{str(Path(directory) / 'particles.csv')!r} has no frames yet")
@@ -293,9 +295,23 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
         raise ParameterError("ode_rate", ode_rate, "the shear rate γ̇ of the ODE: a finite number > 0")
     if not (np.isfinite(ode_k) and ode_k > 0):
         raise ParameterError("ode_k", ode_k, "the ODE's k (ω = k γ̇): a finite number > 0")
-    return {
-        "snapshot": plot_snapshot(run, out / f"snapshot.{fmt}"),
-        "elongation": plot_elongation(run, out / f"elongation.{fmt}", ode_rate, ode_k),
-        "limit_cycle": plot_limit_cycle(run, out / f"limit_cycle.{fmt}", ode_rate, ode_k),
-        "order": plot_order(run, out / f"order.{fmt}"),
-    }
+    rate = ode_rate if ode_rate is not None else run.shear_rate
+    if rate and not ode_fits(run, rate, ode_k):  # one solve would take hours: the figures without it
+        warnings.warn(f"no minimal-model curve: at γ̇ = {rate:g} the run spans more than {MAX_HALF_PERIODS} of its "
+                      f"half periods π/(2kγ̇) = {np.pi / (2 * ode_k * rate):.3g}", stacklevel=2)
+        ode_rate = 0.0  # no ODE
+    figures = {}
+    if run_has_fields(run):
+        figures["snapshot"] = plot_snapshot(run, out / f"snapshot.{fmt}")
+    else:  # output.fields = false and output.checkpoint = false: the tables' figures only
+        warnings.warn(f"no snapshot: {str(run.directory)!r} has neither {CHECKPOINT} nor fields.xdmf "
+                      "(output.checkpoint and output.fields were false)", stacklevel=2)
+    figures["elongation"] = plot_elongation(run, out / f"elongation.{fmt}", ode_rate, ode_k)
+    figures["limit_cycle"] = plot_limit_cycle(run, out / f"limit_cycle.{fmt}", ode_rate, ode_k)
+    figures["order"] = plot_order(run, out / f"order.{fmt}")
+    return figures
+
+
+def run_has_fields(run: RunData) -> bool:
+    """Whether a run directory holds fields to draw a snapshot from (checkpoint.h5 or fields.xdmf)."""
+    return (run.directory / CHECKPOINT).exists() or (run.directory / "fields.xdmf").exists()
