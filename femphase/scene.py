@@ -30,7 +30,8 @@ from femphase.state import State, discs_state
 from femphase.timestepping import SCHEMES, Stepper
 
 __all__ = ["LAYOUTS", "MAX_AREA_FRACTION", "MAX_PARTICLES", "MAX_PHASE_STEPS", "check_flow", "check_numerics",
-           "initial_centres", "load_scene", "Output", "Particles", "Phase", "placed_count", "read_scene_data",
+           "initial_centres", "load_scene", "Output", "parse_assignment", "Particles", "Phase", "placed_count",
+           "read_scene_data",
            "registries", "Scene", "scene_from_dict", "set_value"]
 
 
@@ -612,13 +613,10 @@ def _check_distinct(centres: np.ndarray, period: float, spacing: float) -> None:
                          f"less than the spacing h = {spacing:g} (x is periodic with period {period:g})")
 
 
-def set_value(data: dict, assignment: str) -> None:
-    """Apply one ``--set key=value`` (dotted key, TOML value; phases by index: phases.1.dt).
-
-    A value that is not TOML is taken as a string (``--set particles.layout=hexagonal``).
-    SceneError for a malformed assignment (no ``=``, an empty key part), an index that is
-    not one of the list's (``--set`` changes entries, it cannot add them), or a dotted key
-    that runs through a value that is not a table (``model.mu.x``)."""
+def parse_assignment(assignment: str) -> tuple[list[str], object]:
+    """(the dotted key's parts, the value) of one ``--set key=value``: the value TOML, or a
+    string where it is not TOML; a table value (``phases.1.flow={type="none"}``) replaces
+    the table it is assigned to. SceneError for no ``=`` or an empty key part."""
     if not isinstance(assignment, str):
         raise SceneError("--set", assignment, "key=value, e.g. model.mu=10 or phases.1.flow.rate=0.3")
     key, sep, text = assignment.partition("=")
@@ -628,7 +626,17 @@ def set_value(data: dict, assignment: str) -> None:
     parts = [part.strip() for part in key.split(".")]
     if not all(parts):
         raise SceneError("--set", assignment, "a dotted key without empty parts, e.g. phases.1.flow.rate=0.3")
-    value = tomlio.parse_value(text)
+    return parts, tomlio.parse_value(text)
+
+
+def set_value(data: dict, assignment: str) -> None:
+    """Apply one ``--set key=value`` (dotted key, TOML value; phases by index: phases.1.dt).
+
+    A value that is not TOML is taken as a string (``--set particles.layout=hexagonal``).
+    SceneError for a malformed assignment (no ``=``, an empty key part), an index that is
+    not one of the list's (``--set`` changes entries, it cannot add them), or a dotted key
+    that runs through a value that is not a table (``model.mu.x``)."""
+    parts, value = parse_assignment(assignment)
     target = data
     for depth, part in enumerate(parts):
         path, last = ".".join(parts[: depth + 1]), depth == len(parts) - 1

@@ -94,7 +94,7 @@ from femphase.errors import FemphaseError, Interrupted, SceneError
 from femphase.io.files import atomic_write, jsonable, locked, output_directory
 from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
 from femphase.run.runner import run_scene
-from femphase.scene import Scene, read_scene_data, scene_from_dict, set_value
+from femphase.scene import Scene, parse_assignment, read_scene_data, scene_from_dict
 from femphase.tomlio import toml_value
 
 __all__ = ["EXIT_INCOMPLETE", "MODES", "SLOW_MALLOC", "TABLES", "WORKER_ENV", "load_sweep", "Run", "run_status",
@@ -162,10 +162,12 @@ class Sweep:
 
 
 def _flatten(table: dict, prefix: str = "") -> dict:
-    """Nested tables → dotted keys (``phases.1.flow.rate = 1`` in TOML is a nested table)."""
+    """Nested tables → dotted keys (``phases.1.flow.rate = 1`` in TOML is a nested table).
+    A table under a quoted dotted key (``"phases.1.flow" = {type = "none"}``) is a value,
+    kept whole: it replaces the scene's table, as ``femphase run --set`` does."""
     flat = {}
     for key, value in table.items():
-        if isinstance(value, dict):
+        if isinstance(value, dict) and "." not in key:
             flat.update(_flatten(value, f"{prefix}{key}."))
         else:
             flat[f"{prefix}{key}"] = value
@@ -173,11 +175,13 @@ def _flatten(table: dict, prefix: str = "") -> dict:
 
 
 def _overrides(document: dict, assignments: list[str] | tuple[str, ...]) -> dict:
-    """The [set] table of a sweep file, then ``--set`` assignments, as dotted key → value."""
-    command_line: dict = {}
+    """The [set] table of a sweep file, then ``--set`` assignments, as dotted key → value
+    (a table value whole, :func:`_flatten`)."""
+    overrides = _flatten(document.get("set", {}))
     for assignment in assignments:
-        set_value(command_line, assignment)
-    return {**_flatten(document.get("set", {})), **_flatten(command_line)}
+        parts, value = parse_assignment(assignment)
+        overrides[".".join(parts)] = value
+    return overrides
 
 
 def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) -> Sweep:

@@ -323,3 +323,18 @@ def test_local_cluster_workers_start_without_dasks_malloc_trim_setting(client):
         assert set(ours.run(_malloc_setting).values()) == {None}
         _check_workers(ours, lines.append)
     assert not any("warning" in line for line in lines[1:])
+
+
+def test_a_table_in_set_replaces_the_scenes_table_as_run_set_does(tmp_path):
+    # it was merged key by key: a flow could not be switched off ({type = "none"} kept the
+    # shear's rate and was refused), and {type = "poiseuille"} ran with the shear's rate
+    off = load_sweep(write(tmp_path / "a", '[sweep]\nscene = "tiny.toml"\n[set]\n"phases.1.flow" = {type = "none"}\n'
+                           '[axes]\n"particles.seed" = [1, 2]\n'))
+    assert all(run.data["phases"][1]["flow"] == {"type": "none"} for run in off.runs)
+    line = load_sweep(write(tmp_path / "b"), ["phases.1.flow={type = \"poiseuille\", rate = 0.2}"])
+    # --set's table replaces the shear, and the axis then sets its rate
+    assert [run.data["phases"][1]["flow"] for run in line.runs[::2]] == [{"type": "poiseuille", "rate": r}
+                                                                        for r in (0.3, 1.0)]
+    with pytest.raises(SweepError, match=r"sweep key 'set\.phases\.1\.flow'"):  # needs its rate, named as [set]'s
+        load_sweep(write(tmp_path / "c", '[sweep]\nscene = "tiny.toml"\n[set]\n"phases.1.flow" = {type = "poiseuille"}\n'
+                         '[axes]\n"particles.seed" = [1, 2]\n'))
