@@ -259,7 +259,11 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     stabilisation = numerics_table.get("stabilisation", "auto")
     if stabilisation != "auto" and not (_is_number(stabilisation) and stabilisation >= 0):
         raise SceneError("numerics.stabilisation", stabilisation, '"auto" or a finite number ≥ 0')
-    SCHEMES.get(numerics_table.get("scheme", Numerics.scheme), "numerics.scheme")
+    scheme = SCHEMES.get(numerics_table.get("scheme", Numerics.scheme), "numerics.scheme")
+    if stabilisation != "auto" and not getattr(scheme, "stabilised", False):
+        warnings.warn(f"numerics.stabilisation = {stabilisation!r} is not used: only the euler scheme stabilises its "
+                      f"step, numerics.scheme = {numerics_table.get('scheme', Numerics.scheme)!r} does not",
+                      ModelWarning, stacklevel=2)
     numerics = _from_table(Numerics, numerics_table, "numerics")
     output = _output(_table(data, "output"))
     phase_tables = data.get("phases", [])

@@ -525,3 +525,16 @@ def test_the_fd_method_is_recorded_as_the_scheme_it_runs_and_says_so(tmp_path, c
                  "--set", 'numerics.scheme="euler"']) == 0  # the same scene, cross-checked: said, and recorded
     assert "numerics.scheme = 'euler' is not used: --method fd runs the scheme 'fd-heun'" in capsys.readouterr().err
     assert load_scene(tmp_path / "euler" / "scene.toml").numerics.scheme == "fd-heun"
+
+
+def test_a_stabilisation_the_scheme_does_not_read_is_warned_about(tmp_path):
+    # sav2 ran the same with and without it, and the blow-up advice recommended it
+    from femphase.errors import ModelWarning
+
+    path = write_scene(tmp_path / "scene.toml")
+    with pytest.warns(ModelWarning, match=r"numerics.stabilisation = 5 is not used: .* numerics.scheme = 'sav2'"):
+        load_scene(path, ["numerics.scheme=sav2", "numerics.stabilisation=5"])
+    with warnings.catch_warnings(record=True) as records:
+        warnings.simplefilter("always")
+        load_scene(path, ["numerics.scheme=euler", "numerics.stabilisation=5"])
+    assert not [w for w in records if "is not used" in str(w.message)]

@@ -137,6 +137,8 @@ class TimeScheme(ABC):
     #: Whether it refits the windows between its substeps (:meth:`Stepper.refit` without a
     #: time), so that a step's motion never runs more than one substep past a refit
     refits_substeps: ClassVar[bool] = False
+    #: Whether it reads ``numerics.stabilisation`` (a stabilised explicit part; only euler)
+    stabilised: ClassVar[bool] = False
     #: Whether its steps may compute in single precision under flow (``numerics.precision =
     #: "mixed"``); the finite-difference reference's stay double
     mixed_precision: ClassVar[bool] = True
@@ -177,6 +179,6 @@ def check_fields(phi: np.ndarray, margin: float, step: int, time: float) -> None
         raise BlowUpError(
             step, time,
             f"φ left [{-margin:g}, {1 + margin:g}] (min {low:.3g}, max {high:.3g}); "
-            "try a smaller dt (with the FEM stepper, also numerics.stabilisation > 0), or, if "
-            "the overshoot is physical, a larger numerics.blowup_margin",
+            "try a smaller dt (the adaptive scheme: a smaller numerics.tolerance_t; euler: also "
+            "numerics.stabilisation > 0), or, if the overshoot is physical, a larger numerics.blowup_margin",
         )

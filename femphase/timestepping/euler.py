@@ -25,6 +25,7 @@ class LinearlyImplicitEuler(TimeScheme):
 
     name = "euler"
     order = 1
+    stabilised = True
 
     def __init__(self, stepper: StepperProtocol) -> None:
         super().__init__(stepper)
