@@ -287,3 +287,15 @@ def test_a_resume_that_changes_numerics_says_so_on_the_console_and_in_the_log(sc
     assert warning in capsys.readouterr().err
     log = (run / "run.log").read_text()
     assert warning in log and "resumed with changes: phases.1.duration: 20.0 → 40.0" in log
+
+
+def test_overwrite_deletes_the_replaced_runs_figures_and_comparisons_but_not_other_files(scene, tmp_path):
+    # figures/ and compare/ (plot's and compare's default outputs) described the old run
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    for name in ("figures/elongation.png", "compare/compare.csv", "notes.txt"):
+        (run / name).parent.mkdir(exist_ok=True)
+        (run / name).write_text("old")
+    assert _run(scene, run, "--overwrite") == 0
+    assert not (run / "figures").exists() and not (run / "compare").exists()
+    assert (run / "notes.txt").read_text() == "old"

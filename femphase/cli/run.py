@@ -45,7 +45,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     mode.add_argument("--resume", action="store_true",
                       help="continue DIR from its checkpoint (the scene may extend durations, change later "
                            "phases' dt or the output cadence)")
-    mode.add_argument("--overwrite", action="store_true", help="replace the run in DIR (deletes femphase's files there)")
+    mode.add_argument("--overwrite", action="store_true",
+                      help="replace the run in DIR (deletes femphase's files there: the run's outputs, and the figures/ and "
+                           "compare/ that plot and compare wrote of it)")
     parser.add_argument("--method", default="fem", choices=["fem", "fd"],
                         help="fem: the finite-element solver with the scene's numerics.scheme; fd: the paper's "
                              "finite-difference scheme (numerics.scheme = \"fd-heun\")")

@@ -40,6 +40,7 @@ import datetime
 import json
 import logging
 import os
+import shutil
 import time as wallclock
 from pathlib import Path
 from typing import Iterable
@@ -52,13 +53,16 @@ from femphase.errors import SceneError
 from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, output_directory
 from femphase.io.provenance import now
 
-__all__ = ["CHECKPOINT", "FIELDS_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog", "Status",
-           "prepare_directory", "resume_position"]
+__all__ = ["CHECKPOINT", "DERIVED", "FIELDS_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
+           "Status", "prepare_directory", "resume_position"]
 
 CHECKPOINT = "checkpoint.h5"
 RUN_LOG = "run.log"
 #: The lock file of the process writing a run (:func:`prepare_directory`); never deleted.
 LOCK = ".femphase.lock"
+#: Where ``femphase plot`` and ``femphase compare`` write by default inside a run directory:
+#: they describe its run, so ``--overwrite`` deletes them with it.
+DERIVED = ("figures", "compare")
 #: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
 OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json", RUN_LOG)
 FIELDS_DIR = "fields"
@@ -81,7 +85,8 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
     Returns the lock, held: the caller releases it when the run ends.
 
     A directory holding femphase outputs is refused unless ``resume`` (continue it) or
-    ``overwrite`` (delete femphase's files in it, and only those); a directory another
+    ``overwrite`` (delete femphase's files in it, and only those: :data:`OUTPUTS` and the
+    figures and comparisons of the run replaced, :data:`DERIVED`); a directory another
     process is running in is refused either way (two resumes of one run appended every frame
     twice; an overwrite deleted the files of the run under way)."""
     directory = output_directory(directory)
@@ -116,6 +121,9 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
                 target.rmdir()
             else:
                 target.unlink()
+        for name in DERIVED:
+            if (directory / name).is_dir():
+                shutil.rmtree(directory / name)
     return lock
 
 
