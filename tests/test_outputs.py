@@ -291,3 +291,20 @@ def test_runs_with_vanished_particles_keep_their_frames_in_comparisons_and_figur
     assert np.isfinite(x[~gone]).all() and np.isnan(x[gone]).all()
     assert np.isfinite(result["series"]["area"]).all()  # areas are compared whether a particle is present or not
     assert all(path.stat().st_size > 0 for path in figures.values())
+
+
+def test_frame_times_are_written_as_the_multiples_of_dt_they_are(tmp_path):
+    # the clock adds dt step by step: ten steps of 0.1 wrote 0.9999999999999999, and a filter
+    # time == 1.0 found nothing; the outputs now give the times to 12 significant digits
+    import h5py
+
+    scene = scene_from_dict({
+        "name": "clock", "domain": {"Lx": 24.0, "Ly": 24.0, "h": 1.0},
+        "particles": {"layout": "single", "initial_radius": 4.0},
+        "phases": [{"name": "relax", "duration": 1.0, "dt": 0.1, "frame_interval": 0.3}]})
+    run_scene(scene, tmp_path / "run", progress=False)
+    expected = [0.0, 0.3, 0.6, 0.9, 1.0]
+    assert read_csv(tmp_path / "run" / "global.csv")["time"].tolist() == expected
+    assert sorted(set(read_csv(tmp_path / "run" / "particles.csv")["time"].tolist())) == expected
+    with h5py.File(tmp_path / "run" / "fields" / "frame_000003.h5") as frame:
+        assert float(frame.attrs["time"]) == 0.9

@@ -54,7 +54,7 @@ from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, outpu
 from femphase.io.provenance import now
 
 __all__ = ["CHECKPOINT", "DERIVED", "FIELDS_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
-           "Status", "prepare_directory", "resume_position"]
+           "Status", "frame_time", "prepare_directory", "resume_position"]
 
 CHECKPOINT = "checkpoint.h5"
 RUN_LOG = "run.log"
@@ -69,6 +69,14 @@ FIELDS_DIR = "fields"
 #: The package logger (as :data:`femphase.run.trackers.LOGGER`; that module imports the simulation,
 #: which imports this one).
 _LOGGER = logging.getLogger("femphase")
+
+
+def frame_time(time: float) -> float:
+    """``time`` as the outputs give it (the CSVs, the field frames, run.json): to 12
+    significant digits. The clock adds dt step by step, to the last bit as a run step by
+    step would (the checkpoint keeps it so); written as it is, ten steps of 0.1 made
+    0.9999999999999999 and a filter ``time == 1.0`` found nothing."""
+    return float(f"{time:.12g}")
 
 
 def _written_without_checkpoints(directory: Path) -> bool:

@@ -17,7 +17,7 @@ from femphase.io.checkpoints import save_checkpoint
 from femphase.io.fields import point_data
 from femphase.io.files import FileLock, atomic_write, output_directory
 from femphase.io.provenance import provenance
-from femphase.io.rundir import CHECKPOINT, Outputs, RunLog, Status, prepare_directory
+from femphase.io.rundir import CHECKPOINT, Outputs, RunLog, Status, frame_time, prepare_directory
 from femphase.run.simulation import Frame, Simulation, Tracker
 from femphase.run.trackers import LOGGER
 from femphase.state import State
@@ -106,16 +106,17 @@ class RunDirectory(Tracker):
 
     def frame(self, frame: Frame) -> None:
         state = frame.state
-        columns = np.column_stack([np.full(state.n_particles, state.time), np.arange(state.n_particles)]
+        time = frame_time(state.time)
+        columns = np.column_stack([np.full(state.n_particles, time), np.arange(state.n_particles)]
                                   + [np.asarray(frame.particle[c], dtype=float) for c in self.particle_columns])
         self.outputs.append_rows("particles.csv", ([row[0], int(row[1]), *row[2:]] for row in columns.tolist()))
-        self.outputs.append_rows("global.csv", [[state.time, state.step] + [frame.globals[c] for c in self.global_columns]])
+        self.outputs.append_rows("global.csv", [[time, state.step] + [frame.globals[c] for c in self.global_columns]])
         output = self.simulation.scene.output
         if output.fields:
-            self.outputs.append_fields(state.time, point_data(state, output.per_particle_fields), self.simulation.domain.mesh)
+            self.outputs.append_fields(time, point_data(state, output.per_particle_fields), self.simulation.domain.mesh)
         if output.checkpoint:
             self._checkpoint(state)
-        self.status.update(time=state.time, steps=state.step, **self._substeps(state))
+        self.status.update(time=time, steps=state.step, **self._substeps(state))
 
     def _substeps(self, state: State) -> dict:
         """run.json's ``substeps``: per phase begun, the accepted and rejected substeps of a
@@ -147,7 +148,7 @@ class RunDirectory(Tracker):
             if isinstance(error, Interrupted) and self.simulation.scene.output.checkpoint:
                 self._checkpoint(state)  # a consistent state between two steps: keep it
             self.outputs.close()
-            self.status.update(status=status, message=message, time=state.time, steps=state.step,
+            self.status.update(status=status, message=message, time=frame_time(state.time), steps=state.step,
                                steps_this_segment=state.step - self.first_step, **self._substeps(state))
         finally:  # the logger must not keep writing into this directory
             segment = self.status.data["segments"][-1]
