@@ -243,11 +243,12 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     model_table = dict(_table(data, "model"))
     _check_keys(ModelParameters, model_table, "model", PAPER_SYMBOLS)
     for key, value in model_table.items():
-        _check_number(f"model.{key}", value, 0.0, strict=False)
         parameter = PAPER_SYMBOLS.get(key, key)
-        if parameter in ("interface_width", "radius", "mobility") and value == 0:
-            raise SceneError(f"model.{parameter}", value, "a finite number > 0"
-                             + (f" (given as model.{key})" if key != parameter else ""))
+        positive = parameter in ("interface_width", "radius", "mobility")  # the others may be 0
+        if not _is_number(value) or (value <= 0 if positive else value < 0):
+            named = f"model.{parameter}" if positive else f"model.{key}"
+            raise SceneError(named, value, f"a finite number {'>' if positive else '≥'} 0"
+                             + (f" (given as model.{key})" if positive and key != parameter else ""))
     model = _from_table(ModelParameters, model_table, "model", PAPER_SYMBOLS)
     particles_table = _table(data, "particles")
     _check_keys(Particles, particles_table, "particles")

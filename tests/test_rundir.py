@@ -137,7 +137,7 @@ def test_a_run_without_checkpoints_cannot_resume_and_is_told_why(scene, tmp_path
     assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 2
     assert "written with output.checkpoint = false, so it cannot be continued" in capsys.readouterr().err
     assert _run(scene, tmp_path / "new", "--resume") == 2
-    assert "holds checkpoint.h5 (it has no femphase output)" in capsys.readouterr().err
+    assert "holds checkpoint.h5 (it does not exist: start the run without --resume)" in capsys.readouterr().err
 
 
 def test_the_steps_of_a_phase_that_will_not_run_again_cannot_change():

@@ -42,7 +42,7 @@ def write_scene(path: Path, data: dict = SMALL) -> Path:
 @pytest.mark.parametrize(
     "assignment, key",
     [
-        ("model.R=-1", "model.R"),
+        ("model.R=-1", "model.radius"),  # named as model.lambda=0 is, "(given as model.R)"
         ("model.lambda=0", "model.interface_width"),
         ("model.colour=3", "model.colour"),
         ("domain.h=3", "domain.h"),

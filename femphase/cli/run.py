@@ -60,7 +60,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def _seconds(text: str) -> float:
-    value = float(text)
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
     if not value >= 0:  # also NaN
         raise argparse.ArgumentTypeError(f"a number of seconds >= 0, not {text!r}")
     return value

@@ -270,7 +270,8 @@ def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
     directory = Path(directory)
     if not pending:
         if not directory.is_dir():
-            raise FileNotFoundError(f"run directory {str(directory)!r} does not exist; expected the output "
+            what = "is a file, not a directory" if directory.exists() else "does not exist"
+            raise FileNotFoundError(f"run directory {str(directory)!r} {what}; expected the output "
                                     "directory of `femphase run SCENE -o DIR`")
         for name in ("scene.toml", "particles.csv"):
             if not (directory / name).is_file():

@@ -103,6 +103,7 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
         if not (directory / CHECKPOINT).is_file():
             why = ("; this run was written with output.checkpoint = false, so it cannot be continued: rerun it "
                    "with --overwrite" if _written_without_checkpoints(directory) else
+                   " (it does not exist: start the run without --resume)" if not directory.exists() else
                    f" (it has {', '.join(existing) or 'no femphase output'})")
             raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}{why}")
     elif existing and not overwrite:
