@@ -462,7 +462,8 @@ def check_flow(spec: dict, domain: Domain) -> Flow | None:
     if isinstance(spec, dict) and spec.get("type") == "stokes" and "stokes" in FLOWS:
         stokes_drive(spec)
         if domain.kind != "mesh":
-            raise SceneError("flow.type", "stokes", 'a flow without "stokes": a stokes flow needs a meshed domain')
+            raise SceneError("flow.type", "stokes", 'a type other than "stokes" on the structured channel: a stokes '
+                             'flow is solved on a meshed domain ([domain] kind = "mesh")')
         return None
     return flow_from_spec(spec, domain)
 
