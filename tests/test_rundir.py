@@ -299,3 +299,14 @@ def test_overwrite_deletes_the_replaced_runs_figures_and_comparisons_but_not_oth
     assert _run(scene, run, "--overwrite") == 0
     assert not (run / "figures").exists() and not (run / "compare").exists()
     assert (run / "notes.txt").read_text() == "old"
+
+
+def test_a_sweep_directory_is_not_taken_for_a_run(scene, tmp_path, capsys):
+    # a run's files written among a sweep's index and runs/ were read as neither
+    sweep = tmp_path / "sweep"
+    sweep.mkdir()
+    (sweep / "sweep.json").write_text("{}")
+    for flags in ((), ("--overwrite",)):
+        assert _run(scene, sweep, *flags) == 2
+        assert "it holds sweep.json" in capsys.readouterr().err
+    assert sorted(p.name for p in sweep.iterdir()) == ["sweep.json"]

@@ -107,8 +107,11 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
                    f" (it has {', '.join(existing) or 'no femphase output'})")
             raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}{why}")
     elif existing and not overwrite:
-        raise SceneError("-o", str(directory), "a new or empty run directory: it holds a run "
+        raise SceneError("-o", str(directory), "a directory without a run: it holds one "
                          f"({', '.join(existing)}); continue it with --resume or replace it with --overwrite")
+    if (directory / "sweep.json").is_file():  # a run's files among a sweep's would be read as neither
+        raise SceneError("-o", str(directory), "a directory that is not a sweep's: it holds sweep.json; a sweep's "
+                         "runs are in its runs/<id>/, run by femphase sweep")
     try:
         directory.mkdir(parents=True, exist_ok=True)
         probe = directory / f".femphase-write-test-{os.getpid()}"
