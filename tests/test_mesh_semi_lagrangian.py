@@ -96,16 +96,22 @@ def test_the_scene_key_is_checked_and_refused_for_flows_that_change(tmp_path):
     assert scene_from_dict(table, tmp_path).numerics.mesh_advection == "galerkin"
 
 
+def relaxed_disc(length: float, height: float, centre: list[float]):
+    """(domain, state, its shape observables) of a disc relaxed 40 time units in a straight
+    channel of ``length`` × ``height``."""
+    domain = straight(length, height)
+    state = discs(domain, [centre])
+    relax = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
+    for _ in range(40):
+        relax.step(state)
+    return domain, state, shape_observables(state)
+
+
 def carried(monkeypatch, courant: float, speed: float = 3.0, dt: float = 2.0) -> tuple[float, float]:
     """(displacement error, elongation change) of a relaxed disc carried by u = ``speed``
     at phase dt ``dt`` under the default scheme, semi-Lagrangian from ``courant`` on."""
     monkeypatch.setattr(semi_lagrangian, "COURANT", courant)
-    domain = straight(40.0, 30.0)
-    state = discs(domain, [[10.0, 15.0]])
-    relax = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
-    for _ in range(40):
-        relax.step(state)
-    start = shape_observables(state)
+    domain, state, start = relaxed_disc(40.0, 30.0, [10.0, 15.0])
     flow = python_flow(lambda x, y: (np.full_like(x, speed), np.zeros_like(y)))
     stepper = Stepper(domain, PARAMS, Numerics(), dt, flow, state.radii)
     steps = round(32.0 / (speed * dt))
@@ -128,12 +134,7 @@ def test_a_disc_carried_past_its_margin_in_one_substep_keeps_its_field():
     # u = 8 at dt = 10: each of the adaptive scheme's advections carries the disc several
     # margins (4), so the refit before each gives its box room for that motion; without it
     # the field beyond the box was cut away and the disc vanished within a few steps
-    domain = straight(120.0, 24.0)
-    state = discs(domain, [[30.0, 12.0]])
-    relax = Stepper(domain, PARAMS, Numerics(), 1.0, None, state.radii)
-    for _ in range(40):
-        relax.step(state)
-    start = shape_observables(state)
+    domain, state, start = relaxed_disc(120.0, 24.0, [30.0, 12.0])
     stepper = Stepper(domain, PARAMS, Numerics(), 10.0, python_flow(lambda x, y: (np.full_like(x, 8.0), 0 * y)),
                       state.radii)
     assert stepper.roomless and isinstance(stepper.advection, SemiLagrangian)
