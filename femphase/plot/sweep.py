@@ -99,7 +99,8 @@ def plot_summary(rows: list[dict], keys: list[str], output: str | Path, fmt: str
                 ax.set_xscale("log")
             ax.set_xlabel(x_key)
             ax.set_ylabel(ylabel)
-            ax.legend(fontsize=7)
+            if ax.get_legend_handles_labels()[0]:  # a panel of runs without the column has no curve
+                ax.legend(fontsize=7)
         over = (f"mean over {', '.join(averaged)} ± 1 s.d. (ddof = 1; bars and band)" if averaged
                 else "one run per point")
         fig.suptitle(f"{len(done)} of {len(rows)} runs done; {over}", fontsize=8)
