@@ -29,14 +29,16 @@ Shape tensor at a wall. The walls carry the natural condition ∂φ/∂n = 0, so
 touching a wall is cut there: φ stays high up to the wall and has no interface along it. R
 integrates ∇φ∇φᵀ over the domain only, so it measures the particle's interface *inside* the
 domain, not the shape of the particle: the side of a particle pressed against a wall is
-missing from R. A relaxed particle (R = 8) centred 5 from a wall is 19 wide and 14 tall
-(φ > 1/2), yet its R lacks the bottom interface, whose normal is y: −R_yy is the smaller
-eigenvalue, and the particle reports r ≈ 0.66 with a vertical axis (θ = ±π/2). For
-particles with ``wall_contact`` = 1, elongation and orientation therefore describe the
-interface inside the channel (the wall's contribution is zero), not an aspect ratio; the
-bias is small while φ at the wall is small (r = 0.014 for a disc whose tail reaches the wall
-with φ = 0.06) and of order one for a particle flattened on the wall. Exclude those
-particles (``wall_contact == 0``) from shape statistics, or read them with that meaning.
+missing from R. A particle (R = 8) started 5 from a wall spreads along it: at t = 100 it is
+19 nodes wide and 14 tall (φ > 1/2), its R lacks the bottom interface, whose normal is y
+(−R_yy is the smaller eigenvalue), and it reports r = 0.68 with a vertical axis (θ = −π/2);
+at t = 3000 it is a half-disc 23 wide and 12 tall and reports r = 0.0004, as the arc R sees
+has the moments of a whole circle. For particles with ``wall_contact`` = 1, elongation and
+orientation therefore describe the interface inside the channel (the wall's contribution is
+zero), not an aspect ratio, in either direction; the bias is small while φ at the wall is
+small (r = 0.014 for a disc whose tail reaches the wall with φ = 0.06) and of order one for
+a particle pressed on the wall. Exclude those particles (``wall_contact == 0``) from shape
+statistics, or read them with that meaning.
 
 Integrals are exact for P1 fields (gradients are constant per element); the potential-type
 integrals use the nodal (lumped) quadrature of :mod:`femphase.model.energy`.
