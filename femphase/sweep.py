@@ -512,7 +512,7 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
         with dask.config.set({f"distributed.nanny.pre-spawn-environ.{SLOW_MALLOC}": None}), \
                 LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                              env=WORKER_ENV) as cluster, Client(cluster) as local:
-            log(f"femphase sweep: a local Dask cluster of {n} worker processes")
+            log(f"femphase sweep: a local Dask cluster of {n} worker process{'es' if n > 1 else ''}")
             yield local
     finally:
         if inherited is not None:

@@ -281,7 +281,8 @@ def _autocorrelation(values: np.ndarray) -> np.ndarray:
     tail_variance = tail_squares - tail_sum**2 / overlap
     if head_variance[0] <= 0:
         raise ValueError("no oscillation found: the signal is constant")
-    return covariance / np.sqrt(head_variance * tail_variance)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a constant stretch at some lag: no correlation there (NaN)
+        return covariance / np.sqrt(head_variance * tail_variance)
 
 
 def _primary_peak_times(grid: np.ndarray, values: np.ndarray, period: float) -> np.ndarray:

@@ -50,12 +50,12 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         "--t-end", type=float, default=None,
         help=f"final time (time units; default: {DEFAULT_PERIODS} periods π/(k γ̇))",
     )
-    parser.add_argument("--A", type=float, default=defaults.A, help="lattice drive A")
-    parser.add_argument("--epsilon", type=float, default=defaults.epsilon, help="ε of −ε r³")
-    parser.add_argument("--K", type=float, default=defaults.K, help="K of K/r")
-    parser.add_argument("--k", type=float, default=defaults.k, metavar="k", help="ω = k γ̇")
+    parser.add_argument("--A", type=float, default=defaults.A, help="lattice drive A (default %(default)s)")
+    parser.add_argument("--epsilon", type=float, default=defaults.epsilon, help="ε of −ε r³ (default %(default)s)")
+    parser.add_argument("--K", type=float, default=defaults.K, help="K of K/r (default %(default)s)")
+    parser.add_argument("--k", type=float, default=defaults.k, metavar="k", help="ω = k γ̇ (default %(default)s)")
     parser.add_argument(
         "--initial-elongation", type=float, default=DEFAULT_INITIAL_ELONGATION,
-        help="r(0) = AR − 1 (> 0)",
+        help="r(0) = AR − 1 (> 0; default %(default)s)",
     )
     parser.set_defaults(func=run)
