@@ -354,7 +354,8 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     for table, new, before in (("sweep", head, old_head), ("set", sweep.set, old_set)):
         for key in sorted(set(new) | set(before)):
             if new.get(key) != before.get(key):
-                raise SweepError(f"{table}.{key}", new.get(key), f"{before.get(key)!r} {hint}")
+                was = "unset" if key not in before else f"{before[key]!r}"
+                raise SweepError(f"{table}.{key}", "unset" if key not in new else new[key], f"{was} {hint}")
     old_axes = list(_flatten(old.get("axes", {})))
     if old_axes != list(sweep.axes):
         raise SweepError("axes", list(sweep.axes), f"the axes {old_axes}, in that order, {hint}")

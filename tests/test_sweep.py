@@ -213,8 +213,8 @@ def test_branched_runs_equal_serial_runs_and_a_rerun_skips_done_runs(tmp_path, c
     # a changed sweep is refused unless it only adds values
     with pytest.raises(SweepError, match="added values only"):
         run_sweep(write(tmp_path, SWEEP.replace("[1, 2]", "[1]")), out, client)
-    with pytest.raises(SweepError, match="set.phases.1.duration"):
-        run_sweep(path, out, client, assignments=["phases.1.duration=100"])
+    with pytest.raises(SweepError, match="'set.phases.1.duration' = 100 is invalid: unset as in the sweep"):
+        run_sweep(path, out, client, assignments=["phases.1.duration=100"])  # said "None as in the sweep"
     lines.clear()
     index = run_sweep(write(tmp_path, SWEEP.replace("[0.3, 1.0]", "[0.3, 1.0, 2.0]")), out, client, log=lines.append)
     assert "6 runs, 4 done, 2 to run" in lines[0]
