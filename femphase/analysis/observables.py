@@ -129,8 +129,6 @@ class Order(Observable):
     def __init__(self, simulation: RunContext) -> None:
         super().__init__(simulation)
         self.period = simulation.domain.period
-        numerics = getattr(simulation, "numerics", None)
-        self.threshold = numerics.threshold if numerics is not None else DEFAULT_THRESHOLD
         self.t1: T1Counter | None = None
         self._looked_at: float | None = None  # the time of the counter's last look
 
@@ -139,7 +137,7 @@ class Order(Observable):
         for a vanished particle, which then has no neighbours)."""
         layout, phi = state.flat()
         centroids = state.domain.centroids(layout, phi)
-        centroids[~present(layout, phi, self.threshold)] = np.nan
+        centroids[~present(layout, phi)] = np.nan
         self._update(centroids, state.time)
 
     def snapshot(self) -> dict[str, np.ndarray]:

@@ -55,9 +55,8 @@ from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
 from femphase.state import State
 
-__all__ = ["DEFAULT_THRESHOLD", "ShapeObservables", "elongation_and_orientation", "present", "shape_observables",
-           "wall_contact",
-           "wall_dofs"]
+__all__ = ["DEFAULT_THRESHOLD", "PRESENT_LEVEL", "ShapeObservables", "elongation_and_orientation", "present",
+           "shape_observables", "wall_contact", "wall_dofs"]
 
 
 #: The window threshold (``numerics.threshold``'s default): φ above it belongs to a particle.
@@ -127,28 +126,34 @@ def elongation_and_orientation(tensors: np.ndarray) -> tuple[np.ndarray, np.ndar
     return elongation, orientation
 
 
-def present(layout: Layout, phi: np.ndarray, threshold: float = DEFAULT_THRESHOLD) -> np.ndarray:
-    """(N,) bool in particle order: whether φ_i exceeds ``threshold`` (the window threshold)
-    anywhere. A particle that does not has vanished: no dof belongs to it. (Without an area
-    term a disc of R = 3 shrinks below it within 50 time units; its field then decays to
-    rounding noise, ∫φ² ≈ 1e-86, whose weighted mean put one centroid at y = 111.7 in a
-    40-high channel, and an exactly zero field made the T1 counter's triangulation fail.)"""
+#: The level φ_i must reach somewhere for particle i to be present: its interface's, 1/2.
+PRESENT_LEVEL = 0.5
+
+
+def present(layout: Layout, phi: np.ndarray) -> np.ndarray:
+    """(N,) bool in particle order: whether φ_i reaches :data:`PRESENT_LEVEL` anywhere. A
+    particle that does not has vanished: it has no interface, and its moments measure a faint
+    residue. (Without an area term a disc of R = 3 shrinks away within 50 time units and its
+    field decays to rounding noise, ∫φ² ≈ 1e-86, whose weighted mean put one centroid at
+    y = 111.7 in a 40-high channel; an exactly zero field made the T1 counter's triangulation
+    fail. With model.gamma = 10 a vanished particle's field came back under shear as a
+    residue of φ ≤ 0.03, and particles.csv gave it positions and elongations again.)"""
     out = np.zeros(len(layout.windows), dtype=bool)
     if phi.size:
-        out[layout.order] = layout.reduce(np.maximum, phi) > threshold
+        out[layout.order] = layout.reduce(np.maximum, phi) >= PRESENT_LEVEL
     return out
 
 
 def shape_observables(state: State, threshold: float = DEFAULT_THRESHOLD) -> ShapeObservables:
     """All per-particle shape observables of a state (the domain's rule for the moments:
     :meth:`femphase.domains.base.Domain.shape_moments`); ``threshold`` is the window threshold of
-    the wall-contact flag and of :func:`present`: a vanished particle's x, y, elongation and
+    the wall-contact flag. A vanished particle's (:func:`present`) x, y, elongation and
     orientation are NaN."""
     layout, phi = state.flat()
     area, centre, tensors = state.domain.shape_moments(layout, phi)
     elongation, orientation = elongation_and_orientation(tensors)
     contact = wall_contact(state.domain, layout, phi, threshold)
-    gone = ~present(layout, phi, threshold)
+    gone = ~present(layout, phi)
     x, y, elongation, orientation = (np.where(gone, np.nan, values)
                                      for values in (centre[:, 0], centre[:, 1], elongation, orientation))
     return ShapeObservables(x, y, area, elongation, orientation, contact)

@@ -219,7 +219,9 @@ def draw_limit_cycle(ax, run: RunData, ode_rate: float | None = None, ode_k: flo
     shown = _shown_particles(run)
     for j in shown:
         ax.plot(*limit_cycle(run.elongation[late, j], run.orientation[late, j]), lw=0.9, label=f"particle {j}")
-    reach = float(np.nanmax(run.elongation[late][:, shown]))
+    drawn = run.elongation[late][:, shown]
+    drawn = drawn[np.isfinite(drawn)]  # vanished particles' rows are NaN
+    reach = float(drawn.max()) if drawn.size else 0.0
     rate = ode_rate if ode_rate is not None else run.shear_rate
     solution, offset = ode_solution(run, rate, ode_k) if rate else (None, 0.0)
     if solution is not None:
