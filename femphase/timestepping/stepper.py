@@ -21,12 +21,14 @@ or, batched (meshes), all windows are solved at once by CG on their block-diagon
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
 
 from femphase.config import Numerics
+from femphase.domains.advection import nodal_velocity
 from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
 from femphase.errors import SceneError
@@ -79,8 +81,8 @@ class Stepper:
         self.krylov_iterations = 0
         #: the last batched solve's right-hand side and final residual (:meth:`last_product`)
         self._last_solve: tuple[np.ndarray, np.ndarray] | None = None
-        #: (time, or None for a steady flow; the flow's largest nodal speed) (:meth:`_largest_speed`)
-        self._speed: tuple[float | None, float] | None = None
+        #: a steady flow's largest nodal speed (:meth:`_largest_speed`)
+        self._speed: float | None = None
         self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
@@ -259,31 +261,39 @@ class Stepper:
         * ``time`` and ``span`` (a scheme's refit before an advection over ``span`` time
           units): where :attr:`roomless`, room for that motion once the flow can carry a
           particle farther than the policy's ``room`` within it (below that the margin takes
-          the motion); other windows keep the room of the call's refit and get none;
+          the motion); other windows keep the room of the call's refit and get none. A
+          steady flow's room lies ahead of each particle's mean motion; a flow that changes
+          in time may turn within the span, so its room is a margin widened on every side
+          by the farthest it can carry a particle (largest speed × span);
         * neither: no room.
 
         Without room before each advection, a fast flow's advection carried particles out of
         their windows and their fields were cut away: at max_velocity 10 on
         examples/straight_mesh.toml three of ten particles vanished within the first
-        substep of flow."""
-        if time is None:
-            motion = None
-        elif span is None:
-            motion = None if self.roomless else (lambda: self._motion(layout, phi, time, self.dt))
-        elif self.roomless and self._largest_speed(time) * span > self.policy.room:
-            motion = lambda: self._motion(layout, phi, time, span)  # noqa: E731
-        else:
-            motion = None
-        return self.domain.refit(layout, phi, self.policy, motion)
+        substep of flow; in an oscillating shear of rate 10 and frequency 0.5, where one
+        instant's velocity may be near zero, a particle at the wall kept 111 of its 195."""
+        policy, motion = self.policy, None
+        if time is not None and span is None and not self.roomless:
+            motion = lambda: self._motion(layout, phi, time, self.dt)  # noqa: E731
+        elif time is not None and span is not None and self.roomless:
+            reach = self._largest_speed(time, span) * span
+            if reach > self.policy.room and self.flow.steady:
+                motion = lambda: self._motion(layout, phi, time, span)  # noqa: E731
+            elif reach > self.policy.room:
+                policy = replace(self.policy, margin=self.policy.margin + reach)
+        return self.domain.refit(layout, phi, policy, motion)
 
-    def _largest_speed(self, time: float) -> float:
-        """The flow's largest nodal speed over the step from ``time`` (kept for a steady flow)."""
+    def _largest_speed(self, time: float, span: float) -> float:
+        """The flow's largest nodal speed over ``span`` time units from ``time``: a steady
+        flow's (kept), a changing flow's at the span's start, middle and end."""
         if self.advection is None:
             return 0.0
-        key = None if self.flow.steady else time
-        if self._speed is None or self._speed[0] != key:
-            self._speed = (key, float(np.max(np.hypot(*self.advection.velocity(time)))))
-        return self._speed[1]
+        if self.flow.steady:
+            if self._speed is None:
+                self._speed = float(np.max(np.hypot(*nodal_velocity(self.domain, self.flow))))
+            return self._speed
+        return max(float(np.max(np.hypot(*nodal_velocity(self.domain, self.flow, time + f * span))))
+                   for f in (0.0, 0.5, 1.0))
 
     def _motion(self, layout: Layout, phi: np.ndarray, time: float, span: float) -> np.ndarray:
         """(N, 2): each particle's displacement over ``span`` time units from ``time``, its
