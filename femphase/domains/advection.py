@@ -12,6 +12,8 @@ regathering of fields after a move regroups the windows.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -32,6 +34,12 @@ def regather(phi: np.ndarray, old: Layout, new: Layout) -> np.ndarray:
 
 class StepAdvection:
     """Advection over steps of fixed dt in ``flow`` on ``domain`` (the base of the three)."""
+
+    #: Whether it moves the windows with the flow (the structured channel's row shift and
+    #: semi-Lagrangian step), so that a field cannot leave its window by advection; the
+    #: meshes' steps keep the windows where they are, and their refits leave room for the
+    #: motion instead (:meth:`femphase.timestepping.stepper.Stepper.refit`)
+    moves_windows: ClassVar[bool] = False
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         self.domain, self.flow, self.dt = domain, flow, dt

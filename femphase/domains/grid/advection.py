@@ -78,6 +78,8 @@ class RowShift(StepAdvection):
     """Exact advection of the structured channel's windows in a row flow (u(y, t), 0), in
     the fields' precision (:func:`shift_rows`; numerics.precision = "mixed" passes float32)."""
 
+    moves_windows = True
+
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
         _, self._y = domain.grid.coordinates()
@@ -183,6 +185,8 @@ def row_runs(layout: Layout) -> list[tuple[int, int, slice, np.ndarray, np.ndarr
 class SemiLagrangian(StepAdvection):
     """Advection of the structured channel's windows in any flow, by cubic interpolation at
     departure points."""
+
+    moves_windows = True
 
     PAD = 4
 
