@@ -49,6 +49,7 @@ from __future__ import annotations
 
 import csv
 import json
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -62,8 +63,8 @@ from femphase.domains.grid.lattice import ChannelGrid, grid_dof_map
 from femphase.io.reader import FieldFrames, match_times, open_run
 from femphase.state import State
 
-__all__ = ["ENERGIES", "FIELD_NORMS", "GRID_SUFFIXES", "OBSERVABLES", "ORIENTATION_MIN_ELONGATION", "GridData",
-           "Source", "compare_runs", "default_output", "format_table", "grid_data_from_run", "load_grid_data",
+__all__ = ["ENERGIES", "FIELD_NORMS", "GRID_SUFFIXES", "OBSERVABLES", "ORIENTATION_MIN_ELONGATION", "START_OFFSET",
+           "GridData", "Source", "compare_runs", "default_output", "format_table", "grid_data_from_run", "load_grid_data",
            "open_source", "save_grid_data", "write_comparison"]
 
 #: Suffixes of grid data files (NumPy .npz, HDF5).
@@ -393,6 +394,11 @@ def _check_domains(a: Source, b: Source, with_fields: bool) -> None:
             )
 
 
+#: Lattice units two inputs' particles may be apart at t = 0 before :func:`compare_runs`
+#: warns that the runs did not start from the same state.
+START_OFFSET = 1.0
+
+
 def _compare(a: Source, b: Source, with_fields: bool) -> dict:
     _check_domains(a, b, with_fields)
     ia, ib = match_times(a.particle_times, b.particle_times)
@@ -416,6 +422,12 @@ def _compare(a: Source, b: Source, with_fields: bool) -> dict:
         # area is not, so a particle vanished in one input only shows in the area's difference)
         largest = np.where(np.isnan(diff), -np.inf, diff).max(axis=1)
         series[name] = np.where(np.isfinite(largest), largest, np.nan)
+    start = max(series["x"][0], series["y"][0])
+    if times[0] == 0.0 and start > START_OFFSET:  # particles are paired by id
+        warnings.warn(f"'{a.label}' and '{b.label}' start from different states: at t = 0 their particles (paired "
+                      f"by id) are up to {start:.3g} apart in x or y, so the differences are not the methods'. A "
+                      "random layout places its particles differently on different domains; give both runs the "
+                      'same centres with layout = "list"', stacklevel=3)
     if a.is_run and b.is_run:
         for name in ENERGIES.values():
             series[name] = np.abs(_on_frames(times, a.energy_times, a.energies[name])
