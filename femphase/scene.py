@@ -57,9 +57,7 @@ MAX_PHASE_STEPS = 10**12
 class Particles:
     """Initial particles. ``layout``: single | hexagonal | random | list.
 
-    N               number of particles (hexagonal, random; single and list place 1 and one per
-                    centre, and an N given with them must say the same; the resolved scene
-                    keeps the default N for them)
+    N               number of particles (hexagonal, random; single places 1, list one per centre)
     initial_radius  radius of the initial discs (default R/2, as in the paper)
     seed            random seed (random layout)
     centres         [[x, y], ...] (list and single layouts; single defaults to the centre)
