@@ -79,11 +79,13 @@ import gc
 import hashlib
 import itertools
 import json
+import logging
 import os
 import re
 import shutil
 import time as wallclock
 import uuid
+import warnings
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass, replace
@@ -91,6 +93,7 @@ from pathlib import Path
 
 from femphase import tomlio
 from femphase.errors import FemphaseError, Interrupted, SceneError
+from femphase.io.console import console_handler, log_warning
 from femphase.io.files import atomic_write, jsonable, locked, output_directory
 from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
 from femphase.run.runner import run_scene
@@ -430,8 +433,14 @@ def _outcome(action: Callable[[], None]) -> dict:
     """Run ``action``; its outcome as an index status, error message, wall and CPU time
     (of the worker process, which runs one task at a time)."""
     started, cpu = wallclock.perf_counter(), wallclock.process_time()
+    # the run's warnings as the command line shows them, one "femphase: warning: …" line each
+    # (a worker's default is Python's file-and-line form), and into the run's run.log
+    console, logger = console_handler(logging.WARNING), logging.getLogger("femphase")
+    logger.addHandler(console)
     try:
-        action()
+        with warnings.catch_warnings():
+            warnings.showwarning = log_warning
+            action()
         status, error = "done", None
     except Interrupted as exc:
         status, error = "interrupted", str(exc)
@@ -440,6 +449,7 @@ def _outcome(action: Callable[[], None]) -> dict:
     except Exception as exc:  # a bug in one run must not stop the others: report it in the index
         status, error = "failed", f"internal error ({type(exc).__name__}: {exc})"
     finally:
+        logger.removeHandler(console)
         # A finished run is cyclic garbage (its domain's cache budget holds advections that
         # hold the domain), which Python's collector, triggered by counts of container
         # allocations that numpy work hardly makes, may leave for many tasks: uncollected,
@@ -480,9 +490,8 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
     if client is not None:
         yield client
         return
-    from dask.distributed import Client, LocalCluster
-
     import dask
+    from dask.distributed import Client, LocalCluster
 
     if scheduler is not None:
         before = {key: dask.config.config.get(key) for key in ("scheduler", "shuffle")}

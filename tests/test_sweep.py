@@ -338,3 +338,14 @@ def test_a_table_in_set_replaces_the_scenes_table_as_run_set_does(tmp_path):
     with pytest.raises(SweepError, match=r"sweep key 'set\.phases\.1\.flow'"):  # needs its rate, named as [set]'s
         load_sweep(write(tmp_path / "c", '[sweep]\nscene = "tiny.toml"\n[set]\n"phases.1.flow" = {type = "poiseuille"}\n'
                          '[axes]\n"particles.seed" = [1, 2]\n'))
+
+
+def test_a_workers_run_warns_in_the_command_lines_one_line_form(capsys):
+    # a Dask worker printed its runs' warnings in Python's form (file, line, the warn call)
+    import warnings as stdlib_warnings
+
+    from femphase.sweep import _outcome
+
+    outcome = _outcome(lambda: stdlib_warnings.warn("the particle has vanished", UserWarning))
+    assert outcome["status"] == "done"
+    assert capsys.readouterr().err == "femphase: warning: the particle has vanished\n"

@@ -40,8 +40,8 @@ import warnings
 
 from femphase import __version__
 from femphase.cli import aggregate, compare, converge, ode, plot, run, sweep
-from femphase.cli.console import console_handler
 from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted
+from femphase.io.console import console_handler, log_warning
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -62,16 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    # through the logger: the console shows it, and a running run's run.log keeps it
-    logging.getLogger("femphase").warning("%s", message)
-
-
 def main(argv: list[str] | None = None) -> int:
     # BLAS threads oversubscribe small machines for no gain on these sparse problems
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(name, "1")
-    warnings.showwarning = _show_warning
+    warnings.showwarning = log_warning
     args = build_parser().parse_args(argv)
     if argv is not None:
         args.argv = list(argv)

@@ -6,4 +6,5 @@
 ``rundir``       a run directory's outputs, status (run.json), log and resume rules
 ``provenance``   what ran where: versions, git commit, host, threads
 ``reader``       :func:`~femphase.io.reader.open_run`, the one reader of a run directory
+``console``      the femphase logger on stderr, and warnings through it (one line each)
 """

@@ -422,7 +422,7 @@ class AccuracyGuard(Tracker):
             f"phase {index} ({self.scene.phases[index].name!r}), t = {state.time:g}: particle {int(gone[0])} has "
             f"vanished, area ∫φ²/πR² = {ratio[gone[0]]:.3g} < {VANISHED_RATIO:g} ({gone.size} of {ratio.size} "
             f"particles); from here its x, y, elongation and orientation in particles.csv mean nothing (NaN once "
-            f"its φ is nowhere above numerics.threshold); {cause}"))
+            f"its φ reaches 1/2 nowhere); {cause}"))
 
     def _check_areas(self, index: int, state: State, ratio: np.ndarray) -> None:
         if ("area", index) in self._warned or state.n_particles == 0:

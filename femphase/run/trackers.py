@@ -7,7 +7,7 @@ memory (:class:`FrameRecorder`); the run directory's writer is
 femphase logs under the logger name ``femphase`` (:data:`LOGGER`) and configures nothing on
 import (the package adds a NullHandler only). A run directory appends the log to
 ``run.log`` (:class:`femphase.io.rundir.RunLog`); ``femphase run`` adds a console handler on
-stderr (:func:`femphase.cli.console.console_handler`). From Python,
+stderr (:func:`femphase.io.console.console_handler`). From Python,
 ``logging.basicConfig(level=logging.INFO)`` shows the status lines of a :class:`StatusLog`:
 
     Simulation(scene).run(scene.initial_state(), [StatusLog(interval=10.0)])

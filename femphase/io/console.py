@@ -1,11 +1,13 @@
-"""The console of ``femphase run``: the femphase logger's records on stderr, as ``femphase: …`` lines."""
+"""The console: the femphase logger's records on stderr, as ``femphase: …`` lines, for the
+command line and for the sweeps' workers (light: logging and sys only, so that the command
+line starts without the package's numerics)."""
 
 from __future__ import annotations
 
 import logging
 import sys
 
-__all__ = ["console_handler"]
+__all__ = ["console_handler", "log_warning"]
 
 
 class _ConsoleFormatter(logging.Formatter):
@@ -25,3 +27,10 @@ def console_handler(level: int) -> logging.Handler:
     handler.setLevel(level)
     handler.setFormatter(_ConsoleFormatter())
     return handler
+
+
+def log_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """A ``warnings.showwarning`` that logs the message alone through the femphase logger:
+    the console shows it as femphase's other warnings, and a running run's run.log keeps it
+    (Python's own form adds the file, the line and the source of ``warnings.warn``)."""
+    logging.getLogger("femphase").warning("%s", message)
