@@ -352,12 +352,12 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     scheme = numerics.scheme if scheme is None else scheme
     key = "numerics.scheme" if scheme == numerics.scheme else "--method"
     # as the user wrote it: --method takes "fem" or "fd", numerics.scheme the schemes' names
-    given, instead = ("fd", '"fem"') if key == "--method" else (scheme, '"euler"')
+    given, instead = ("fd", '"fem"') if key == "--method" else (scheme, 'a FEM scheme ("adaptive", "sav2", "euler")')
     SCHEMES.get(scheme).check_mass(numerics.mass)
     if scheme == "fd-heun":
         if domain.kind != "grid":
-            raise SceneError(key, given, f'{instead}: the finite-difference reference needs the structured channel '
-                             f'([domain] kind = "grid"; this scene\'s kind is "{domain.kind}")')
+            raise SceneError(key, given, f'{instead} on this domain: the finite-difference reference needs the '
+                             f'structured channel ([domain] kind = "grid"; this scene\'s kind is "{domain.kind}")')
         for i, phase in enumerate(scene.phases):
             # the scheme's own checks (its stability limit), phase by phase
             try:

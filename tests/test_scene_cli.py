@@ -553,3 +553,11 @@ def test_sav2_past_the_area_modes_step_bound_is_warned_about(tmp_path):
         warnings.simplefilter("always")
         load_scene(path, ["numerics.scheme=sav2", "phases.0.dt=2.5", "phases.0.frame_interval=5.0"])
     assert not [w for w in records if issubclass(w.category, StiffnessWarning)]
+
+
+def test_a_grid_given_a_mesh_of_other_nodes_names_the_file(tmp_path):
+    # the value named was "30824 nodes off the lattice", not the file
+    mesh = Path(__file__).parents[1] / "meshes" / "obstacle.vtu"
+    with pytest.raises(SceneError, match=r"'domain.mesh' = '.*obstacle.vtu' is invalid: .*nodes off the lattice; "
+                                         r'a mesh of other nodes is a domain of kind "mesh"'):
+        load_scene(write_scene(tmp_path / "scene.toml"), [f'domain.mesh="{mesh}"'])

@@ -175,8 +175,9 @@ class FiniteDifferenceHeun(TimeScheme):
         super().__init__(stepper)
         domain = stepper.domain
         if not isinstance(domain, GridDomain):
-            raise SceneError("numerics.scheme", self.name, '"euler": the finite-difference reference needs the '
-                             'structured channel ([domain] kind = "grid")')
+            raise SceneError("numerics.scheme", self.name, 'a FEM scheme ("adaptive", "sav2", "euler") on this '
+                             'domain: the finite-difference reference needs the structured channel ([domain] kind = '
+                             '"grid")')
         self.domain = domain
         self._advection_order = {"upwind3": 3, "upwind1": 1}[stepper.numerics.fd_advection]
         u, v = self._nodal_flow(0.0)

@@ -99,7 +99,13 @@ class GridDomain(Domain):
                 raise SceneError(f"domain.{key}", value, "a finite number > 0 (lattice units)")
         grid = channel_grid(sizes["Lx"], sizes["Ly"], sizes["h"])
         mesh = load_mesh(base_dir / table["mesh"]) if table.get("mesh") else None
-        return cls(grid, numerics.diagonals, mesh)
+        try:
+            return cls(grid, numerics.diagonals, mesh)
+        except SceneError as exc:  # the mesh's nodes are not the lattice's: name the file, not a count
+            if exc.key != "domain.mesh":
+                raise
+            raise SceneError("domain.mesh", table["mesh"], f"{exc.valid} ({exc.value}; a mesh of other nodes is "
+                             'a domain of kind "mesh")') from None
 
     def describe(self) -> dict:
         return {"kind": self.kind, "nx": self.grid.nx, "ny": self.grid.ny, "h": self.grid.h,
