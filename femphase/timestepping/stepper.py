@@ -276,9 +276,10 @@ class Stepper:
         an LU per box ("direct") at max_velocity 10 and dt = 1, areas of 184 against 192 and
         φ down to −0.18."""
         policy, motion = self.policy, None
+        keeps_windows = self.advection is not None and not self.advection.moves_windows
         if time is not None and span is None and not self.roomless:
             motion = lambda: self._motion(layout, phi, time, self.dt)  # noqa: E731
-        elif time is not None and span is not None and self.advection is not None and not self.advection.moves_windows:
+        elif time is not None and span is not None and keeps_windows:
             reach = self._largest_speed(time, span) * span
             if reach > self.policy.room and self.flow.steady:
                 motion = lambda: self._motion(layout, phi, time, span)  # noqa: E731
@@ -289,8 +290,6 @@ class Stepper:
     def _largest_speed(self, time: float, span: float) -> float:
         """The flow's largest nodal speed over ``span`` time units from ``time``: a steady
         flow's (kept), a changing flow's at the span's start, middle and end."""
-        if self.advection is None:
-            return 0.0
         if self.flow.steady:
             if self._speed is None:
                 self._speed = float(np.max(np.hypot(*nodal_velocity(self.domain, self.flow))))
