@@ -31,8 +31,7 @@ from femphase.timestepping import SCHEMES, Stepper
 
 __all__ = ["LAYOUTS", "MAX_AREA_FRACTION", "MAX_PARTICLES", "MAX_PHASE_STEPS", "check_flow", "check_numerics",
            "initial_centres", "load_scene", "Output", "parse_assignment", "Particles", "Phase", "placed_count",
-           "read_scene_data",
-           "registries", "Scene", "scene_from_dict", "set_value"]
+           "read_scene_data", "registries", "Scene", "scene_from_dict", "set_value"]
 
 
 def registries() -> tuple[Registry, ...]:
@@ -156,7 +155,7 @@ class Scene:
 
     @property
     def n_particles(self) -> int:
-        placed = placed_count(asdict(self.particles))
+        placed = placed_count({"layout": self.particles.layout, "centres": self.particles.centres})
         return self.particles.N if placed is None else placed
 
     def flow(self, phase: Phase) -> Flow:
@@ -352,7 +351,9 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     scheme = numerics.scheme if scheme is None else scheme
     key = "numerics.scheme" if scheme == numerics.scheme else "--method"
     # as the user wrote it: --method takes "fem" or "fd", numerics.scheme the schemes' names
-    given, instead = ("fd", '"fem"') if key == "--method" else (scheme, 'a FEM scheme ("adaptive", "sav2", "euler")')
+    from femphase.timestepping.fd import fem_schemes
+
+    given, instead = ("fd", '"fem"') if key == "--method" else (scheme, fem_schemes())
     SCHEMES.get(scheme).check_mass(numerics.mass)
     if scheme == "fd-heun":
         if domain.kind != "grid":

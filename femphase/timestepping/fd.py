@@ -62,7 +62,7 @@ from femphase.model.parameters import ModelParameters
 from femphase.state import State
 from femphase.timestepping.base import SCHEMES, StepperProtocol, TimeScheme
 
-__all__ = ["COURANT_NUMBER", "DIFFUSION_NUMBER", "FiniteDifferenceHeun", "explicit_stability_limit",
+__all__ = ["COURANT_NUMBER", "DIFFUSION_NUMBER", "FiniteDifferenceHeun", "explicit_stability_limit", "fem_schemes",
            "five_point_laplacian", "laplacian", "padded_index", "upwind_advection"]
 
 
@@ -175,9 +175,8 @@ class FiniteDifferenceHeun(TimeScheme):
         super().__init__(stepper)
         domain = stepper.domain
         if not isinstance(domain, GridDomain):
-            raise SceneError("numerics.scheme", self.name, 'a FEM scheme ("adaptive", "sav2", "euler") on this '
-                             'domain: the finite-difference reference needs the structured channel ([domain] kind = '
-                             '"grid")')
+            raise SceneError("numerics.scheme", self.name, f'{fem_schemes()} on this domain: the finite-difference '
+                             'reference needs the structured channel ([domain] kind = "grid")')
         self.domain = domain
         self._advection_order = {"upwind3": 3, "upwind1": 1}[stepper.numerics.fd_advection]
         u, v = self._nodal_flow(0.0)
@@ -235,3 +234,10 @@ class FiniteDifferenceHeun(TimeScheme):
         if source is not None:
             rate += source
         return rate
+
+
+def fem_schemes() -> str:
+    """What a domain the finite-difference reference cannot run on takes instead, for
+    messages: 'a FEM scheme ("euler", "sav2", "adaptive")', from the registry."""
+    names = ", ".join(f'"{name}"' for name in SCHEMES.names() if name != FiniteDifferenceHeun.name)
+    return f"a FEM scheme ({names})"
