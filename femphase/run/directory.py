@@ -68,10 +68,12 @@ class RunDirectory(Tracker):
                 warnings.warn(f"{self.directory / 'run.json'} is missing or not JSON: the resumed run writes a new "
                               "one, without the earlier segments' history (start, hosts, CPU times); the data and "
                               "the checkpoint are intact", stacklevel=2)
-        atomic_write(self.directory / "scene.toml", to_toml(simulation.settings()))
+        #: the resolved scene as it runs: scene.toml, run.json's settings and every checkpoint's
+        self.settings = simulation.settings()
+        atomic_write(self.directory / "scene.toml", to_toml(self.settings))
         self.status = Status(self.directory, {
             "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
-            "settings": simulation.settings(),
+            "settings": self.settings,
         }, previous)
         origin = provenance()
         self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
@@ -133,7 +135,7 @@ class RunDirectory(Tracker):
 
     def _checkpoint(self, state: State) -> None:
         save_checkpoint(self.directory / CHECKPOINT, state, self.simulation.observer_state(), {
-            "scene": self.simulation.settings(), "outputs": self.outputs.record(),
+            "scene": self.settings, "outputs": self.outputs.record(),
             "method": self.simulation.method, "time": state.time,
         })
 
