@@ -216,6 +216,19 @@ def test_cli_refuses_an_output_path_that_is_a_file(tmp_path):
         args.func(args)
 
 
+def test_cli_refuses_to_replace_a_solution_without_overwrite(tmp_path):
+    run = parse(["ode", "--rate", "0.1", "-o", str(tmp_path)])
+    assert run.func(run) == 0
+    first = (tmp_path / "ode.json").read_text()
+    again = parse(["ode", "--rate", "0.2", "-o", str(tmp_path)])
+    with pytest.raises(SceneError, match=r"option '-o' = .* is invalid: .*ode\.csv, ode\.json; replace them with --overwrite"):
+        again.func(again)
+    assert (tmp_path / "ode.json").read_text() == first
+    replace = parse(["ode", "--rate", "0.2", "-o", str(tmp_path), "--overwrite"])
+    assert replace.func(replace) == 0
+    assert json.loads((tmp_path / "ode.json").read_text())["rate"] == 0.2
+
+
 def test_a_run_with_more_half_periods_than_samples_solves_and_a_far_longer_one_is_refused():
     # γ̇ = 10: half periods of π/(2·0.1) ≈ 15.7; 127 of them and 11 samples, so most
     # segments hold no sample (scipy's dense output fails on an empty time array)

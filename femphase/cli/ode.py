@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from femphase.errors import SceneError
 from femphase.io.files import output_directory
 from femphase.model.minimal import (
     DEFAULT_INITIAL_ELONGATION,
@@ -16,12 +17,19 @@ from femphase.model.minimal import (
     write_solution,
 )
 
-__all__ = ["register", "run"]
+__all__ = ["OUTPUTS", "register", "run"]
+
+#: The files a solution writes (:func:`~femphase.model.minimal.write_solution`).
+OUTPUTS = ("ode.csv", "ode.json")
 
 
 def run(args: argparse.Namespace) -> int:
     """`femphase ode`: solve the minimal model and write ode.csv and ode.json to args.output."""
     args.output = output_directory(args.output)
+    written = [name for name in OUTPUTS if (args.output / name).exists()]
+    if written and not args.overwrite:
+        raise SceneError("-o", str(args.output), f"a directory without a solution: it holds {', '.join(written)}; "
+                         "replace them with --overwrite")
     try:
         parameters = MinimalModelParameters(A=args.A, epsilon=args.epsilon, K=args.K, k=args.k)
         t_end = DEFAULT_PERIODS * period(args.rate, args.k) if args.t_end is None else args.t_end
@@ -46,6 +54,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     parser.add_argument("--rate", type=float, required=True, help="shear rate γ̇ (> 0)")
     parser.add_argument("-o", "--output", required=True, help="output directory")
+    parser.add_argument("--overwrite", action="store_true", help="replace the ode.csv and ode.json it holds")
     parser.add_argument(
         "--t-end", type=float, default=None,
         help=f"final time (time units; default: {DEFAULT_PERIODS} periods π/(k γ̇))",
