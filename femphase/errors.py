@@ -69,3 +69,8 @@ class FlowWarning(UserWarning):
 class StiffnessWarning(UserWarning):
     """A scene runs, but a stiff term holds its steps far below dt (the message says which
     term, how far, and what lifts it)."""
+
+
+class LockWarning(UserWarning):
+    """A directory's lock could not be taken because its filesystem has no locks (some
+    network filesystems): the command goes on, and nothing keeps a second process out."""

@@ -2,6 +2,7 @@
 
 Every refusal is checked to leave the directory byte for byte as it was."""
 
+import errno
 import json
 import os
 from pathlib import Path
@@ -86,6 +87,25 @@ def test_a_directory_another_process_runs_in_is_refused_and_left_alone(scene, tm
         holder.release()
     assert _run(scene, run, "--resume", "--set", "phases.1.duration=40") == 0
     assert read_csv(run / "global.csv")["time"].max() == 60.0
+
+@pytest.mark.parametrize("code, runs", [(errno.ENOLCK, True), (errno.EIO, False)])
+def test_a_filesystem_without_locks_runs_with_a_warning_and_other_lock_errors_stop(scene, tmp_path, capsys,
+                                                                                  monkeypatch, code, runs):
+    # NFS without its lock daemon raises ENOLCK from flock: refusing there would stop every run
+    def flock(handle, operation):
+        raise OSError(code, os.strerror(code))
+
+    monkeypatch.setattr("femphase.io.files.fcntl.flock", flock)
+    run = tmp_path / "run"
+    if runs:
+        assert _run(scene, run) == 0
+        assert "filesystem without locks" in capsys.readouterr().err
+        assert json.loads((run / "run.json").read_text())["status"] == "completed"
+    else:
+        assert _run(scene, run) == 2
+        message = capsys.readouterr().err
+        assert "a directory femphase can lock (Input/output error)" in message and "bug" not in message
+
 
 @pytest.mark.parametrize("target", ["file", "/proc/femphase-cannot-write-here"])
 def test_an_unusable_output_path_is_one_clear_message(scene, tmp_path, capsys, target):

@@ -12,23 +12,29 @@ processes out of one directory. What a run directory holds, and its guarantees, 
 from __future__ import annotations
 
 import csv
+import errno
 import fcntl
 import json
 import os
 import signal
+import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from femphase.errors import SceneError
+from femphase.errors import LockWarning, SceneError
 
 __all__ = ["FileLock", "atomic_write", "failpoint", "jsonable", "locked", "output_directory", "read_csv",
            "write_json"]
 
 
 _FAILPOINT_PASSES: dict[str, int] = {}
+
+#: What ``flock`` raises on a filesystem that has no locks (ENOLCK on NFS without its lock
+#: daemon; EOPNOTSUPP or ENOSYS on some FUSE and network filesystems).
+NO_LOCKS = frozenset({errno.ENOLCK, errno.EOPNOTSUPP, errno.ENOTSUP, errno.ENOSYS})
 
 
 def failpoint(name: str) -> None:
@@ -98,7 +104,9 @@ class FileLock:
     """An exclusive ``flock`` on ``path`` (created), held from :meth:`acquire` until
     :meth:`release`. The kernel drops it when its process dies, so a killed process never
     leaves a stale lock; the file stays, holding the last holder's pid and host for the
-    message of a process refused it (:meth:`holder`)."""
+    message of a process refused it (:meth:`holder`). On a filesystem without locks
+    (:data:`NO_LOCKS`) it is taken without one, with a :class:`~femphase.errors.LockWarning`:
+    refusing would stop every run there, where most users run one process per directory."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
@@ -113,6 +121,12 @@ class FileLock:
         except BlockingIOError:
             os.close(handle)
             return False
+        except OSError as exc:
+            if exc.errno not in NO_LOCKS:
+                os.close(handle)
+                raise
+            warnings.warn(f"{self.path.parent} is on a filesystem without locks ({exc.strerror}): nothing keeps "
+                          "a second femphase process out of it; run one at a time there", LockWarning, stacklevel=2)
         os.ftruncate(handle, 0)
         os.write(handle, f"pid {os.getpid()} on {os.uname().nodename}\n".encode())
         self._handle = handle

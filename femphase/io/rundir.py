@@ -120,7 +120,11 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
     except OSError as exc:
         raise SceneError("-o", str(directory), f"a directory femphase can write to ({exc.strerror or exc})") from None
     lock = FileLock(directory / LOCK)
-    if not lock.acquire(blocking=False):
+    try:
+        taken = lock.acquire(blocking=False)
+    except OSError as exc:
+        raise SceneError("-o", str(directory), f"a directory femphase can lock ({exc.strerror or exc})") from None
+    if not taken:
         raise SceneError("-o", str(directory), f"a directory no other femphase process is writing to: {lock.holder()} "
                          "is running a run there; wait for it to end, or stop it with Ctrl-C or kill (it keeps its "
                          "last checkpoint)")
