@@ -30,6 +30,16 @@ _MAJOR_PEAK_FRACTION = 0.7
 #: cycles fit in half the record.
 _MIN_CORRELATION = 0.4
 
+#: An autocorrelation peak counts only when it rises at least this far above the troughs
+#: on either side (its prominence). Noise on the signal wrinkles the autocorrelation: on the
+#: central lobe's falling flank a wrinkle can be as high as the peak at the period (0.50
+#: against 0.57 for a sine of amplitude 0.3 under white noise of s.d. 0.2), and the flat
+#: top of that peak splits into several maxima, of which the first lies short of the
+#: period. The wrinkles rise by a few hundredths; a peak at the period by twice its height,
+#: at least 0.4 (:data:`_MIN_CORRELATION`), where the correlation falls below zero between
+#: periods, and still by far more than this above a transient's slow decay.
+_MIN_PROMINENCE = 0.2
+
 #: Primary peaks of the signal are at least this many periods apart.  Every instant is within
 #: half a period of a primary peak, so any lower peak (a secondary, or noise) lies within this
 #: distance of a higher one and is discarded, while primaries survive a cycle-to-cycle jitter
@@ -76,7 +86,8 @@ def oscillation_period(
        may be unevenly spaced).
     3. The period is the lag of the first major peak of the autocorrelation: the first peak
        at least 0.7 times as high as the highest within half the record (a secondary peak in
-       each cycle gives lower peaks at shorter lags), which must reach 0.4.  It is refined to
+       each cycle gives lower peaks at shorter lags), which must reach 0.4; peaks count that
+       rise at least 0.2 above the troughs beside them (the wrinkles noise makes do not).  It is refined to
        a fraction of the sampling interval by a parabola through the peak and its two
        neighbours.  Each lag correlates the two overlapping segments with their own means and
        variances, so that the peak of a periodic signal is exactly at its period, whatever
@@ -244,7 +255,7 @@ def _uniform_resampling(
 def _first_major_autocorrelation_lag(values: np.ndarray) -> float:
     """Lag, in samples, of the first major peak of the autocorrelation of `values`."""
     correlation = _autocorrelation(values)
-    peaks, _ = find_peaks(correlation)
+    peaks, _ = find_peaks(correlation, prominence=_MIN_PROMINENCE)
     heights = correlation[peaks]
     if heights.max(initial=-1.0) < _MIN_CORRELATION:
         raise ValueError(
