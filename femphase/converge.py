@@ -18,7 +18,8 @@ and r = s₂/s₃ the finest pair's ratio:
 
 * observed order p from the three finest levels (f₁ the coarsest of them):
   (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p), i.e. ``p = log(|f₁ − f₂| / |f₂ − f₃|) / log r``
-  at a constant ratio; with two levels, p is the ``expected_order``;
+  at a constant ratio, solved over all real p at any other (:func:`_observed_order`); with
+  two levels, p is the ``expected_order``;
 * limit f∞ = f₃ + (f₃ − f₂)/(r^q − 1) (Richardson), q = min(p, formal order): an observed
   order above the formal one (2 in h and in dt, 1 in the tolerance; ``--order``) comes from
   levels outside the asymptotic range and would shrink the error bar;
@@ -30,7 +31,8 @@ and r = s₂/s₃ the finest pair's ratio:
 
 The limit is not reported (NaN, with the reason) when the differences change sign
 (oscillatory convergence) or p ≤ 0 (divergence): the levels are not in the asymptotic
-range and a finer one is needed.
+range and a finer one is needed. Where the finest two values are equal, the limit is that
+value at any order, with an error bar of 0.
 
 **Observables** (:data:`OBSERVABLES`), all from the run directories:
 
@@ -104,19 +106,29 @@ class Estimate:
     note: str = ""
 
 
+#: The observed orders :func:`_observed_order` resolves: beyond them it returns ±inf.
+ORDER_RANGE = 50.0
+
+
 def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
-    """p with (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p) for the three finest levels
-    (a constant ratio r gives r^p; other ratios are solved by bisection on p ∈ [1e-3, 20],
-    over which the right side increases)."""
+    """p with (f₁ − f₂)/(f₂ − f₃) = (s₁^p − s₂^p)/(s₂^p − s₃^p) for the three finest levels,
+    the left side positive. With x = ln(s₁/s₂) and y = ln(s₂/s₃) the right side is
+    expm1(p x)/(−expm1(−p y)), which rises from 0 to ∞ over all real p, through x/y at p = 0
+    (r^p at a constant ratio r): a ratio of differences below x/y has a negative p, however
+    the levels are spaced. Solved by bisection on [−50, 50] (:data:`ORDER_RANGE`); ±inf
+    beyond."""
     s1, s2, s3 = s[-3:]
     target = (f[-3] - f[-2]) / (f[-2] - f[-1])
+    x, y = math.log(s1 / s2), math.log(s2 / s3)
 
     def ratio(p: float) -> float:
-        return (s1**p - s2**p) / (s2**p - s3**p)
+        return x / y if p == 0 else math.expm1(p * x) / -math.expm1(-p * y)
 
-    low, high = 1e-3, 20.0
-    if not ratio(low) < target < ratio(high):
-        return math.log(target) / math.log(s2 / s3) if target > 0 else math.nan
+    low, high = -ORDER_RANGE, ORDER_RANGE
+    if target <= ratio(low):
+        return -math.inf
+    if target >= ratio(high):
+        return math.inf
     for _ in range(200):
         middle = 0.5 * (low + high)
         low, high = (middle, high) if ratio(middle) < target else (low, middle)
@@ -136,16 +148,24 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
         raise ConvergenceError("levels", list(spacings), "different values > 0 of the refined parameter")
     r = float(s[-2] / s[-1])  # the finest pair's ratio
     nan = (math.nan,) * s.size
-    if not np.all(np.isfinite(f)):
-        return Estimate(math.nan, False, math.nan, math.nan, math.nan, nan,
-                        "an observable could not be measured in every run")
     observed = s.size >= 3
+    missing = int(np.count_nonzero(~np.isfinite(f)))
+    if missing:
+        return Estimate(math.nan, observed, math.nan, math.nan, math.nan, nan,
+                        f"not measured in {missing} of the {s.size} runs")
+    if f[-1] == f[-2]:  # the extrapolation is f₃ at any order
+        errors = np.empty(s.size)
+        errors[order_of] = f - f[-1]
+        return Estimate(math.inf if observed else float(expected_order), observed, float(expected_order),
+                        float(f[-1]), 0.0, tuple(float(e) for e in errors),
+                        "identical at the finest two levels: the limit is their value")
     if observed:
         coarse, fine = f[-3] - f[-2], f[-2] - f[-1]
-        if fine == 0 and coarse == 0:
-            return Estimate(math.inf, True, math.inf, float(f[-1]), 0.0, tuple(np.zeros(s.size)),
-                            "identical at the finest levels")
-        if coarse * fine <= 0 or fine == 0:
+        if coarse == 0:
+            return Estimate(-math.inf, True, math.nan, math.nan, math.nan, nan,
+                            "identical at the coarser two of the finest three levels and not at the finer two: "
+                            "not in the asymptotic range (refine further)")
+        if coarse * fine < 0:
             return Estimate(math.nan, True, math.nan, math.nan, math.nan, nan,
                             "the differences change sign: not in the asymptotic range (refine further)")
         order = _observed_order(s, f)
@@ -303,10 +323,11 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     for name, estimate in estimates.items():
         unit = OBSERVABLES[name][1]
         for level, error in zip(levels, estimate.errors):
-            out.writerow([name, unit, repr(level["s"]), level["run"], repr(level[name]), repr(error),
+            out.writerow([name, unit, _number(level["s"]), level["run"], _number(level[name]), _number(error),
                           f"{level['cpu_s']:.3f}", *_counts(level), "", "", "", "", "", ""])
-        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", "", repr(estimate.order), estimate.order_observed,
-                      repr(estimate.order_used), repr(estimate.limit), repr(estimate.error_bar), estimate.note])
+        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", "", _number(estimate.order),
+                      estimate.order_observed, _number(estimate.order_used), _number(estimate.limit),
+                      _number(estimate.error_bar), estimate.note])
     atomic_write(directory / "convergence.csv", buffer.getvalue())
     names = list(estimates)
     dataset = xr.Dataset(
@@ -327,6 +348,11 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     temporary = path.with_suffix(".nc.tmp")
     dataset.to_netcdf(temporary, engine="h5netcdf")
     temporary.replace(path)
+
+
+def _number(value: float) -> str:
+    """A CSV cell: the shortest text that reads back as the same double ("nan", "inf" too)."""
+    return repr(float(value))
 
 
 def _counts(level: dict) -> list[str]:
@@ -407,9 +433,14 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     levels = [Path(v).resolve() for v in values] if parameter == "mesh" else values
     if len(set(levels)) < len(levels):
         raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice)")
-    loaded = load_scene(scene, list(assignments))
+    with warnings.catch_warnings():  # the base scene's own levels (its dt, say) may be no run's; each run warns
+        warnings.simplefilter("ignore")
+        loaded = load_scene(scene, list(assignments))
     if "separation" in observables:  # checked before any run, which could not give it
         _require_pair(loaded.n_particles)
+    if "period" in observables and all(phase.flow.get("type", "none") == "none" for phase in loaded.phases):
+        raise ConvergenceError("--observable", "period", "an observable of this scene: period measures the "
+                               "oscillation under flow, and no phase of it has one")
     if parameter == "tolerance_t" and loaded.numerics.scheme != "adaptive":
         raise ConvergenceError(option, values, f'a tolerance study of the adaptive scheme: the scene\'s '
                                f'numerics.scheme is "{loaded.numerics.scheme}", whose steps the tolerance does '
@@ -436,9 +467,10 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     if unfinished:
         listed = "; ".join(f"{run['id']} {run['status']}" + (f" ({run['error']})" if run.get("error") else "")
                            for run in unfinished)
-        advice = ("failed runs start again when the command is given again, so first change what made them fail "
-                  "(e.g. --set a smaller phases.N.dt); " if any(run["status"] == "failed" for run in unfinished)
-                  else "")
+        advice = ("failed runs start again as they were when the command is given again, and a study's scene, "
+                  "--set and levels cannot change once it has run: to change what made them fail (e.g. --set "
+                  "numerics.area_implicit=true, or other levels), start the study in a new directory; "
+                  if any(run["status"] == "failed" for run in unfinished) else "")
         raise StudyIncomplete(f"{len(unfinished)} of {len(index['runs'])} runs of the study did not finish, so "
                               f"there is nothing to analyse: {listed}. The same command continues the study: "
                               f"{advice}interrupted and pending runs continue (sweep.json in {directory})")

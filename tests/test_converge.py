@@ -75,6 +75,34 @@ def test_levels_at_any_ratios_give_the_order_of_the_manufactured_values():
         richardson([1.0], [1.0])
 
 
+@pytest.mark.parametrize("spacings, order", [([1.0, 0.25, 0.2], -0.5), ([1.0, 0.25, 0.2], 3.0),
+                                             ([1.0, 0.9, 0.1], 1.0), ([1.0, 0.9, 0.1], 30.0)])
+def test_uneven_levels_give_the_order_of_the_manufactured_values_whatever_its_sign(spacings, order):
+    # at [1, 0.25, 0.2], f = s^−0.5 (growing without bound) came back as order 6.47 with a
+    # limit of 2.656 ± 0.525: the constant-ratio formula where the bracket [1e-3, 20] missed
+    estimate = richardson(spacings, [3.0 + s**order for s in spacings], expected_order=2.0)
+    assert estimate.order == pytest.approx(order, rel=1e-9)
+    if order < 0:
+        assert math.isnan(estimate.limit) and "divergent" in estimate.note
+
+
+def test_equal_finest_values_give_their_value_and_each_run_its_own_error():
+    # the coarsest level, 1.5 off, was reported with error 0 and order_used inf
+    estimate = richardson([2.0, 1.0, 0.5, 0.25], [3.0, 1.5, 1.5, 1.5])
+    assert estimate.limit == 1.5 and estimate.error_bar == 0.0 and estimate.order_used == 2.0
+    assert estimate.errors == (1.5, 0.0, 0.0, 0.0)
+    stalled = richardson([1.0, 0.5, 0.25], [2.0, 2.0, 1.5])
+    assert math.isnan(stalled.limit) and "change sign" not in stalled.note and "asymptotic" in stalled.note
+
+
+def test_a_period_study_of_a_scene_without_flow_is_refused_before_any_run(tmp_path):
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    with pytest.raises(ConvergenceError, match=r"'--observable' = 'period' is invalid: .*no phase of it has one"):
+        run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5], ["period"], workers=1, log=lambda line: None)
+    assert not (tmp_path / "study").exists()
+
+
 @pytest.fixture(scope="module")
 def study(tmp_path_factory):
     root = tmp_path_factory.mktemp("converge")
@@ -101,6 +129,10 @@ def test_the_tables_hold_what_the_analysis_found_and_a_rerun_continues(study):
     rows = (root / "study" / "convergence.csv").read_text().splitlines()
     assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,substeps,rejected,capped,mean_substep,order")
     assert len(rows) == 1 + 3 + 1
+    # every number reads back as one: numpy's repr wrote values as "np.float64(…)"
+    table = [dict(zip(rows[0].split(","), row.split(","))) for row in rows[1:]]
+    assert [float(row["value"]) for row in table[:3]] == [level["area"] for level in result["levels"]]
+    assert float(table[3]["limit"]) == result["estimates"]["area"].limit
     dataset = xr.open_dataset(root / "study" / "convergence.nc", engine="h5netcdf")
     np.testing.assert_allclose(dataset["limit"].sel(observable="area"), result["estimates"]["area"].limit)
     np.testing.assert_allclose(dataset["h"], [2.0, 1.0, 0.5])
@@ -265,4 +297,4 @@ def test_a_study_whose_runs_fail_lists_them_and_exits_4(tmp_path, capsys):
                  "--set", "numerics.blowup_margin=1e-9"]) == 4
     message = capsys.readouterr().err
     assert "2 of 2 runs of the study did not finish" in message and "h=1.0 failed (the run blew up" in message
-    assert "first change what made them fail" in message and "scene key" not in message
+    assert "start the study in a new directory" in message and "scene key" not in message

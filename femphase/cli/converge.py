@@ -32,6 +32,14 @@ def _numbers(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers, e.g. 1,0.5,0.25")
 
 
+def _limit(limit: float, error_bar: float) -> str:
+    """The limit to the error bar's second significant digit (at least six significant digits)."""
+    if not (math.isfinite(limit) and math.isfinite(error_bar) and error_bar > 0 and limit != 0):
+        return f"{limit:.6g}"
+    digits = math.floor(math.log10(abs(limit))) - math.floor(math.log10(error_bar)) + 2
+    return f"{limit:.{max(6, digits)}g}"
+
+
 def run(args: argparse.Namespace) -> int:
     """`femphase converge`: run (or continue) the study, then print its table."""
     from femphase.converge import PARAMETERS, ConvergenceError, StudyIncomplete, run_convergence
@@ -76,7 +84,7 @@ def run(args: argparse.Namespace) -> int:
     for name, estimate in result["estimates"].items():
         errors = ", ".join("nan" if math.isnan(e) else f"{e:.3g}" for e in estimate.errors)
         order = f"{estimate.order:.2f}" + ("" if estimate.order_observed else "*")
-        print(f"{name:<16} {order:>7} {estimate.limit:>14.6g} {estimate.error_bar:>12.3g}   {errors}"
+        print(f"{name:<16} {order:>7} {_limit(estimate.limit, estimate.error_bar):>14} {estimate.error_bar:>12.3g}   {errors}"
               + (f"  ({estimate.note})" if estimate.note else ""))
     counted = [level for level in result["levels"] if math.isfinite(level["substeps"])]
     if counted:  # the adaptive scheme: what its controller did in the phase the observables come from
