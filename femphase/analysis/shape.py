@@ -12,8 +12,8 @@ Conventions:
 * elongation r = λ1/λ2 − 1 ≥ 0 with ``|λ1| ≥ |λ2|`` the eigenvalues of R (an aspect ratio
   minus one; 0 for a disc);
 * orientation θ ∈ (−π/2, π/2]: the angle of the elongation axis from the x axis (nematic);
-* centroid: φ-weighted mean, the x coordinate as a circular mean over the period Lx, so a
-  particle straddling the periodic seam has its centroid on the right side;
+* centroid: φ-weighted mean ∫xφ/∫φ, x unwrapped about the circular mean over the period
+  Lx, so a particle straddling the periodic seam is measured whole;
 * area: ∫φ² (the quantity the soft area constraint holds at πR²);
 * a particle whose φ nowhere exceeds the window threshold has vanished (:func:`present`):
   its field is rounding noise, whose "centroid" can lie outside the domain, so its x, y,

@@ -206,17 +206,26 @@ class Domain(ABC):
         return np.stack([np.cos(angle), np.sin(angle), y])
 
     def centroids(self, layout: Layout, phi: np.ndarray) -> np.ndarray:
-        """φ-weighted centroids (N, 2) in particle order; x a circular mean over the period,
-        in [x0, x0 + period); y NaN for a field that is zero everywhere (a vanished particle,
-        :func:`femphase.analysis.shape.present`)."""
+        """φ-weighted centroids ∫xφ/∫φ, ∫yφ/∫φ (N, 2) in particle order, x unwrapped about
+        the circular mean over the period (so that a particle across the periodic seam is
+        measured whole) and in [x0, x0 + period); NaN for a field that is zero everywhere
+        (a vanished particle, :func:`femphase.analysis.shape.present`). The circular mean
+        alone, arg ∫φ e^{2πix/Lx}, differs from ∫xφ/∫φ for a shape asymmetric in x (by 0.07 and
+        0.28 for ellipses of 32 × 10 and 40 × 10 cut by a wall)."""
         cos, sin, y = np.take(self._circle, layout.node_index, axis=1)  # 7× faster than [:, index]
         weight = layout.mass * phi
         total = layout.reduce(np.add, weight)
         cos, sin = layout.reduce(np.add, weight * cos), layout.reduce(np.add, weight * sin)
+        circular = self.x0 + np.arctan2(sin, cos) * self.period / (2 * np.pi)
+        x = np.take(self.coordinates[0], layout.node_index)
+        x -= np.repeat(circular, np.diff(layout.offsets))
+        x = np.mod(x + 0.5 * self.period, self.period) - 0.5 * self.period  # minimum image about it
         out = np.empty((len(layout.windows), 2))
-        out[layout.order, 0] = self.x0 + (np.arctan2(sin, cos) % (2 * np.pi)) * self.period / (2 * np.pi)
         with np.errstate(divide="ignore", invalid="ignore"):
+            centre = circular + layout.reduce(np.add, weight * x) / total
             out[layout.order, 1] = layout.reduce(np.add, weight * y) / total
+        fraction = np.mod((centre - self.x0) / self.period, 1.0)
+        out[layout.order, 0] = self.x0 + self.period * np.where(fraction < 1.0, fraction, 0.0)  # 1 − ε rounds to 1
         return out
 
     def single_precision_steps(self, numerics: Numerics) -> bool:
