@@ -201,6 +201,23 @@ def test_t1_that_reverts_before_completing_is_not_counted():
     assert len(lattice.t1_event_times(frames, range(len(frames)), LX)) == 0
 
 
+def test_bumps_in_a_wall_row_exchange_no_neighbours_and_count_no_t1():
+    # a 5 × 6 hexagonal lattice whose bottom row wobbles by 0.6 across and 1.5 along: the
+    # hull's skip-one bonds between wall particles flipped, (1, 3) lost and (0, 2) gained,
+    # and counted as a T1
+    a = 14.0
+    rows = np.array([((i + 0.5 * (j % 2)) * a, 6.0 + j * a * np.sqrt(3) / 2) for j in range(6) for i in range(5)])
+    before, after = rows.copy(), rows.copy()
+    before[[2, 4], 1] += 0.6
+    after[[1, 4], 1] += 0.6
+    after[0, 0] += 1.5
+    after[2, 0] -= 1.5
+    lost, gained = lattice.t1_events(lattice.periodic_delaunay_pairs(before, 5 * a),
+                                     lattice.periodic_delaunay_pairs(after, 5 * a))
+    assert len(lost) and len(gained)  # the triangulation did change
+    assert len(lattice.t1_event_times([before, after], [0.0, 1.0], 5 * a)) == 0
+
+
 def test_a_particle_without_a_centroid_has_no_neighbours_and_the_others_keep_theirs():
     # a vanished particle's centroid is NaN: the rest triangulate as if it were not there
     centroids = lanes()
