@@ -24,7 +24,8 @@ and r = s₂/s₃ the finest pair's ratio:
   order above the formal one (2 in h and in dt, 1 in the tolerance; ``--order``) comes from
   levels outside the asymptotic range and would shrink the error bar;
 * error bar: Roache's grid convergence index, ``F·|f₃ − f₂|/(r^q − 1)``, with the safety
-  factor F = 1.25 when p is observed and 3 when it is assumed;
+  factor F = 1.25 when p is observed and 3 when it is assumed, in quadrature with twice the
+  limit's measurement uncertainty (a period's own, from its cycles: :func:`_with_noise`);
 * each run's error f_k − f∞;
 * for a tolerance study, the neighbouring levels whose last phase took the same substeps
   (:func:`same_substeps`), named in every observable's note.
@@ -44,8 +45,8 @@ value at any order, with an error bar of 0.
 * ``separation``: centroid distance of a two-particle scene at the last frame (minimum
   image in x), lattice units.
 
-**Outputs** in DIR: ``convergence.csv`` (one row per observable and level: s, value,
-error against the limit, CPU seconds; and per observable the order, limit and error bar),
+**Outputs** in DIR: ``convergence.csv`` (one row per observable and level: s, value, its
+measurement uncertainty, error against the limit, CPU seconds; and per observable the order, limit and error bar),
 ``convergence.nc`` (the same as an xarray Dataset over ``observable`` × ``level``; both
 with each level's substeps in the last phase, :func:`last_phase_substeps`) and
 ``convergence.png`` (the absolute error against s and against CPU seconds: the work–precision plot).
@@ -135,10 +136,13 @@ def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
     return 0.5 * (low + high)
 
 
-def richardson(spacings: list[float], values: list[float], expected_order: float = 2.0) -> Estimate:
+def richardson(spacings: list[float], values: list[float], expected_order: float = 2.0,
+               uncertainties: list[float] | None = None) -> Estimate:
     """Observed order, Richardson limit, error bar and errors of ``values`` measured at
     ``spacings`` (any order, all different); ``expected_order`` is the formal order, used
-    with two levels and whenever the observed order exceeds it."""
+    with two levels and whenever the observed order exceeds it. ``uncertainties``: each
+    value's own standard uncertainty as measured (a period's, from its cycles), which the
+    error bar takes in (:func:`_with_noise`)."""
     order_of = np.argsort(spacings)[::-1]  # coarse to fine
     s = np.asarray(spacings, dtype=float)[order_of]
     f = np.asarray(values, dtype=float)[order_of]
@@ -146,6 +150,40 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
         raise ConvergenceError("levels", list(spacings), "at least two values of the refined parameter")
     if np.any(s[:-1] <= s[1:] * (1 + 1e-9)) or s[-1] <= 0:
         raise ConvergenceError("levels", list(spacings), "different values > 0 of the refined parameter")
+    u = np.zeros(s.size) if uncertainties is None else np.asarray(uncertainties, dtype=float)[order_of]
+    estimate = _richardson(s, f, order_of, float(expected_order))
+    differences = f[:-1] - f[1:]
+    if s.size > 3 and np.all(np.isfinite(f)) and np.any(differences[:-2] * differences[-1] <= 0):
+        estimate = replace(estimate, note=((estimate.note + "; ") if estimate.note else "") + (
+            "levels coarser than the finest three, which set the order, do not converge with them (their "
+            "differences change sign): they are outside the asymptotic range"))
+    return _with_noise(estimate, f, u, float(s[-2] / s[-1]))
+
+
+def _with_noise(estimate: Estimate, f: np.ndarray, u: np.ndarray, r: float) -> Estimate:
+    """``estimate`` with the values' measurement uncertainties ``u`` (levels coarse to fine):
+    the limit's, √((u₃ r^q)² + u₂²)/(r^q − 1), enters the error bar as twice itself in
+    quadrature with the grid convergence index; and where a difference of neighbouring
+    levels among the finest three is within twice its own uncertainty, the note says that
+    the order (or the sign change) is the measurement's noise."""
+    if not np.any(u > 0):
+        return estimate
+    noisy = [k for k in range(max(0, f.size - 3), f.size - 1) if abs(f[k] - f[k + 1]) <= 2 * math.hypot(u[k], u[k + 1])]
+    note = estimate.note
+    if noisy:
+        pairs = ", ".join(f"{f[k]:.6g} ± {u[k]:.2g} and {f[k + 1]:.6g} ± {u[k + 1]:.2g}" for k in noisy)
+        note = ((note + "; ") if note else "") + (f"levels differ by less than twice their measurement uncertainty "
+                                                  f"({pairs}): the order is not resolved; measure longer or refine "
+                                                  f"further")
+    error_bar = estimate.error_bar
+    if math.isfinite(error_bar):
+        scale = r**estimate.order_used - 1.0
+        error_bar = math.hypot(error_bar, 2 * math.hypot(u[-1] * (scale + 1.0), u[-2]) / scale)
+    return replace(estimate, error_bar=error_bar, note=note)
+
+
+def _richardson(s: np.ndarray, f: np.ndarray, order_of: np.ndarray, expected_order: float) -> Estimate:
+    """:func:`richardson` on the levels ordered coarse to fine (``order_of``: their places in the input)."""
     r = float(s[-2] / s[-1])  # the finest pair's ratio
     nan = (math.nan,) * s.size
     observed = s.size >= 3
@@ -186,23 +224,23 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
     return Estimate(float(order), observed, used, limit, float(error_bar), tuple(float(e) for e in errors), note)
 
 
-def _period(run: RunData) -> float:
-    from femphase.oscillations import measured_period
+def _period(run: RunData) -> tuple[float, float]:
+    from femphase.oscillations import period_estimate
 
-    period = measured_period(run)  # the first quarter of the last phase is discarded as transient
-    return math.nan if period is None else float(period)
+    estimate = period_estimate(run)  # the first quarter of the last phase is discarded as transient
+    return (math.nan, math.nan) if estimate is None else (float(estimate.period), float(estimate.uncertainty))
 
 
-def _mean_elongation(run: RunData) -> float:
+def _mean_elongation(run: RunData) -> tuple[float, float]:
     from femphase.aggregate import averaging_window
 
     window = averaging_window(run.time, run.info["settings"]["phases"])
     # over the particles present: a vanished one's r is NaN
-    return mean_present(run.elongation[window])  # NaN for an empty window too
+    return mean_present(run.elongation[window]), 0.0  # NaN for an empty window too
 
 
-def _area(run: RunData) -> float:
-    return float(np.mean(run.particles["area"][-1]))
+def _area(run: RunData) -> tuple[float, float]:
+    return float(np.mean(run.particles["area"][-1])), 0.0
 
 
 def _require_pair(n_particles: int) -> None:
@@ -211,15 +249,16 @@ def _require_pair(n_particles: int) -> None:
         raise ConvergenceError("--observable", "separation", f"a two-particle scene (this one has {n_particles})")
 
 
-def _separation(run: RunData) -> float:
+def _separation(run: RunData) -> tuple[float, float]:
     _require_pair(run.n_particles)
     period = float(run.scene["domain"].get("Lx", 0.0)) or run.domain.period
     dx = (run.x[-1, 1] - run.x[-1, 0] + period / 2) % period - period / 2
-    return float(np.hypot(dx, run.y[-1, 1] - run.y[-1, 0]))
+    return float(np.hypot(dx, run.y[-1, 1] - run.y[-1, 0])), 0.0
 
 
-#: Observables a study can measure: name → (function of a run, unit).
-OBSERVABLES: dict[str, tuple[Callable[[RunData], float], str]] = {
+#: Observables a study can measure: name → (function of a run giving its value and the
+#: value's own standard uncertainty as measured, 0 where it is exact; unit).
+OBSERVABLES: dict[str, tuple[Callable[[RunData], tuple[float, float]], str]] = {
     "period": (_period, "time units"),
     "mean_elongation": (_mean_elongation, "dimensionless"),
     "area": (_area, "lattice units²"),
@@ -257,13 +296,16 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
         info = run.info
         spacing = (run.domain.effective_spacing if parameter == "mesh"
                    else float(entry["values"][keys[0]]))
+        measured = {name: OBSERVABLES[name][0](run) for name in observables}
         levels.append({"s": spacing, "run": entry["id"],
                        "cpu_s": float(info.get("cpu_time_s", math.nan)), **last_phase_substeps(info),
-                       **{name: OBSERVABLES[name][0](run) for name in observables}})
+                       **{name: value for name, (value, _) in measured.items()},
+                       "uncertainty": {name: uncertainty for name, (_, uncertainty) in measured.items()}})
     levels.sort(key=lambda level: -level["s"])
     spacings = [level["s"] for level in levels]
     formal = FORMAL_ORDER[parameter] if expected_order is None else expected_order
-    estimates = {name: richardson(spacings, [level[name] for level in levels], formal) for name in observables}
+    estimates = {name: richardson(spacings, [level[name] for level in levels], formal,
+                                  [level["uncertainty"][name] for level in levels]) for name in observables}
     if parameter == "tolerance_t":
         warning = same_substeps(levels)
         if warning:
@@ -318,20 +360,22 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     parameter = "spacing" if parameter == "mesh" else parameter  # a mesh study's s is each mesh's spacing
     buffer = io.StringIO()
     out = csv.writer(buffer, lineterminator="\n")
-    out.writerow(["observable", "unit", parameter, "run", "value", "error", "cpu_s", "substeps", "rejected",
+    out.writerow(["observable", "unit", parameter, "run", "value", "uncertainty", "error", "cpu_s", "substeps", "rejected",
                   "capped", "mean_substep", "order", "order_observed", "order_used", "limit", "error_bar", "note"])
     for name, estimate in estimates.items():
         unit = OBSERVABLES[name][1]
         for level, error in zip(levels, estimate.errors):
-            out.writerow([name, unit, _number(level["s"]), level["run"], _number(level[name]), _number(error),
+            out.writerow([name, unit, _number(level["s"]), level["run"], _number(level[name]),
+                          _number(level["uncertainty"][name]), _number(error),
                           f"{level['cpu_s']:.3f}", *_counts(level), "", "", "", "", "", ""])
-        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", "", _number(estimate.order),
+        out.writerow([name, unit, "limit", "", "", "", "", "", "", "", "", "", _number(estimate.order),
                       estimate.order_observed, _number(estimate.order_used), _number(estimate.limit),
                       _number(estimate.error_bar), estimate.note])
     atomic_write(directory / "convergence.csv", buffer.getvalue())
     names = list(estimates)
     dataset = xr.Dataset(
         {"value": (("observable", "level"), [[level[n] for level in levels] for n in names]),
+         "uncertainty": (("observable", "level"), [[level["uncertainty"][n] for level in levels] for n in names]),
          "error": (("observable", "level"), [list(estimates[n].errors) for n in names]),
          "cpu_s": ("level", [level["cpu_s"] for level in levels]),
          **{key: ("level", [float(level[key]) for level in levels])
@@ -376,7 +420,7 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
         error = np.abs(np.asarray(estimate.errors))
         if not np.any(np.isfinite(error) & (error > 0)):
             continue
-        label = f"{name} (p = {estimate.order:.2f})"
+        label = f"{name} (p = {estimate.order:.2f}{'' if estimate.order_observed else '*, assumed'})"
         by_s.loglog(s, error, "o-", label=label)
         by_cpu.loglog(cpu, error, "o-", label=label)
     by_s.set_xlabel(parameter)
@@ -431,8 +475,10 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     elif len(values) < 2 or any(not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0) for v in values):
         raise ConvergenceError(option, values, "two or more numbers > 0, e.g. 1,0.5,0.25")
     levels = [Path(v).resolve() for v in values] if parameter == "mesh" else values
-    if len(set(levels)) < len(levels):
-        raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice)")
+    ordered = sorted(values, reverse=True) if parameter != "mesh" else []
+    if len(set(levels)) < len(levels) or any(a <= b * (1 + 1e-9) for a, b in zip(ordered, ordered[1:])):
+        raise ConvergenceError(option, values, "distinct values, one per level (a value is listed twice, or two "
+                               "agree to 1e-9)")
     with warnings.catch_warnings():  # the base scene's own levels (its dt, say) may be no run's; each run warns
         warnings.simplefilter("ignore")
         loaded = load_scene(scene, list(assignments))

@@ -23,11 +23,11 @@ from __future__ import annotations
 import numpy as np
 
 from femphase.analysis.lattice import frame_order
-from femphase.analysis.periods import oscillation_period
+from femphase.analysis.periods import PeriodEstimate, oscillation_period
 from femphase.io.reader import RunData
 from femphase.model.minimal import K_PAPER, MAX_HALF_PERIODS, MinimalModelParameters, solve_minimal_model
 
-__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_fits", "ode_solution", "order_series"]
+__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_fits", "ode_solution", "order_series", "period_estimate"]
 
 def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
     """The minimal model at `rate` with ω = kγ̇, and the simulation time of its t = 0.
@@ -60,16 +60,22 @@ def ode_fits(run: RunData, rate: float, k: float = K_PAPER) -> bool:
     return _ode_span(run, rate, k)[1] * 2 * k * rate / np.pi <= MAX_HALF_PERIODS
 
 
-def measured_period(run: RunData, t_from: float | None = None) -> float | None:
+def period_estimate(run: RunData, t_from: float | None = None) -> PeriodEstimate | None:
     """Period of the bulk-mean r(t) after `t_from` (default: shear onset + a quarter of the
-    shear phase), None when no period can be measured."""
+    shear phase) with its uncertainty, None when no period can be measured."""
     start = run.shear_start if t_from is None else t_from
     frames = run.time >= start - 1e-9
     mean_r = run.bulk_elongation(frames)
     try:
-        return oscillation_period(run.time[frames], mean_r, discard_fraction=0.25 if t_from is None else 0.0).period
+        return oscillation_period(run.time[frames], mean_r, discard_fraction=0.25 if t_from is None else 0.0)
     except ValueError:
         return None
+
+
+def measured_period(run: RunData, t_from: float | None = None) -> float | None:
+    """The period of :func:`period_estimate` (time units), None when none can be measured."""
+    estimate = period_estimate(run, t_from)
+    return None if estimate is None else estimate.period
 
 
 def ode_comparison(run: RunData, rate: float, t_from: float | None = None) -> dict:

@@ -95,6 +95,36 @@ def test_equal_finest_values_give_their_value_and_each_run_its_own_error():
     assert math.isnan(stalled.limit) and "change sign" not in stalled.note and "asymptotic" in stalled.note
 
 
+def test_a_measured_uncertainty_widens_the_bar_and_noise_is_named():
+    # periods from a few cycles: ±41.5 on one level, against a level difference of 12, made a
+    # bar of 16.8 with no word that the difference was the measurement's noise
+    values, spacings = [1850.0, 1838.0], [1.0, 0.5]
+    exact = richardson(spacings, values)
+    noisy = richardson(spacings, values, uncertainties=[5.0, 41.5])
+    assert noisy.limit == exact.limit and "not resolved" not in exact.note
+    limit_sigma = np.hypot(41.5 * 4 / 3, 5.0 / 3)  # r = 2, q = 2: (u₃ r^q ⊕ u₂)/(r^q − 1)
+    assert noisy.error_bar == pytest.approx(np.hypot(exact.error_bar, 2 * limit_sigma))
+    assert "less than twice their measurement uncertainty" in noisy.note and "1838 ± 42" in noisy.note
+    resolved = richardson(spacings, values, uncertainties=[1.0, 1.0])
+    assert "not resolved" not in resolved.note and resolved.error_bar < 1.01 * np.hypot(exact.error_bar, 2 * np.hypot(4 / 3, 1 / 3))
+
+
+def test_coarse_levels_that_do_not_converge_with_the_finest_three_are_named():
+    quiet = richardson([4.0, 2.0, 1.0, 0.5], [3.0 + 0.5 * h**2 for h in (4.0, 2.0, 1.0, 0.5)])
+    assert "coarser than the finest three" not in quiet.note
+    wild = richardson([4.0, 2.0, 1.0, 0.5], [0.0, 5.0, 3.5, 3.125])
+    assert wild.limit == pytest.approx(3.0) and "coarser than the finest three" in wild.note
+
+
+def test_levels_that_agree_to_1e9_are_refused_before_any_run(tmp_path):
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    with pytest.raises(ConvergenceError, match="two agree to 1e-9"):
+        run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5, 0.50000000001], ["area"], workers=1,
+                        log=lambda line: None)
+    assert not (tmp_path / "study").exists()
+
+
 def test_a_period_study_of_a_scene_without_flow_is_refused_before_any_run(tmp_path):
     scene = tmp_path / "disc.toml"
     scene.write_text(DISC)
@@ -127,7 +157,8 @@ def test_the_tables_hold_what_the_analysis_found_and_a_rerun_continues(study):
 
     root, result = study
     rows = (root / "study" / "convergence.csv").read_text().splitlines()
-    assert rows[0].startswith("observable,unit,h,run,value,error,cpu_s,substeps,rejected,capped,mean_substep,order")
+    assert rows[0].startswith("observable,unit,h,run,value,uncertainty,error,cpu_s,substeps,rejected,capped,"
+                              "mean_substep,order")
     assert len(rows) == 1 + 3 + 1
     # every number reads back as one: numpy's repr wrote values as "np.float64(…)"
     table = [dict(zip(rows[0].split(","), row.split(","))) for row in rows[1:]]
