@@ -33,6 +33,15 @@ class BlowUpError(FemphaseError, RuntimeError):
         super().__init__(f"the run blew up at step {step} (t = {time:g}): {reason}")
 
 
+class UnstableStepError(BlowUpError):
+    """A step would go unstable, so the run stopped before it (exit and checkpoint as for a
+    blow-up, :class:`BlowUpError`)."""
+
+    def __init__(self, step: int, time: float, reason: str) -> None:
+        self.step, self.time, self.reason = step, time, reason
+        RuntimeError.__init__(self, f"the run stopped before step {step} (t = {time:g}): {reason}")
+
+
 class FlowError(FemphaseError, RuntimeError):
     """A user's flow function (``type = "python"``) failed during a run: it raised, or gave
     NaN or inf. ``step``: the last step the run completed, once the stepper knows it."""

@@ -289,3 +289,18 @@ def test_runs_that_start_apart_are_warned_about(tmp_path):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         compare_runs(tmp_path / "a", tmp_path / "a")  # the same start: nothing to say
+
+
+def test_frame_times_a_long_clock_has_drifted_from_still_pair_up():
+    # 9.6·10⁵ steps of 0.1 summed one by one end at 96000.0000011: against a run whose frame
+    # times are exact the last frames went unmatched, and compare dropped them silently
+    from femphase.io.reader import match_times, merge_times
+
+    exact = np.arange(0.0, 96000.0 + 1.0, 400.0)
+    drifted = exact + np.where(exact > 95000.0, 1.1e-6, 0.0)
+    ia, ib = match_times(drifted, exact)
+    assert ia.size == exact.size and np.array_equal(ia, ib)
+    assert merge_times(exact, drifted).size == exact.size
+    # frames one dt apart stay apart, however late
+    late = np.array([1e6, 1e6 + 0.1])
+    assert match_times(late[1:], late[:1])[0].size == 0 and merge_times(late).size == 2

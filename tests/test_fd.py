@@ -219,6 +219,26 @@ def test_blow_up_raises_and_leaves_the_state_unchanged():
     assert state.windows == before.windows
 
 
+def test_a_flow_that_speeds_up_past_the_courant_limit_stops_the_run_before_that_step():
+    # the check at construction saw an oscillating shear at t = 0 only, where it is still:
+    # rate 20 ran on and blew up at step 45 with φ in [−2.6, 3.3]
+    from femphase.errors import UnstableStepError
+    from femphase.flows import row_flow
+
+    scene = single_particle_scene(0.1, 1.0, 1.0)
+    state = scene.initial_state()
+    rate, omega = 20.0, 0.5
+    flow = row_flow("oscillating_shear", lambda y, t: rate * np.sin(omega * t) * y / 32.0, steady=False)
+    stepper = fd_stepper(scene.domain, 0.1, flow, state.radii)  # accepted: still at t = 0
+    # max|u| dt/h = 2 sin(t/2) reaches 0.4 at t = 0.4027: the step from 0.4 ends past it
+    stepper.step(state, 4)
+    before = state.copy()
+    with pytest.raises(UnstableStepError, match=r"stopped before step 5 \(t = 0\.4\).*dt ≤ 0\.0"):
+        stepper.step(state)
+    assert state.time == before.time and state.step == before.step
+    np.testing.assert_array_equal(state.fields[0], before.fields[0])
+
+
 def test_windows_agree_with_full_mesh_fields():
     """Windows are exact up to the field left beyond their margin (φ < threshold there)."""
     scene = scene_from_dict({

@@ -29,31 +29,39 @@ from femphase.errors import ResolutionWarning
 from femphase.io.files import read_csv
 from femphase.scene import Scene, scene_from_dict
 
-__all__ = ["TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "mean_present", "merge_times", "open_run"]
+__all__ = ["RELATIVE_TIME_TOLERANCE", "TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "mean_present", "merge_times", "open_run"]
 
 #: Frame times closer than this (time units) are the same frame: runs with different time
-#: steps reach the same frame time up to round-off.
+#: steps reach the same frame time up to round-off. Far into a run the round-off grows
+#: with the time: the clock sums dt step by step, and 9.6·10⁵ steps of 0.1 end 1.1e-6 past
+#: t = 96000; so frames also match within :data:`RELATIVE_TIME_TOLERANCE` of their time.
 TIME_TOLERANCE = 1e-6
+RELATIVE_TIME_TOLERANCE = 1e-9
+
+
+def _tolerance(time: np.ndarray) -> np.ndarray:
+    return TIME_TOLERANCE + RELATIVE_TIME_TOLERANCE * np.abs(time)
 
 
 def match_times(a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Indices (ia, ib) of the frame times a and b share (within TIME_TOLERANCE); b sorted."""
+    """Indices (ia, ib) of the frame times a and b share (within TIME_TOLERANCE, or
+    RELATIVE_TIME_TOLERANCE of the time); b sorted."""
     if a.size == 0 or b.size == 0:
         return np.empty(0, dtype=int), np.empty(0, dtype=int)
     position = np.searchsorted(b, a)
     below, above = np.clip(position - 1, 0, b.size - 1), np.clip(position, 0, b.size - 1)
     nearest = np.where(np.abs(b[below] - a) <= np.abs(b[above] - a), below, above)
-    keep = np.abs(b[nearest] - a) <= TIME_TOLERANCE
+    keep = np.abs(b[nearest] - a) <= _tolerance(a)
     return np.flatnonzero(keep), nearest[keep]
 
 
 def merge_times(*times: np.ndarray) -> np.ndarray:
-    """The sorted union of frame times, times within :data:`TIME_TOLERANCE` taken as one (the
-    first)."""
+    """The sorted union of frame times, times within the tolerance of :func:`match_times` taken
+    as one (the first)."""
     merged = np.sort(np.concatenate([np.asarray(t, dtype=float).ravel() for t in times] + [np.empty(0)]))
     if merged.size == 0:
         return merged
-    return merged[np.concatenate([[True], np.diff(merged) > TIME_TOLERANCE])]
+    return merged[np.concatenate([[True], np.diff(merged) > _tolerance(merged[1:])])]
 
 
 def frame_index(times: np.ndarray, frames: np.ndarray) -> np.ndarray:

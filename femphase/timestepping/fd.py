@@ -45,8 +45,8 @@ The region is convex, so a step is stable when twice each part's spectrum lies i
                                          :meth:`femphase.model.energy.FreeEnergy.curvature_bound`)
     dt (max|u| + max|v|)/h  ≤ 0.4      (advection Courant number)
 
-At the paper's parameters and h = 1 the first gives dt ≤ 0.32 (so dt = 0.1 is safe); at
-h = 0.5, dt ≤ 0.17; at h = 0.25, dt ≤ 0.057: the diffusion limit ∝ h² takes over below h ≈ 0.5.
+At the paper's parameters and h = 1 the first gives dt ≤ 0.3198 (so dt = 0.1 is safe); at
+h = 0.5, dt ≤ 0.1665; at h = 0.25, dt ≤ 0.0571: the diffusion limit ∝ h² takes over below h ≈ 0.5.
 """
 
 from __future__ import annotations
@@ -56,7 +56,7 @@ import numpy as np
 from femphase.domains.grid.domain import GridDomain
 from femphase.domains.grid.windows import pad_window
 from femphase.domains.layout import Layout
-from femphase.errors import SceneError
+from femphase.errors import SceneError, UnstableStepError
 from femphase.model.energy import FreeEnergy, WindowedFields
 from femphase.model.parameters import ModelParameters
 from femphase.state import State
@@ -192,6 +192,8 @@ class FiniteDifferenceHeun(TimeScheme):
                 f"{speed:.4g}); use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids",
             )
         self._steady = None if not stepper.flow.steady else (u, v)
+        #: a changing flow's nodal velocity at the last two times asked (a step's two stages)
+        self._recent: dict[float, tuple[np.ndarray, np.ndarray]] = {}
         self._layout: Layout | None = None
 
     def _nodal_flow(self, time: float) -> tuple[np.ndarray, np.ndarray]:
@@ -208,8 +210,35 @@ class FiniteDifferenceHeun(TimeScheme):
             self._layout, self._padded = layout, padded_index(layout, self.domain.lattice)
         return self._padded
 
+    def _flow_at(self, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v) at every node at ``time``: a steady flow's, or a changing one's, evaluated
+        once per time (a step's second stage is the next step's first)."""
+        if self._steady is not None:
+            return self._steady
+        if time not in self._recent:
+            self._recent = {t: flow for t, flow in self._recent.items() if t > time - 2 * self.stepper.dt}
+            self._recent[time] = self._nodal_flow(time)
+        return self._recent[time]
+
+    def _check_courant(self, state: State) -> None:
+        """For a flow that changes in time, which the check at construction saw at t = 0 only:
+        stop before a step whose advective Courant number exceeds :data:`COURANT_NUMBER`,
+        where the explicit step is unstable or nearly (:class:`~femphase.errors.UnstableStepError`,
+        the state before the step kept)."""
+        dt, h = self.stepper.dt, self.domain.grid.h
+        for time in (state.time, state.time + dt):
+            u, v = self._flow_at(time)
+            speed = float(np.max(np.abs(u)) + np.max(np.abs(v)))
+            if dt * speed / h > COURANT_NUMBER * (1 + 1e-12):
+                raise UnstableStepError(state.step + 1, state.time, (
+                    f"the flow's max|u| + max|v| = {speed:.4g} at t = {time:g} makes the explicit scheme's advective "
+                    f"Courant number dt·speed/h = {dt * speed / h:.3g} exceed {COURANT_NUMBER:g}, past which it goes "
+                    f"unstable; set the phase's dt ≤ {COURANT_NUMBER * h / speed:.4g}"))
+
     def advance(self, phi: np.ndarray, layout: Layout, state: State) -> tuple[np.ndarray, Layout]:
         dt, time, radii = self.stepper.dt, state.time, state.radii
+        if self._steady is None:
+            self._check_courant(state)
         k1 = self.rate(phi, layout, radii, time)
         k2 = self.rate(phi + dt * k1, layout, radii, time + dt)
         return phi + 0.5 * dt * (k1 + k2), layout
@@ -220,7 +249,7 @@ class FiniteDifferenceHeun(TimeScheme):
         j0 = stepper.mobility
         rate = stepper.energy.explicit_derivative(WindowedFields(phi, layout, radii))
         rate *= -j0
-        u, v = self._steady if self._steady is not None else self._nodal_flow(time)
+        u, v = self._flow_at(time)
         velocities = [(axis, c[layout.node_index]) for axis, c in ((2, u), (1, v)) if np.any(c)]
         extended = np.append(phi, 0.0)
         for (_, _, start, stop, _), index in zip(layout.groups, self._index(layout)):
