@@ -466,7 +466,9 @@ def read_summary(path: str | Path) -> list[dict]:
 
 
 def is_current(sweep: Sweep) -> bool:
-    """sweep.nc and summary.csv exist and are newer than sweep.json and every run's inputs."""
+    """sweep.nc and summary.csv exist and are newer than sweep.json and every run's inputs.
+    Their modification time is when :func:`write_aggregate` began to read, so that an input
+    that changed while it read (a sweep finishing a run) makes them stale."""
     outputs = [sweep.directory / DATASET, sweep.directory / SUMMARY]
     if not all(path.is_file() for path in outputs):
         return False
@@ -479,10 +481,13 @@ def write_aggregate(directory: str | Path) -> dict[str, Path]:
     """Write DIR/sweep.nc and DIR/summary.csv (each replaced atomically); returns their paths."""
 
     directory = Path(directory)
+    began = wallclock.time_ns()
     result = aggregate(directory)
     paths = {"dataset": directory / DATASET, "summary": directory / SUMMARY}
     tmp = paths["dataset"].with_name(f".{DATASET}.tmp")
     result.dataset.to_netcdf(tmp, engine="h5netcdf")
     os.replace(tmp, paths["dataset"])
     atomic_write(paths["summary"], summary_csv(result.summary, list(result.sweep.axes)))
+    for path in paths.values():  # as of when the inputs were read (is_current)
+        os.utime(path, ns=(began, began))
     return paths

@@ -226,11 +226,17 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
     for key, values in axes.items():
         if not isinstance(values, list) or not values:
             raise SweepError(f"axes.{key}", values, "a non-empty list of values, e.g. [0.1, 1.0]")
-        spelled = [json.dumps(v, sort_keys=True, default=str) for v in values]
+        spelled = [_identity(v) for v in values]
         if len(set(spelled)) != len(spelled):
-            raise SweepError(f"axes.{key}", values, "distinct values (a value is listed twice)")
+            raise SweepError(f"axes.{key}", values, "distinct values (a value is listed twice, or two numbers are "
+                             "equal, as 1 and 1.0)")
         if key in overrides:
             raise SweepError(f"axes.{key}", values, f"a key not also in [set] (set.{key} = {overrides[key]!r})")
+        inside = next((k for k in overrides if k.startswith(key + ".")), None)
+        if inside is not None:  # the axis' table replaces the whole table, and the [set] key in it
+            raise SweepError(f"axes.{key}", values, f"a key without [set] keys inside its table: set.{inside} = "
+                             f"{overrides[inside]!r} would be replaced by each value of the axis; put it in the "
+                             "axis' tables")
     if mode == "zip" and len({len(v) for v in axes.values()}) > 1:
         lengths = ", ".join(f"{k}: {len(v)}" for k, v in axes.items())
         raise SweepError("sweep.mode", mode, f'axes of one length for "zip" (they have {lengths}), or "product"')
@@ -245,6 +251,14 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
     shared = [run.relaxation for run in runs]
     runs = [replace(run, shared=run.relaxation if shared.count(run.relaxation) > 1 else None) for run in runs]
     return Sweep(path, text, document, tuple(assignments), scene, mode, overrides, axes, tuple(runs))
+
+
+def _identity(value) -> str:
+    """What makes two values of an axis the same run: numbers by value (1, 1.0 and 1e0 are
+    one; −0.0 is 0.0), anything else by its JSON spelling."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return repr(float(value) + 0.0)
+    return json.dumps(value, sort_keys=True, default=str)
 
 
 def _labels(keys: list[str]) -> dict[str, str]:
@@ -575,9 +589,18 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
         _write_index(directory, _index(sweep, statuses))
         log(f"femphase sweep: {len(sweep.runs)} runs, {len(sweep.runs) - len(todo)} done, {len(todo)} to run")
         if todo:
-            with _client(client, scheduler, workers, log) as dask:
-                _check_workers(dask, log)
-                _submit(sweep, directory, todo, statuses, dask, log)
+            try:
+                with _client(client, scheduler, workers, log) as dask:
+                    _check_workers(dask, log)
+                    _submit(sweep, directory, todo, statuses, dask, log)
+            except BaseException:
+                # a run a worker finished while the cluster shut down is done, not interrupted
+                for run in todo:
+                    if statuses[run.id][0] != "done" and run_status(directory / "runs" / run.id,
+                                                                    run.total_steps)[0] == "done":
+                        statuses[run.id] = ("done", None)
+                _write_index(directory, _index(sweep, statuses))
+                raise
         return _index(sweep, statuses)
 
 

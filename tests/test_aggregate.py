@@ -280,6 +280,27 @@ def test_plot_on_a_sweep_writes_the_figures_and_aggregates_first(sweep, tmp_path
     assert not is_current(read_sweep(sweep))
 
 
+def test_an_input_that_changes_while_the_aggregate_reads_leaves_it_stale(sweep, tmp_path, monkeypatch):
+    # the outputs were newer than every input although they held what sweep.json said before
+    # a run finished during the aggregate: `plot` then drew "3 of 4 runs done" from them
+    import shutil
+
+    import femphase.aggregate as module
+
+    shutil.copytree(sweep, tmp_path / "sweep")
+    sweep = tmp_path / "sweep"
+    read = module.aggregate
+
+    def aggregate_while_a_run_finishes(directory):
+        result = read(directory)
+        os.utime(sweep / "sweep.json")  # the sweep's index rewritten after it was read
+        return result
+
+    monkeypatch.setattr(module, "aggregate", aggregate_while_a_run_finishes)
+    module.write_aggregate(sweep)
+    assert not is_current(read_sweep(sweep))
+
+
 def test_period_figure_when_a_period_was_measured(tmp_path):
     rows = [{"run_id": f"{k}", RATE: rate, SEED: float(seed), "status": "done", "period": 100.0 * rate + seed,
              **{c: 0.5 for c in SUMMARY_COLUMNS if c != "period"}}

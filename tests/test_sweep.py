@@ -95,6 +95,12 @@ def segments(directory: Path) -> list[dict]:
     ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.seed" = [1, -1]', "axes.particles.seed"),
     ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.seed" = 3', "axes.particles.seed"),
     ('[sweep]\nscene = "tiny.toml"\n[axes]\n"particles.seed" = [1, 1]', "axes.particles.seed"),
+    # 1 and 1.0 ran twice, then `femphase aggregate` refused the directory the sweep wrote
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"phases.1.flow.rate" = [1, 1.0]', "axes.phases.1.flow.rate"),
+    ('[sweep]\nscene = "tiny.toml"\n[axes]\n"phases.1.flow.rate" = [0.0, -0.0]', "axes.phases.1.flow.rate"),
+    # the axis' tables replaced the [set] key inside them without a word
+    ('[sweep]\nscene = "tiny.toml"\n[set]\n"phases.1.flow.rate" = 0.7\n[axes]\n"phases.1.flow" = '
+     '[{type = "shear", rate = 0.1}, {type = "poiseuille", rate = 0.2}]', "axes.phases.1.flow"),
     ('[sweep]\nscene = "tiny.toml"\n[set]\n"model.mu" = "x"\n[axes]\n"particles.seed" = [1]', "set.model.mu"),
     ('[sweep]\nscene = "tiny.toml"\nmode = "zip"\n[axes]\n"particles.seed" = [1, 2]\n"phases.1.dt" = [1.0]',
      "sweep.mode"),
@@ -349,3 +355,25 @@ def test_a_workers_run_warns_in_the_command_lines_one_line_form(capsys):
     outcome = _outcome(lambda: stdlib_warnings.warn("the particle has vanished", UserWarning))
     assert outcome["status"] == "done"
     assert capsys.readouterr().err == "femphase: warning: the particle has vanished\n"
+
+
+def test_a_run_finished_while_the_sweep_stopped_is_recorded_done(tmp_path, monkeypatch):
+    # a SIGTERM late in a run: the index was written "interrupted", then the worker finished
+    # the run while the cluster shut down, and `plot` left the finished run out
+    import femphase.sweep as module
+
+    path = write(tmp_path, SWEEP.replace("[0.3, 1.0]", "[0.3]").replace("[1, 2]", "[1]"))
+
+    def finish_then_stop(sweep, directory, todo, statuses, client, log):
+        run = todo[0]
+        statuses[run.id] = ("interrupted", "the sweep was stopped during this run")
+        module._write_index(directory, module._index(sweep, statuses))
+        module._execute_run(run.data, str(sweep.base_dir), str(directory / "runs" / run.id))
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "_submit", finish_then_stop)
+    monkeypatch.setattr(module, "_check_workers", lambda client, log: None)
+    with pytest.raises(KeyboardInterrupt):
+        run_sweep(path, tmp_path / "out", client=object(), log=lambda line: None)
+    index = json.loads((tmp_path / "out" / "sweep.json").read_text())
+    assert [run["status"] for run in index["runs"]] == ["done"]
