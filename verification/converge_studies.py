@@ -44,6 +44,11 @@ STUDIES = {
 }
 
 
+def _uncertainty(value: float) -> str:
+    """" ± u" for a value measured with its own uncertainty (a period), else ""."""
+    return f" ± {value:.2g}" if value > 0 else ""
+
+
 def block(results: dict) -> str:
     lines = []
     for name, result in results.items():
@@ -55,11 +60,13 @@ def block(results: dict) -> str:
                      + " | observed order | order used | Richardson limit ± error bar |")
         lines.append("|---|" + "---|" * (len(result["levels"]) + 3))
         for observable, estimate in result["estimates"].items():
-            values = " | ".join(f"{level[observable]:.6g}" for level in result["levels"])
+            values = " | ".join(f"{level[observable]:.6g}" + _uncertainty(level["uncertainty"][observable])
+                                for level in result["levels"])
             lines.append(f"| {observable} | {values} | {estimate.order:.2f} | {estimate.order_used:g} | "
                          f"{estimate.limit:.6g} ± {estimate.error_bar:.2g} |")
             if observable == "period":
-                scaled = " | ".join(f"{RATE * level['period']:.2f}" for level in result["levels"])
+                scaled = " | ".join(f"{RATE * level['period']:.2f}" + _uncertainty(RATE * level["uncertainty"]["period"])
+                                    for level in result["levels"])
                 lines.append(f"| T·γ̇ | {scaled} | {estimate.order:.2f} | {estimate.order_used:g} | "
                              f"{RATE * estimate.limit:.2f} ± {RATE * estimate.error_bar:.2g} |")
         lines.append("")
