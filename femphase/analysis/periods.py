@@ -147,7 +147,7 @@ def oscillation_period(
     span_cycles = (time[-1] - time[0]) / period
     if span_cycles < min_cycles:
         raise ValueError(
-            f"the signal after the transient spans only {span_cycles:.1f} cycles of period "
+            f"the signal after the transient spans only {np.floor(100 * span_cycles) / 100:.2f} cycles of period "
             f"{period:g}; need at least {min_cycles:g} (record longer, or lower "
             f"discard_fraction)"
         )
