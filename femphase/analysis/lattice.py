@@ -62,7 +62,8 @@ DEFAULT_LENGTH_CONTRAST = 0.1
 #: exchange they are well formed: 0.23 for a rhombus whose diagonals differ by the length
 #: contrast, 0.14 for the hexagonal lattice's 60° rhombus. Along a wall the periodic
 #: triangulation's hull joins nearly collinear particles of the wall row by slivers (0.01
-#: for bumps of 0.6 between particles 14 apart), whose flips exchange no neighbours.
+#: for bumps of 0.6 between particles 14 apart), whose flips exchange no neighbours
+#: (docs/decisions/0048-t1-flips-of-slivers-not-counted.md).
 SLIVER_AREA = 0.05
 
 _Pair = tuple[int, int]
