@@ -33,6 +33,23 @@ class State:
     phase_step: int = 0
     memory: dict = field(default_factory=dict)
 
+    def __post_init__(self) -> None:
+        counts = {"windows": len(self.windows), "fields": len(self.fields), "radii": np.size(self.radii)}
+        if len(set(counts.values())) > 1:
+            raise ValueError(f"a State needs one window, field and radius per particle; got "
+                             + ", ".join(f"{n} {name}" for name, n in counts.items()))
+        radii = np.asarray(self.radii, dtype=float)
+        if radii.size and not (np.all(np.isfinite(radii)) and np.all(radii > 0)):
+            raise ValueError(f"State radii must be finite target radii > 0 (lattice units); got {radii.tolist()}")
+        for i, (window, values) in enumerate(zip(self.windows, self.fields)):
+            size = self.domain.window_dofs(window).size
+            if np.size(values) != size:
+                raise ValueError(f"State field {i} has {np.size(values)} values; its window {window!r} holds {size} "
+                                 "dofs (fields[i] lists φ_i on the dofs of windows[i], Domain.window_dofs)")
+        if min(self.phase, self.phase_step, self.step) < 0:
+            raise ValueError(f"State phase, phase_step and step count from 0; got {self.phase}, {self.phase_step}, "
+                             f"{self.step}")
+
     @property
     def n_particles(self) -> int:
         return len(self.fields)
@@ -65,8 +82,21 @@ class State:
 
 def discs_state(domain: Domain, centres: np.ndarray, radii: np.ndarray, initial_radii: np.ndarray,
                 interface_width: float, policy) -> State:
-    """Discs of radius ``initial_radii`` at ``centres`` (N, 2), with target radii ``radii``:
-    the profile (1 + tanh((r0 − d)/λ))/2, each on the window that covers it."""
+    """Discs of radius ``initial_radii`` at ``centres`` (N, 2), with target radii ``radii``
+    (lengths in lattice units; each one value or N): the profile (1 + tanh((r0 − d)/λ))/2,
+    λ = ``interface_width``, each on the window that covers it. ValueError for radii that
+    are not > 0 or do not match the centres, or a centre outside the domain's walls."""
+    centres = np.asarray(centres, dtype=float).reshape(-1, 2)
+    low, high = domain.y_range
+    for name, values in (("radii", radii), ("initial_radii", initial_radii)):
+        values = np.asarray(values, dtype=float)
+        if values.size not in (1, len(centres)) or not (np.all(np.isfinite(values)) and np.all(values > 0)):
+            raise ValueError(f"discs_state {name} must be one length > 0 or one per centre ({len(centres)}); "
+                             f"got {values.tolist()}")
+    outside = np.flatnonzero((centres[:, 1] < low) | (centres[:, 1] > high) | ~np.isfinite(centres).all(axis=1))
+    if outside.size:
+        raise ValueError(f"discs_state centre {centres[outside[0]].tolist()} lies outside the domain's walls "
+                         f"(y from {low:g} to {high:g})")
     windows, fields = [], []
     for centre, r0 in zip(np.asarray(centres, dtype=float), np.broadcast_to(initial_radii, len(centres))):
         # where the profile crosses the policy's threshold
@@ -74,4 +104,4 @@ def discs_state(domain: Domain, centres: np.ndarray, radii: np.ndarray, initial_
         window = domain.disc_window(tuple(centre), reach, policy)
         windows.append(window)
         fields.append(domain.disc_field(window, tuple(centre), r0, interface_width))
-    return State(domain, windows, fields, np.asarray(radii, dtype=float).copy())
+    return State(domain, windows, fields, np.broadcast_to(np.asarray(radii, dtype=float), len(centres)).copy())

@@ -341,3 +341,28 @@ def test_the_centroid_of_a_lopsided_particle_across_the_seam_is_its_weighted_mea
         measured = shape_observables(state).x[0]
         assert 0.0 <= measured < length
         assert min(abs(measured - expected), length - abs(measured - expected)) < 1e-9
+
+
+def test_a_frame_recorder_records_a_registered_observable_the_scene_asks_for():
+    # its needs were fixed to shape, energy and order: a registered observable in
+    # output.observables reached run directories but not the recorder (KeyError)
+    from femphase.analysis.observables import OBSERVABLES, Observable
+
+    class Highest(Observable):
+        name = "highest"
+        particle_columns = ("phi_highest",)
+
+        def __call__(self, state, values):
+            return {"phi_highest": np.array([float(np.max(f)) for f in state.fields])}
+
+    OBSERVABLES.register("highest")(Highest)
+    try:
+        scene = small_scene(observables=["shape", "highest"])
+        recorder = FrameRecorder()
+        Simulation(scene).run(scene.initial_state(), recorder)
+        assert recorder.series("phi_highest").shape == recorder.series("elongation").shape
+        assert np.all(recorder.series("phi_highest") > 0.5)
+    finally:
+        OBSERVABLES.unregister("highest")
+    with pytest.raises(KeyError, match="no frame recorded yet"):
+        FrameRecorder().series("elongation")

@@ -222,3 +222,51 @@ def test_other_diagonal_patterns_relax_like_the_default(diagonals):
         # same stiffness, but the lumped mass alternates 2h²/3, 4h²/3: an O(h²) difference
         assert areas[0] == pytest.approx(areas[1], rel=2e-3)
         assert areas[0] != pytest.approx(areas[1], rel=1e-9)
+
+
+def test_inconsistent_states_are_refused_with_what_is_inconsistent():
+    # State and discs_state checked nothing: one window for two fields ran with one particle,
+    # a negative radius ran with an area target of 64, a centre beyond the wall failed in numpy
+    from femphase.scene import scene_from_dict
+    from femphase.state import State, discs_state
+
+    scene = scene_from_dict({"domain": {"Lx": 60.0, "Ly": 40.0}, "particles": {"layout": "list",
+                             "centres": [[15.0, 20.0], [45.0, 20.0]]},
+                             "phases": [{"duration": 4.0, "dt": 1.0, "frame_interval": 2.0}]})
+    good = scene.initial_state()
+    policy = scene.window_policy()
+    cases = [
+        (lambda: State(good.domain, good.windows[:1], good.fields, good.radii), "one window, field and radius"),
+        (lambda: State(good.domain, good.windows, good.fields, np.array([-8.0, 8.0])), "radii must be finite"),
+        (lambda: State(good.domain, good.windows, [good.fields[0][:-1], good.fields[1]], good.radii),
+         "field 0 has"),
+        (lambda: discs_state(good.domain, [[15.0, 20.0], [45.0, 20.0]], [-8.0, 8.0], 4.0, 2.0, policy),
+         "radii must be one length > 0"),
+        (lambda: discs_state(good.domain, [[15.0, 80.0]], 8.0, 4.0, 2.0, policy), "outside the domain's walls"),
+    ]
+    for build, message in cases:
+        with pytest.raises(ValueError, match=message):
+            build()
+
+
+def test_a_state_the_scene_cannot_continue_is_refused_not_run_forever():
+    # a state stopped at step 6 of a phase continued under a scene whose phase has 4 steps
+    # looped for ever; a state from a wider channel ran and reported x beyond Lx
+    from femphase.run.simulation import Simulation
+    from femphase.scene import scene_from_dict
+
+    def scene(length=60.0, duration=4.0):
+        return scene_from_dict({"domain": {"Lx": length, "Ly": 40.0}, "particles": {"layout": "single"},
+                                "phases": [{"duration": duration, "dt": 1.0, "frame_interval": 2.0}]})
+
+    import signal
+
+    from femphase.errors import Interrupted
+
+    state = scene(duration=10.0).initial_state()
+    with pytest.raises(Interrupted):
+        Simulation(scene(duration=10.0)).run(state, stop=lambda: signal.SIGINT if state.time >= 6.0 else None)
+    with pytest.raises(ValueError, match="step 6 of phase 0, which has 4"):
+        Simulation(scene()).run(state)
+    with pytest.raises(ValueError, match="another domain"):
+        Simulation(scene()).run(scene(length=80.0).initial_state())

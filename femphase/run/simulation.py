@@ -131,10 +131,17 @@ class Simulation:
         of the stepper (a consistent state): after every step, or, for a scheme that merges
         steps (the adaptive default), every few (:meth:`_steps_per_call`). A signal number
         from it stops the run with :class:`~femphase.errors.Interrupted`. Trackers'
-        ``after_step`` runs after every call too."""
+        ``after_step`` runs after every call too.
+
+        A state stopped part-way continues bit for bit in this Simulation or a new one of the
+        same scene; the running T1 count (``t1_count``) lives in the Simulation's observers,
+        so a new one starts it from 0 unless given the old one's :meth:`observer_state`
+        through :meth:`restore_observers` (a run directory's checkpoint carries it). A state
+        on another domain, or past the end of a phase of this scene, is refused (ValueError)."""
         if not isinstance(state, State):
             raise TypeError(f"state must be a femphase State (scene.initial_state(), or a checkpoint's), "
                             f"not {type(state).__name__}")
+        self._check_state(state)
         trackers = [trackers] if isinstance(trackers, Tracker) else list(trackers)
         if not all(isinstance(tracker, Tracker) for tracker in trackers):
             raise TypeError(f"trackers must be Tracker instances (femphase.run), not "
@@ -182,6 +189,20 @@ class Simulation:
             for tracker in trackers:
                 tracker.finish(state, error)
         return state
+
+    def _check_state(self, state: State) -> None:
+        """ValueError for a state this scene cannot continue: one on another domain (its
+        windows index another mesh), or one past the end of a phase of this scene (a state
+        stopped under a scene whose phase was longer; the loop would never leave it)."""
+        if state.domain is not self.domain and state.domain.describe() != self.domain.describe():
+            raise ValueError(f"the state lives on another domain ({state.domain.describe()}) than this scene's "
+                             f"({self.domain.describe()}); build it from this scene (scene.initial_state())")
+        phases = self.scene.phases
+        if state.phase > len(phases) or (state.phase < len(phases) and state.phase_step > phases[state.phase].n_steps):
+            where = (f"phase {state.phase}, of {len(phases)}" if state.phase > len(phases) else
+                     f"step {state.phase_step} of phase {state.phase}, which has {phases[state.phase].n_steps}")
+            raise ValueError(f"the state stands at {where} in this scene: it ran under a longer one, and this scene "
+                             "cannot continue it (shorten no phase a state has entered)")
 
     def _steps_per_call(self, state: State, phase: Phase, t1_looks: bool) -> int:
         """Steps of the next stepper call: up to the next frame, T1 look (``t1_looks``) or phase

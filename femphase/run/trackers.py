@@ -39,6 +39,7 @@ import time as wallclock
 
 import numpy as np
 
+from femphase.analysis.observables import OBSERVABLES
 from femphase.run.simulation import Frame, Simulation, Tracker
 from femphase.state import State
 
@@ -177,9 +178,13 @@ class ProgressBar(Tracker):
 
 
 class FrameRecorder(Tracker):
-    """Keeps every frame's state and observables in memory (for scripts, tests, notebooks)."""
+    """Keeps every frame's state and observables in memory (for scripts, tests, notebooks):
+    those of the scene's ``output.observables``, registered ones included, as a run
+    directory records them."""
 
-    needs = frozenset({"shape", "energy", "order"})
+    @property
+    def needs(self) -> frozenset:
+        return frozenset(OBSERVABLES.names())  # read when a run starts: observables registered by then
 
     def __init__(self) -> None:
         self.frames: list[Frame] = []
@@ -194,7 +199,9 @@ class FrameRecorder(Tracker):
         attribute = {"particle": "particle", "global": "globals"}
         if kind not in attribute:
             raise ValueError(f"kind = {kind!r} is invalid: 'particle' (per-particle columns) or 'global'")
-        if self.frames and name not in getattr(self.frames[0], attribute[kind]):
+        if not self.frames:
+            raise KeyError(f"no {kind} column {name!r}: no frame recorded yet (run a Simulation with this recorder)")
+        if name not in getattr(self.frames[0], attribute[kind]):
             other = "global" if kind == "particle" else "particle"
             hint = (f" ({name!r} is a {other} column: kind={other!r})"
                     if name in getattr(self.frames[0], attribute[other]) else "")
