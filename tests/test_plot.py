@@ -188,3 +188,17 @@ def test_an_ode_rate_whose_solve_cannot_span_the_run_draws_the_figures_without_i
     with pytest.warns(UserWarning, match=r"no minimal-model curve: at γ̇ = 1e\+07"):
         paths = plot_run(tiny_run, tmp_path / "figures", ode_rate=1e7)
     _written(paths)
+
+
+def test_the_order_figure_counts_t1s_with_the_runs_own_counter(tiny_run, tmp_path, monkeypatch):
+    # it counted from the frames alone: 190 where the run's counter, looking every 20 time
+    # units, had 570 (γ̇ = 1, frames 400 apart)
+    import femphase.plot.run as module
+
+    figures = []
+    monkeypatch.setattr(module, "save", lambda fig, path: figures.append(fig) or path)
+    run = open_run(tiny_run).complete()
+    module.plot_order(run, tmp_path / "order.png")
+    counted = figures[0].axes[2].lines[0]
+    np.testing.assert_array_equal(counted.get_xdata(), run.time)
+    np.testing.assert_array_equal(counted.get_ydata(), run.globals["t1_count"])

@@ -212,7 +212,8 @@ def limit_cycle(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The trajectory in the paper's polar plane (r, 2θ).
 
-    x = r cos 2θ, y = r sin 2θ, with r the elongation (aspect ratio − 1, dimensionless) and
+    x = r cos 2θ, y = r sin 2θ, with r the elongation (λ1/λ2 − 1 of the shape tensor,
+    dimensionless; (a/b)² − 1 for an ellipse of similar level sets, docs/model.md) and
     θ the nematic angle of the elongation axis from the x axis (radians).  Doubling the angle
     makes the nematic θ and θ + π the same point.
     """

@@ -9,8 +9,9 @@ Conventions:
   centred disc has exactly zero elongation. The exact integral of the P1 gradients
   (:func:`femphase.fem.operators.shape_tensors`, any mesh) inherits the bias of the triangulation's diagonals: a
   disc of R = 8 at h = 1 shows r ≈ 0.026 along the diagonal. Both converge as O(h²);
-* elongation r = λ1/λ2 − 1 ≥ 0 with ``|λ1| ≥ |λ2|`` the eigenvalues of R (an aspect ratio
-  minus one; 0 for a disc);
+* elongation r = λ1/λ2 − 1 ≥ 0 with ``|λ1| ≥ |λ2|`` the eigenvalues of R (0 for a disc;
+  the paper calls λ1/λ2 the aspect ratio, but for an ellipse of similar level sets it is
+  (a/b)², docs/model.md);
 * orientation θ ∈ (−π/2, π/2]: the angle of the elongation axis from the x axis (nematic);
 * centroid: φ-weighted mean ∫xφ/∫φ, x unwrapped about the circular mean over the period
   Lx, so a particle straddling the periodic seam is measured whole;

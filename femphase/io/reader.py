@@ -76,7 +76,7 @@ class FieldFrames:
     """The field frames of a run's ``fields.xdmf``, on the nodes of the mesh it was written
     on (the domain's non-periodic mesh): ``points`` (n, 2), ``triangles`` (n_triangles, 3),
     ``times`` (frames,). A context manager; :meth:`read` gives one frame's node arrays
-    (``phi_sum``, ``label``, and ``phi_<i>`` with ``output.per_particle_fields``)."""
+    (``phi_sum``, ``label``, and ``phi_000``, ``phi_001``, … with ``output.per_particle_fields``)."""
 
     def __init__(self, path: Path) -> None:
         self._reader = meshio.xdmf.TimeSeriesReader(str(Path(path).resolve()))

@@ -13,12 +13,15 @@ Four figures, written to OUT (default DIR/figures) as PNG unless ``--format`` sa
                  model (:mod:`femphase.model.minimal`) at the run's shear rate (or ``--ode-rate``)
 ``limit_cycle``  the (r, 2θ) polar plane (:func:`femphase.analysis.periods.limit_cycle`) of
                  three bulk particles over the last quarter of the run, with the ODE's cycle
-``order``        Ψ6, Ψ2^L, the lattice angle φ and the cumulative T1 count over time
+``order``        Ψ6, Ψ2^L, the lattice angle φ and the cumulative T1 count over time: the
+                 run's own counter (global.csv ``t1_count``, which looks between frames),
+                 or counted from the frames where the run has none
 ================ =================================================================================
 
-The ODE is aligned with the simulation by its first T1 event
+The ODE is aligned with the simulation by its first T1 event as seen in the frames
 (:mod:`femphase.oscillations`; a run without flow starts it at its first frame, plotted
-with ``--ode-rate``).
+with ``--ode-rate``), so to within a frame interval: write frames several times per
+period for the comparison.
 
 Runs on the structured grid and on meshes (``[domain] kind = "mesh"``) are drawn alike; a
 meshed channel's extent (its x0 and the walls' y range) comes from its domain.
@@ -147,8 +150,13 @@ def draw_snapshot(ax, run: RunData) -> None:
     """Draw the last frame with each particle's elongation axis on `ax` (module docstring)."""
     snap = _last_fields(run)
     x0, x1, y0, y1 = run.extent
-    phi_sum, label = (snap.phi_sum, snap.label) if snap.triangles is None else _rasterise(snap, run.extent)
-    extent = (x0, x1, y0, y1)
+    if snap.triangles is None:  # the grid's node values, one pixel centred on each node
+        phi_sum, label = snap.phi_sum, snap.label
+        hx, hy = (x1 - x0) / phi_sum.shape[1], (y1 - y0) / max(phi_sum.shape[0] - 1, 1)
+        extent = (x0 - 0.5 * hx, x1 - 0.5 * hx, y0 - 0.5 * hy, y1 + 0.5 * hy)
+    else:
+        phi_sum, label = _rasterise(snap, run.extent)
+        extent = (x0, x1, y0, y1)
     ax.imshow(phi_sum, origin="lower", extent=extent, cmap="Greys", vmin=0, vmax=2.5)
     ax.imshow(np.ma.masked_where(np.ma.getdata(label) < 0, label % 20), origin="lower", extent=extent,
               cmap="tab20", alpha=0.45, vmin=0, vmax=19)
@@ -266,10 +274,18 @@ def plot_order(run: RunData, path: Path) -> Path:
         axes[1].axhline(angle, color="grey", ls=":", lw=0.8)
         axes[1].text(run.time[0], angle, name, fontsize=7, va="bottom")
     axes[1].set_ylabel("lattice angle φ (°)")
-    t1 = run.t1_times
-    axes[2].step(np.concatenate([[run.time[0]], t1, [run.time[-1]]]),
-                 np.concatenate([[0], np.arange(1, t1.size + 1), [t1.size]]), where="post", color="k")
-    axes[2].set_ylabel("T1 events (cumulative)")
+    counted = run.globals.get("t1_count")
+    if counted is not None and np.any(np.isfinite(counted)):
+        # the run's own counter, which looks between frames: counting from the frames alone
+        # misses the exchanges that come and go between two of them (4× too few at γ̇ = 1
+        # with frames 400 apart, docs/outputs.md)
+        axes[2].step(run.time, counted, where="post", color="k")
+        axes[2].set_ylabel("T1 events (cumulative,\nthe run's counter)")
+    else:
+        t1 = run.t1_times
+        axes[2].step(np.concatenate([[run.time[0]], t1, [run.time[-1]]]),
+                     np.concatenate([[0], np.arange(1, t1.size + 1), [t1.size]]), where="post", color="k")
+        axes[2].set_ylabel("T1 events (cumulative,\nfrom the frames)")
     axes[2].set_xlabel("time")
     if run.flow_phase is not None:
         for ax in axes:
