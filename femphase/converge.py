@@ -165,7 +165,10 @@ def _with_noise(estimate: Estimate, f: np.ndarray, u: np.ndarray, r: float) -> E
     the limit's, √((u₃ r^q)² + u₂²)/(r^q − 1), enters the error bar as twice itself in
     quadrature with the grid convergence index; and where a difference of neighbouring
     levels among the finest three is within twice its own uncertainty, the note says that
-    the order (or the sign change) is the measurement's noise."""
+    the order (or the sign change) may be the measurement's noise. The levels' errors are
+    taken as independent, which is conservative where they are correlated: a period read
+    from the same few cycles at every h carries the same cycle-to-cycle jitter at each, and
+    their differences are better known than u says."""
     if not np.any(u > 0):
         return estimate
     noisy = [k for k in range(max(0, f.size - 3), f.size - 1) if abs(f[k] - f[k + 1]) <= 2 * math.hypot(u[k], u[k + 1])]
@@ -173,8 +176,9 @@ def _with_noise(estimate: Estimate, f: np.ndarray, u: np.ndarray, r: float) -> E
     if noisy:
         pairs = ", ".join(f"{f[k]:.6g} ± {u[k]:.2g} and {f[k + 1]:.6g} ± {u[k + 1]:.2g}" for k in noisy)
         note = ((note + "; ") if note else "") + (f"levels differ by less than twice their measurement uncertainty "
-                                                  f"({pairs}): the order is not resolved; measure longer or refine "
-                                                  f"further")
+                                                  f"({pairs}): unless their errors are one (the same cycles measured "
+                                                  f"at every level), the order is not resolved; measure longer or "
+                                                  f"refine further")
     error_bar = estimate.error_bar
     if math.isfinite(error_bar):
         scale = r**estimate.order_used - 1.0
