@@ -202,3 +202,38 @@ def test_the_order_figure_counts_t1s_with_the_runs_own_counter(tiny_run, tmp_pat
     counted = figures[0].axes[2].lines[0]
     np.testing.assert_array_equal(counted.get_xdata(), run.time)
     np.testing.assert_array_equal(counted.get_ydata(), run.globals["t1_count"])
+
+
+def test_the_snapshot_draws_each_particles_axis_with_its_own_radius(tmp_path, monkeypatch):
+    # the axis was R·r with the model's R for every particle, whatever particles.radii said
+    import femphase.plot.run as module
+
+    data = {**TINY, "particles": {"layout": "list", "centres": [[10.0, 12.0], [31.0, 12.0]], "radii": [5.0, 7.0]},
+            "phases": TINY["phases"][:1]}
+    run_scene(scene_from_dict(data), tmp_path / "run", progress=False)
+    figures = []
+    monkeypatch.setattr(module, "save", lambda fig, path: figures.append(fig) or path)
+    run = open_run(tmp_path / "run").complete()
+    module.plot_snapshot(run, tmp_path / "snapshot.png")
+    segments = [line for line in figures[0].axes[0].lines if line.get_color() == "red"]
+    lengths = [np.hypot(np.ptp(line.get_xdata()), np.ptp(line.get_ydata())) for line in segments]
+    np.testing.assert_allclose(lengths, [5.0, 7.0] * run.elongation[-1], rtol=1e-9)
+
+
+def test_figures_of_a_run_that_failed_after_one_frame_say_so_and_show_it(tmp_path, monkeypatch):
+    # every curve was a single invisible point, and nothing said the run had failed
+    import femphase.plot.run as module
+    from femphase.cli import main as cli
+
+    scene = tmp_path / "tiny.toml"
+    from femphase.tomlio import to_toml
+
+    scene.write_text(to_toml({**TINY, "numerics": {"blowup_margin": 1e-12}}))
+    assert cli(["run", str(scene), "-o", str(tmp_path / "run"), "-q"]) == 3
+    figures = []
+    monkeypatch.setattr(module, "save", lambda fig, path: figures.append(fig) or path)
+    with pytest.warns(UserWarning, match="run status 'failed'"):
+        plot_run(tmp_path / "run", tmp_path / "figures")
+    elongation = next(fig.axes[0] for fig in figures if fig.axes[0].get_ylabel().startswith("elongation"))
+    assert "failed" in elongation.get_title()
+    assert all(line.get_marker() == "o" for line in elongation.lines if len(line.get_xdata()) == 1)

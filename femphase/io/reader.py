@@ -179,6 +179,12 @@ class RunData:
         return float(self.scene.get("model", {}).get("radius", 8.0))
 
     @property
+    def radii(self) -> np.ndarray:
+        """(N,) target radii R_i (lattice units): ``particles.radii``, else the model's R."""
+        given = self.scene.get("particles", {}).get("radii")
+        return np.broadcast_to(np.asarray(self.radius if given is None else given, dtype=float), (self.n_particles,))
+
+    @property
     def length(self) -> float:
         return float(self.scene["domain"]["Lx"])
 

@@ -5,8 +5,9 @@ Four figures, written to OUT (default DIR/figures) as PNG unless ``--format`` sa
 ================ =================================================================================
 ``snapshot``     the last frame: Σφ_i in grey, each particle (label = argmax_i φ_i > 1/2)
                  tinted, and a red segment through each centroid along its elongation axis,
-                 of length R·r (the paper's Fig. 1b style); from checkpoint.h5, else from
-                 the last frame of fields.xdmf; node values on a mesh are interpolated to
+                 of length R_i·r, R_i the particle's target radius (the paper's Fig. 1b
+                 style); from checkpoint.h5, else from the last frame of fields.xdmf;
+                 node values on a mesh are interpolated to
                  an image, blank outside the mesh (obstacles)
 ``elongation``   r(t): the mean over the bulk particles (those farther than 2R from the
                  walls at shear onset), three individual particles, and the minimal ODE
@@ -162,7 +163,7 @@ def draw_snapshot(ax, run: RunData) -> None:
               cmap="tab20", alpha=0.45, vmin=0, vmax=19)
     time = snap.time
     frame = int(np.argmin(np.abs(run.time - time)))
-    half = 0.5 * run.radius * run.elongation[frame]
+    half = 0.5 * run.radii * run.elongation[frame]
     dx, dy = half * np.cos(run.orientation[frame]), half * np.sin(run.orientation[frame])
     cx, cy = run.x[frame], run.y[frame]
     ax.plot(np.stack([cx - dx, cx + dx]), np.stack([cy - dy, cy + dy]), color="red", lw=1.2)
@@ -181,7 +182,7 @@ def plot_snapshot(run: RunData, path: Path) -> Path:
     aspect = (y1 - y0) / (x1 - x0)
     fig, ax = plt.subplots(figsize=(3.0, min(2.2 * aspect, 12) + 0.6))
     draw_snapshot(ax, run)
-    ax.set_title(ax.get_title() + "\nred: elongation axis, length R·r", fontsize=8)
+    ax.set_title(ax.get_title() + "\nred: elongation axis, length R_i·r", fontsize=8)
     return save(fig, path)
 
 
@@ -191,10 +192,14 @@ def draw_elongation(ax, run: RunData, ode_rate: float | None = None, ode_k: floa
     (default: the start of the run)."""
     frames = run.time >= (run.time[0] if t_from is None else t_from) - 1e-9
     t = run.time[frames]
+    marker = "o" if t.size < 3 else None  # a line through one frame draws nothing
     for j in _shown_particles(run):
-        ax.plot(t, run.elongation[frames, j], lw=0.6, alpha=0.6, label=f"particle {j}")
-    ax.plot(t, run.bulk_elongation(frames), color="green", lw=1.8,
+        ax.plot(t, run.elongation[frames, j], lw=0.6, alpha=0.6, marker=marker, ms=3, label=f"particle {j}")
+    ax.plot(t, run.bulk_elongation(frames), color="green", lw=1.8, marker=marker, ms=4,
             label="bulk mean")
+    status = run.info.get("status")
+    if status not in (None, "completed"):
+        ax.set_title(f"run status {status!r}: its frames end at t = {run.time[-1]:g}", fontsize=8, color="darkred")
     rate = ode_rate if ode_rate is not None else run.shear_rate
     solution, offset = ode_solution(run, rate, ode_k) if rate else (None, 0.0)
     if solution is not None:
@@ -318,6 +323,10 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
         warnings.warn(f"no minimal-model curve: at γ̇ = {rate:g} the run spans more than {MAX_HALF_PERIODS} of its "
                       f"half periods π/(2kγ̇) = {np.pi / (2 * ode_k * rate):.3g}", stacklevel=2)
         ode_rate = 0.0  # no ODE
+    status = run.info.get("status")
+    if status not in (None, "completed"):
+        warnings.warn(f"{str(run.directory)!r} has run status {status!r}: its figures end at t = {run.time[-1]:g}",
+                      stacklevel=2)
     figures = {}
     if run_has_fields(run):
         figures["snapshot"] = plot_snapshot(run, out / f"snapshot.{fmt}")
