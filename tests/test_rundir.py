@@ -148,6 +148,11 @@ def test_the_phase_under_way_may_end_later_or_sooner_but_not_before_the_checkpoi
     assert resumed(60.0)[:2] == (1, 5) and resumed(50.0)[:2] == (2, 0)
     with pytest.raises(SceneError, match="at least 50: phase 1 has already run 50 time units"):
         resumed(40.0)
+    # shortened with another frame interval: the shortening is the error to name (it said
+    # the phase "ran with it until t = 200", to its old end, beyond the checkpoint)
+    with pytest.raises(SceneError, match="phases.1.duration.*a run is not shortened"):
+        resume_position(saved, {"phases": [saved["phases"][0], {**phase, "duration": 30.0, "frame_interval": 30.0}]},
+                        150.0)
 
 
 def test_a_run_without_checkpoints_cannot_resume_and_is_told_why(scene, tmp_path, capsys):

@@ -348,15 +348,15 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
         if end < time - tolerance and abs(new["duration"] - old["duration"]) > tolerance:
             raise SceneError(f"phases.{k}.duration", new["duration"], f"{old['duration']:g} as in the checkpoint: "
                              f"phase {k} ended at t = {end:g}, before the checkpoint (t = {time:g})")
-        if start + new["duration"] <= time + tolerance:  # done, and not extended: nothing of it runs again
-            for key in ("dt", "frame_interval"):
-                if new[key] != old[key]:
-                    raise SceneError(f"phases.{k}.{key}", new[key], f"{old[key]:g} as in the checkpoint: phase {k} "
-                                     f"ran with it until t = {end:g} and does not run again")
         if end >= time - tolerance and new["duration"] < time - start - tolerance:  # under way, or just ended
             raise SceneError(f"phases.{k}.duration", new["duration"], f"at least {time - start:g}: phase {k} has "
                              f"already run {time - start:g} time units (t = {time:g}); a run is not shortened "
                              "(start a new run directory for a shorter one)")
+        if start + new["duration"] <= time + tolerance:  # done, and not extended: nothing of it runs again
+            for key in ("dt", "frame_interval"):
+                if new[key] != old[key]:
+                    raise SceneError(f"phases.{k}.{key}", new[key], f"{old[key]:g} as in the checkpoint: phase {k} "
+                                     f"ran with it until t = {min(end, time):g} and does not run again")
         start = end
     for k, (old, new) in enumerate(zip(old_phases, new_phases)):
         for key in ("duration", "dt", "frame_interval", "flow"):
