@@ -27,7 +27,10 @@ def point_data(state: State, per_particle: bool) -> dict[str, np.ndarray]:
         higher = values >= top[nodes]
         top[nodes[higher]] = values[higher]
         best[nodes[higher]] = particle
-    top[top == -np.inf] = 0.0  # dofs outside every window
+    # φ_i is 0 outside its window: a dof some window misses has max_i φ_i ≥ 0 (a lone
+    # window's undershoot there read −4e-6), one outside every window 0
+    missed = np.bincount(layout.node_index, minlength=domain.n_dofs) < state.n_particles
+    top[missed] = np.maximum(top[missed], 0.0)
     data = {"phi_sum": phi_sum, "phi_max": top, "label": np.where(top > 0.5, best, -1.0)}
     if per_particle:
         data.update({f"phi_{i:03d}": state.global_field(i) for i in range(state.n_particles)})
