@@ -370,3 +370,5 @@ def test_a_frame_recorder_records_a_registered_observable_the_scene_asks_for():
         OBSERVABLES.unregister("highest")
     with pytest.raises(KeyError, match="no frame recorded yet"):
         FrameRecorder().series("elongation")
+    # Frame.shape carries the wall contact the frame computed (it was None)
+    np.testing.assert_array_equal(recorder.frames[-1].shape.wall_contact, recorder.series("wall_contact")[-1])

@@ -43,7 +43,7 @@ class Frame:
     @property
     def shape(self) -> ShapeObservables:
         v = self.particle
-        return ShapeObservables(v["x"], v["y"], v["area"], v["elongation"], v["orientation"])
+        return ShapeObservables(v["x"], v["y"], v["area"], v["elongation"], v["orientation"], v.get("wall_contact"))
 
 
 class Tracker:
