@@ -1,7 +1,9 @@
 """Write a channel with a circular obstacle: python meshes/make_obstacle.py
 
 The paper's 70 × 240 channel with a disc of radius 16 (two particle radii) at its centre
-(35, 120): in the periodic array the particles pass through gaps of 38 between obstacles.
+(35, 120): the flow runs along x, so the particles go around the obstacle, through the two
+gaps of 104 between it and the walls; along x the periodic images of the obstacle stand 38
+apart, where the flow nearly stops (speed 0.0034 at (0, 120) against 0.1 at most).
 Delaunay mesh at one node per unit area (h = 1); boundaries left, right, bottom, top and
 obstacle (tag 5), written as .vtu.
 """

@@ -207,7 +207,7 @@ def draw_elongation(ax, run: RunData, ode_rate: float | None = None, ode_k: floa
         ax.plot(solution.time[shown] + offset, solution.elongation[shown], color="red", lw=1.2,
                 label=f"ODE, γ̇ = {rate:g}, k = {ode_k:.4g}")
     if run.flow_phase is not None and run.shear_start >= t[0]:
-        ax.axvline(run.shear_start, color="k", ls=":", lw=0.8, label="shear onset")
+        ax.axvline(run.shear_start, color="k", ls=":", lw=0.8, label="flow onset")
     t1 = run.t1_times[run.t1_times >= t[0]]
     if t1.size:
         ax.plot(t1, np.zeros_like(t1), "|", color="k", ms=8, label="T1 events")
