@@ -58,6 +58,7 @@ import csv
 import io
 import json
 import math
+import re
 import tempfile
 import warnings
 from dataclasses import dataclass, replace
@@ -438,6 +439,30 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
     save(fig, path)
 
 
+def _option_of(scene_key: str) -> str:
+    """The converge option that sets ``scene_key`` (``--dt`` for any phase's dt), else
+    ``--set KEY``."""
+    for name, (key, _) in PARAMETERS.items():
+        if re.fullmatch(re.escape(key).replace(r"\*", r"\d+"), scene_key):
+            return f"--{name.replace('_', '-')}"
+    return f"--set {scene_key}"
+
+
+def _study_error(exc: SceneError, refined: str) -> ConvergenceError:
+    """A sweep's refusal of a changed study (SweepError naming ``set.KEY`` or ``axes``) as the
+    study's: the option that set the key, or the refined option ``refined``."""
+    key, value = exc.key, exc.value
+    if key.startswith("set."):
+        key = _option_of(key[4:])
+    elif key == "axes" or key.startswith("axes."):
+        key = refined
+        if isinstance(value, dict):  # the axes as the sweep file has them: the levels given
+            value = next(iter(value.values()))
+    valid = (exc.valid.replace("as in the sweep of", "as in the study of")
+             .replace("added values only", "added levels only").replace("another sweep", "another study"))
+    return ConvergenceError(key, value, valid)
+
+
 def _check_levels(scene: str | Path, parameter: str, levels: list, assignments: list[str], phases: int) -> None:
     """ConvergenceError naming the option and the level whose scene is invalid (``--h 0.7``
     where Lx is no multiple of it), before any run; the sweep would name its own keys."""
@@ -464,7 +489,7 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     ``expected_order`` overrides the parameter's :data:`FORMAL_ORDER`.
     Returns what :func:`analyse` returns."""
     from femphase.scene import load_scene
-    from femphase.sweep import run_sweep
+    from femphase.sweep import SweepError, run_sweep
 
     unknown = [name for name in observables if name not in OBSERVABLES]
     if unknown or not observables:
@@ -511,8 +536,11 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
     with tempfile.TemporaryDirectory() as scratch:  # the sweep keeps its own copy, DIR/sweep.toml
         sweep_file = Path(scratch) / "converge.toml"
         sweep_file.write_text(study_sweep(Path(scene), parameter, values, phases))
-        index = run_sweep(sweep_file, directory, client, assignments=list(assignments), scheduler=scheduler,
-                          workers=workers, log=log)
+        try:
+            index = run_sweep(sweep_file, directory, client, assignments=list(assignments), scheduler=scheduler,
+                              workers=workers, log=log)
+        except SweepError as exc:  # named as the study's options, not as its sweep file's keys
+            raise _study_error(exc, option) from None
     unfinished = [run for run in index["runs"] if run["status"] != "done"]
     if unfinished:
         listed = "; ".join(f"{run['id']} {run['status']}" + (f" ({run['error']})" if run.get("error") else "")

@@ -329,3 +329,18 @@ def test_a_study_whose_runs_fail_lists_them_and_exits_4(tmp_path, capsys):
     message = capsys.readouterr().err
     assert "2 of 2 runs of the study did not finish" in message and "h=1.0 failed (the run blew up" in message
     assert "start the study in a new directory" in message and "scene key" not in message
+
+
+def test_a_changed_study_is_refused_in_the_terms_of_its_options(tmp_path):
+    # the sweep underneath named its own keys: "sweep key 'set.phases.0.dt'" for a changed --dt
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    quick = ["phases.0.duration=2.0", "phases.0.frame_interval=2.0"]
+    run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5], ["area"], [*quick, "phases.0.dt=1.0"], workers=1,
+                    log=lambda line: None)
+    with pytest.raises(ConvergenceError, match=r"option '--dt' = 0\.5 is invalid: 1\.0 as in the study of"):
+        run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5], ["area"], [*quick, "phases.0.dt=0.5"],
+                        workers=1, log=lambda line: None)
+    with pytest.raises(ConvergenceError, match=r"option '--h' = \[1\.0, 0\.25\] is invalid: .*accepts added levels only"):
+        run_convergence(scene, tmp_path / "study", "h", [1.0, 0.25], ["area"], [*quick, "phases.0.dt=1.0"],
+                        workers=1, log=lambda line: None)
