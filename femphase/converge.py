@@ -61,9 +61,9 @@ import math
 import re
 import tempfile
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from collections.abc import Callable
 
 import numpy as np
 
@@ -365,8 +365,9 @@ def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates
     parameter = "spacing" if parameter == "mesh" else parameter  # a mesh study's s is each mesh's spacing
     buffer = io.StringIO()
     out = csv.writer(buffer, lineterminator="\n")
-    out.writerow(["observable", "unit", parameter, "run", "value", "uncertainty", "error", "cpu_s", "substeps", "rejected",
-                  "capped", "mean_substep", "order", "order_observed", "order_used", "limit", "error_bar", "note"])
+    out.writerow(["observable", "unit", parameter, "run", "value", "uncertainty", "error", "cpu_s", "substeps",
+                  "rejected", "capped", "mean_substep", "order", "order_observed", "order_used", "limit", "error_bar",
+                  "note"])
     for name, estimate in estimates.items():
         unit = OBSERVABLES[name][1]
         for level, error in zip(levels, estimate.errors):

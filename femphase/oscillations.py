@@ -27,7 +27,8 @@ from femphase.analysis.periods import PeriodEstimate, oscillation_period
 from femphase.io.reader import RunData
 from femphase.model.minimal import K_PAPER, MAX_HALF_PERIODS, MinimalModelParameters, solve_minimal_model
 
-__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_fits", "ode_solution", "order_series", "period_estimate"]
+__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_fits", "ode_solution", "order_series",
+           "period_estimate"]
 
 def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
     """The minimal model at `rate` with ω = kγ̇, and the simulation time of its t = 0.

@@ -36,7 +36,7 @@ class State:
     def __post_init__(self) -> None:
         counts = {"windows": len(self.windows), "fields": len(self.fields), "radii": np.size(self.radii)}
         if len(set(counts.values())) > 1:
-            raise ValueError(f"a State needs one window, field and radius per particle; got "
+            raise ValueError("a State needs one window, field and radius per particle; got "
                              + ", ".join(f"{n} {name}" for name, n in counts.items()))
         radii = np.asarray(self.radii, dtype=float)
         if radii.size and not (np.all(np.isfinite(radii)) and np.all(radii > 0)):

@@ -221,7 +221,8 @@ def test_cli_refuses_to_replace_a_solution_without_overwrite(tmp_path):
     assert run.func(run) == 0
     first = (tmp_path / "ode.json").read_text()
     again = parse(["ode", "--rate", "0.2", "-o", str(tmp_path)])
-    with pytest.raises(SceneError, match=r"option '-o' = .* is invalid: .*ode\.csv, ode\.json; replace them with --overwrite"):
+    with pytest.raises(SceneError,
+                       match=r"option '-o' = .* is invalid: .*ode\.csv, ode\.json; replace them with --overwrite"):
         again.func(again)
     assert (tmp_path / "ode.json").read_text() == first
     replace = parse(["ode", "--rate", "0.2", "-o", str(tmp_path), "--overwrite"])

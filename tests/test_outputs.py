@@ -337,7 +337,8 @@ def test_the_centroid_of_a_lopsided_particle_across_the_seam_is_its_weighted_mea
         along, across = np.cos(angle) * dx + np.sin(angle) * (y - cy), -np.sin(angle) * dx + np.cos(angle) * (y - cy)
         return 0.5 * (1 + np.tanh((1 - np.hypot(along / a, across / b)) * np.sqrt(a * b) / 2.0))
 
-    for centre, a, b, angle in [((139.0, 2.0), 20.0, 5.0, 0.2), ((0.5, 3.0), 16.0, 5.0, 0.4), ((0.0, 20.0), 8.0, 8.0, 0.0)]:
+    shapes = [((139.0, 2.0), 20.0, 5.0, 0.2), ((0.5, 3.0), 16.0, 5.0, 0.4), ((0.0, 20.0), 8.0, 8.0, 0.0)]
+    for centre, a, b, angle in shapes:
         phi = ellipse(*centre, a, b, angle)
         state = State(domain, [window], [phi], np.array([8.0]))
         dx = np.mod(x - centre[0] + length / 2, length) - length / 2

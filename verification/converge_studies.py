@@ -24,9 +24,9 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import asdict
 import shutil
 import sys
+from dataclasses import asdict
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -65,8 +65,8 @@ def block(results: dict) -> str:
             lines.append(f"| {observable} | {values} | {estimate.order:.2f} | {estimate.order_used:g} | "
                          f"{estimate.limit:.6g} ± {estimate.error_bar:.2g} |")
             if observable == "period":
-                scaled = " | ".join(f"{RATE * level['period']:.2f}" + _uncertainty(RATE * level["uncertainty"]["period"])
-                                    for level in result["levels"])
+                scaled = " | ".join(f"{RATE * level['period']:.2f}"
+                                    + _uncertainty(RATE * level["uncertainty"]["period"]) for level in result["levels"])
                 lines.append(f"| T·γ̇ | {scaled} | {estimate.order:.2f} | {estimate.order_used:g} | "
                              f"{RATE * estimate.limit:.2f} ± {RATE * estimate.error_bar:.2g} |")
         lines.append("")

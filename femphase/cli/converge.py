@@ -84,7 +84,8 @@ def run(args: argparse.Namespace) -> int:
     for name, estimate in result["estimates"].items():
         errors = ", ".join("nan" if math.isnan(e) else f"{e:.3g}" for e in estimate.errors)
         order = f"{estimate.order:.2f}" + ("" if estimate.order_observed else "*")
-        print(f"{name:<16} {order:>7} {_limit(estimate.limit, estimate.error_bar):>14} {estimate.error_bar:>12.3g}   {errors}"
+        limit = _limit(estimate.limit, estimate.error_bar)
+        print(f"{name:<16} {order:>7} {limit:>14} {estimate.error_bar:>12.3g}   {errors}"
               + (f"  ({estimate.note})" if estimate.note else ""))
     counted = [level for level in result["levels"] if math.isfinite(level["substeps"])]
     if counted:  # the adaptive scheme: what its controller did in the phase the observables come from

@@ -29,7 +29,8 @@ from femphase.errors import ResolutionWarning
 from femphase.io.files import read_csv
 from femphase.scene import Scene, scene_from_dict
 
-__all__ = ["RELATIVE_TIME_TOLERANCE", "TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "mean_present", "merge_times", "open_run"]
+__all__ = ["RELATIVE_TIME_TOLERANCE", "TIME_TOLERANCE", "FieldFrames", "RunData", "match_times", "mean_present",
+           "merge_times", "open_run"]
 
 #: Frame times closer than this (time units) are the same frame: runs with different time
 #: steps reach the same frame time up to round-off. Far into a run the round-off grows
