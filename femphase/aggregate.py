@@ -467,8 +467,8 @@ def read_summary(path: str | Path) -> list[dict]:
 
 def is_current(sweep: Sweep) -> bool:
     """sweep.nc and summary.csv exist and are newer than sweep.json and every run's inputs.
-    Their modification time is when :func:`write_aggregate` began to read, so that an input
-    that changed while it read (a sweep finishing a run) makes them stale."""
+    Their modification time is 50 ms before :func:`write_aggregate` began to read, so that
+    an input that changed while it read (a sweep finishing a run) makes them stale."""
     outputs = [sweep.directory / DATASET, sweep.directory / SUMMARY]
     if not all(path.is_file() for path in outputs):
         return False
@@ -481,7 +481,9 @@ def write_aggregate(directory: str | Path) -> dict[str, Path]:
     """Write DIR/sweep.nc and DIR/summary.csv (each replaced atomically); returns their paths."""
 
     directory = Path(directory)
-    began = wallclock.time_ns()
+    # 50 ms early: file times come from the kernel's coarse clock, which can stand a tick
+    # (up to 10 ms) behind this one, so an input written just after this line could seem older
+    began = wallclock.time_ns() - 50_000_000
     result = aggregate(directory)
     paths = {"dataset": directory / DATASET, "summary": directory / SUMMARY}
     tmp = paths["dataset"].with_name(f".{DATASET}.tmp")

@@ -9,6 +9,7 @@ import re
 import shutil
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -293,7 +294,8 @@ def test_an_input_that_changes_while_the_aggregate_reads_leaves_it_stale(sweep, 
 
     def aggregate_while_a_run_finishes(directory):
         result = read(directory)
-        os.utime(sweep / "sweep.json")  # the sweep's index rewritten after it was read
+        now = time.time_ns()  # the sweep's index rewritten after it was read
+        os.utime(sweep / "sweep.json", ns=(now, now))
         return result
 
     monkeypatch.setattr(module, "aggregate", aggregate_while_a_run_finishes)
