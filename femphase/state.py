@@ -98,7 +98,7 @@ def discs_state(domain: Domain, centres: np.ndarray, radii: np.ndarray, initial_
         raise ValueError(f"discs_state centre {centres[outside[0]].tolist()} lies outside the domain's walls "
                          f"(y from {low:g} to {high:g})")
     windows, fields = [], []
-    for centre, r0 in zip(np.asarray(centres, dtype=float), np.broadcast_to(initial_radii, len(centres))):
+    for centre, r0 in zip(centres, np.broadcast_to(initial_radii, len(centres))):
         # where the profile crosses the policy's threshold
         reach = r0 + interface_width * np.arctanh(1.0 - 2.0 * policy.threshold)
         window = domain.disc_window(tuple(centre), reach, policy)

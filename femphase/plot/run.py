@@ -197,9 +197,9 @@ def draw_elongation(ax, run: RunData, ode_rate: float | None = None, ode_k: floa
         ax.plot(t, run.elongation[frames, j], lw=0.6, alpha=0.6, marker=marker, ms=3, label=f"particle {j}")
     ax.plot(t, run.bulk_elongation(frames), color="green", lw=1.8, marker=marker, ms=4,
             label="bulk mean")
-    status = run.info.get("status")
-    if status not in (None, "completed"):
-        ax.set_title(f"run status {status!r}: its frames end at t = {run.time[-1]:g}", fontsize=8, color="darkred")
+    unfinished = _unfinished(run)
+    if unfinished:
+        ax.set_title(unfinished, fontsize=8, color="darkred")
     rate = ode_rate if ode_rate is not None else run.shear_rate
     solution, offset = ode_solution(run, rate, ode_k) if rate else (None, 0.0)
     if solution is not None:
@@ -323,10 +323,9 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
         warnings.warn(f"no minimal-model curve: at γ̇ = {rate:g} the run spans more than {MAX_HALF_PERIODS} of its "
                       f"half periods π/(2kγ̇) = {np.pi / (2 * ode_k * rate):.3g}", stacklevel=2)
         ode_rate = 0.0  # no ODE
-    status = run.info.get("status")
-    if status not in (None, "completed"):
-        warnings.warn(f"{str(run.directory)!r} has run status {status!r}: its figures end at t = {run.time[-1]:g}",
-                      stacklevel=2)
+    unfinished = _unfinished(run)
+    if unfinished:
+        warnings.warn(f"{str(run.directory)!r}: {unfinished}", stacklevel=2)
     figures = {}
     if run_has_fields(run):
         figures["snapshot"] = plot_snapshot(run, out / f"snapshot.{fmt}")
@@ -337,6 +336,14 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
     figures["limit_cycle"] = plot_limit_cycle(run, out / f"limit_cycle.{fmt}", ode_rate, ode_k)
     figures["order"] = plot_order(run, out / f"order.{fmt}")
     return figures
+
+
+def _unfinished(run: RunData) -> str | None:
+    """What to say of a run that did not complete (run.json's status), else None."""
+    status = run.info.get("status")
+    if status in (None, "completed"):
+        return None
+    return f"run status {status!r}: its frames end at t = {run.time[-1]:g}"
 
 
 def run_has_fields(run: RunData) -> bool:

@@ -75,6 +75,11 @@ COURANT_NUMBER = 0.4
 _PAD = 2
 
 
+def _speed(u: np.ndarray, v: np.ndarray) -> float:
+    """max|u| + max|v| of nodal velocities: the speed of the advective Courant number."""
+    return float(np.max(np.abs(u)) + np.max(np.abs(v)))
+
+
 def explicit_stability_limit(
     params: ModelParameters, h: float, speed: float = 0.0, smallest_radius: float | None = None,
     energy: FreeEnergy | None = None,
@@ -180,7 +185,7 @@ class FiniteDifferenceHeun(TimeScheme):
         self.domain = domain
         self._advection_order = {"upwind3": 3, "upwind1": 1}[stepper.numerics.fd_advection]
         u, v = self._nodal_flow(0.0)
-        speed = float(np.max(np.abs(u)) + np.max(np.abs(v)))
+        speed = _speed(u, v)
         self.dt_max = explicit_stability_limit(stepper.params, domain.grid.h, speed, stepper.smallest_radius,
                                                stepper.energy)
         if stepper.dt > self.dt_max * (1 + 1e-12):
@@ -227,8 +232,7 @@ class FiniteDifferenceHeun(TimeScheme):
         the state before the step kept)."""
         dt, h = self.stepper.dt, self.domain.grid.h
         for time in (state.time, state.time + dt):
-            u, v = self._flow_at(time)
-            speed = float(np.max(np.abs(u)) + np.max(np.abs(v)))
+            speed = _speed(*self._flow_at(time))
             if dt * speed / h > COURANT_NUMBER * (1 + 1e-12):
                 raise UnstableStepError(state.step + 1, state.time, (
                     f"the flow's max|u| + max|v| = {speed:.4g} at t = {time:g} makes the explicit scheme's advective "
