@@ -346,3 +346,15 @@ def test_a_changed_study_is_refused_in_the_terms_of_its_options(tmp_path):
                        match=r"option '--h' = \[1\.0, 0\.25\] is invalid: .*accepts added levels only"):
         run_convergence(scene, tmp_path / "study", "h", [1.0, 0.25], ["area"], [*quick, "phases.0.dt=1.0"],
                         workers=1, log=lambda line: None)
+
+
+def test_a_negative_level_list_gets_the_options_own_message(tmp_path, capsys):
+    # argparse read "-1,0.5" as an option: "argument --h: expected one argument" (exit 2)
+    from femphase.cli import main
+
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    assert main(["converge", str(scene), "-o", str(tmp_path / "s"), "--h", "-1,0.5"]) == 2
+    message = capsys.readouterr().err
+    assert "option '--h' = [-1.0, 0.5] is invalid: two or more numbers > 0" in message
+    assert not (tmp_path / "s").exists()

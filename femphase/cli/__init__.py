@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import re
 import sys
 import traceback
 import warnings
@@ -67,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
     for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(name, "1")
     warnings.showwarning = log_warning
-    args = build_parser().parse_args(argv)
+    args = build_parser().parse_args(_attach_negative_values(sys.argv[1:] if argv is None else argv))
     if argv is not None:
         args.argv = list(argv)
     # status lines on the console only where no progress bar shows them (tqdm draws only on
@@ -89,6 +90,27 @@ def main(argv: list[str] | None = None) -> int:
     finally:  # main may be called again in this process (tests): no second handler
         LOGGER.removeHandler(console)
         LOGGER.setLevel(level)
+
+
+#: A value that starts like a negative number: "-1", "-0.5", "-1,0.5", "-1e-3".
+_NEGATIVE_VALUE = re.compile(r"-\.?\d")
+
+
+def _attach_negative_values(argv: list[str]) -> list[str]:
+    """``--option -1,0.5`` as ``--option=-1,0.5``.
+
+    argparse reads a token that starts with "-" as an option unless it is a plain negative
+    number, so a list such as ``--h -1,0.5`` stopped with "expected one argument" instead of
+    the option's own message naming the value and what is valid.
+    """
+    joined: list[str] = []
+    for token in argv:
+        previous = joined[-1] if joined else ""
+        if _NEGATIVE_VALUE.match(token) and previous.startswith("--") and previous != "--" and "=" not in previous:
+            joined[-1] = f"{previous}={token}"
+        else:
+            joined.append(token)
+    return joined
 
 
 def _report(exc: BaseException) -> tuple[int | None, str]:
