@@ -124,6 +124,87 @@ def test_unreadable_or_unnamed_files_raise_scene_errors(tmp_path):
         read_domain(tmp_path / "c.vtu", names={"left": 1, "right": 2})
 
 
+def write_triangles(path, points, blocks, cell_data=None, field_data=None):
+    """A mesh file of ``points`` (2, n) and cell ``blocks`` [(type, (k, n_cells))]."""
+    gmsh = {"file_format": "gmsh22", "binary": False} if str(path).endswith(".msh") else {}
+    meshio.write(path, meshio.Mesh(np.vstack([points, 0 * points[0]]).T, [(kind, cells.T) for kind, cells in blocks],
+                                   cell_data=cell_data, field_data=field_data), **gmsh)
+
+
+def blocks_side_by_side(gap):
+    """Two structured 10 × 6 blocks, the second ``gap`` to the right of the first, their
+    nodes not merged where they meet (gap 0)."""
+    a, _ = structured_channel(10.0, 6.0, 1.0)
+    points = np.hstack([a.p, a.p + [[10.0 + gap], [0.0]]])
+    return points, np.hstack([a.t, a.t + a.p.shape[1]])
+
+
+def test_meshes_that_would_run_another_domain_are_refused(tmp_path):
+    # each of these ran: the unmerged seam as a no-slip wall across the channel (a Stokes
+    # flow of round-off scaled by 1e14), the quads left out (half the channel), the
+    # repeated triangles counted twice in every integral, the solid surface as fluid
+    points, triangles = blocks_side_by_side(0.0)
+    write_triangles(tmp_path / "seam.vtu", points, [("triangle", triangles)])
+    with pytest.raises(SceneError, match=r"7 pairs of coincident nodes .* e\.g\. at \(10, [0-6]\).*merge them"):
+        read_domain(tmp_path / "seam.vtu")
+
+    mesh, _ = structured_channel(20.0, 6.0, 1.0)
+    quads = np.array([[0, 1, 22, 21]]).T
+    write_triangles(tmp_path / "mixed.vtu", mesh.p, [("triangle", mesh.t[:, 2:]), ("quad", quads)])
+    with pytest.raises(SceneError, match=r"cells other than linear triangles and boundary lines: \['quad'\]"):
+        read_domain(tmp_path / "mixed.vtu")
+
+    write_triangles(tmp_path / "twice.vtu", mesh.p, [("triangle", np.hstack([mesh.t, mesh.t[:, 5:7]]))])
+    with pytest.raises(SceneError, match=r"2 triangles repeat others"):
+        read_domain(tmp_path / "twice.vtu")
+    a, b = mesh.facets[:, np.flatnonzero(mesh.f2t[1] >= 0)[10]]  # an interior edge
+    distance = np.hypot(*(mesh.p - 0.5 * (mesh.p[:, [a]] + mesh.p[:, [b]])))
+    third = int(np.argmin(np.where(distance > 1.5, distance, np.inf)))  # a triangle over a neighbour's
+    write_triangles(tmp_path / "three.vtu", mesh.p, [("triangle", np.hstack([mesh.t, [[a], [b], [third]]]))])
+    with pytest.raises(SceneError, match=r"edges belong to more than two triangles"):
+        read_domain(tmp_path / "three.vtu")
+
+    fluid, solid = np.zeros(mesh.t.shape[1], dtype=int) + 7, np.zeros(4, dtype=int) + 8
+    lines = mesh.facets[:, mesh.boundary_facets()]
+    line_tags = np.where(mesh.p[0, lines].max(axis=0) == 0.0, 1, np.where(mesh.p[0, lines].min(axis=0) == 20.0, 2, 3))
+    write_triangles(tmp_path / "solid.msh", mesh.p, [("triangle", mesh.t[:, :-4]), ("triangle", mesh.t[:, -4:]),
+                                                     ("line", lines)],
+                    cell_data={"gmsh:physical": [fluid[:-4], solid, line_tags],
+                               "gmsh:geometrical": [fluid[:-4], solid, line_tags]},
+                    field_data={"fluid": np.array([7, 2]), "solid": np.array([8, 2]), "left": np.array([1, 1]),
+                                "right": np.array([2, 1]), "wall": np.array([3, 1])})
+    with pytest.raises(SceneError, match=r"2 physical surfaces \(gmsh:physical: 7 \(fluid\), 8 \(solid\)\)"):
+        read_domain(tmp_path / "solid.msh")
+
+
+def test_a_stokes_flow_through_a_closed_channel_is_refused():
+    from femphase.domains.mesh.stokes import domain_stokes_flow
+
+    points, triangles = blocks_side_by_side(2.0)  # a wall from y = 0 to 6 at x = 10 and at x = 12
+    domain = MeshDomain.from_mesh(MeshTri(points, triangles))
+    with pytest.raises(SceneError, match=r"flow.type.*walls or obstacles close it"):
+        domain_stokes_flow(domain, {"type": "stokes", "max_velocity": 0.1})
+    assert domain_stokes_flow(straight(20.0, 6.0), {"type": "stokes", "max_velocity": 0.1}).flux > 0
+
+
+def test_points_are_located_in_stretched_triangles():
+    # cells of 4 × 0.125 (a boundary layer's): a fifth of the points lay in none of the
+    # triangles with the 12 nearest centroids, and a centre placed there was "outside"
+    from femphase.domains.mesh.location import barycentric, locate
+
+    mesh = MeshTri.init_tensor(np.linspace(0.0, 40.0, 11), np.linspace(0.0, 10.0, 81))
+    rng = np.random.default_rng(3)
+    elements = rng.integers(0, mesh.t.shape[1], 5000)
+    weights = rng.dirichlet([1.0, 1.0, 1.0], 5000).T
+    points = (mesh.p[:, mesh.t[:, elements]] * weights).sum(axis=1)
+    found = locate(mesh, points)
+    assert (found >= 0).all()
+    # the triangle found holds the point: its barycentric weights are all ≥ 0
+    s, t = barycentric(*mesh.p[:, mesh.t[:, found]].transpose(1, 0, 2), points)
+    assert (np.minimum(np.minimum(s, t), 1 - s - t) > -1e-9).all()
+    assert (locate(mesh, points + [[0.0], [10.5]]) == -1).all()  # beyond the top edge
+
+
 # -- the stepper on a mesh against the structured channel ---------------------------------
 
 def test_on_the_structured_mesh_the_meshed_domain_steps_like_the_structured_one():

@@ -48,7 +48,7 @@ def read_meshio(path: str | Path) -> meshio.Mesh:
         else:
             reason = f"{type(exc).__name__}: {exc}"
         raise SceneError("domain.mesh", str(path), f"a mesh file meshio can read ({reason})") from None
-    if said.getvalue():
+    if said.getvalue().strip():  # meshio's gmsh reader prints an empty line on every read
         sys.stderr.write(said.getvalue())  # meshio's warnings about a file it did read
     if not isinstance(data, meshio.Mesh) or np.ndim(getattr(data, "points", None)) != 2:
         raise SceneError("domain.mesh", str(path), "a mesh file meshio can read (it holds no points)")

@@ -34,6 +34,7 @@ from typing import Callable, Sequence
 
 import meshio
 import numpy as np
+from scipy.spatial import cKDTree
 from skfem import MeshTri
 
 from femphase.config import Numerics
@@ -75,6 +76,10 @@ MESH_KEYS = ("kind", "mesh", "h", "periodic", "boundaries", "Lx", "Ly")
 #: either way: room for graded meshes, not for an h that describes another mesh (its
 #: margins, tolerances and resolution check would then be another mesh's).
 NOMINAL_SPACING_FACTOR = 2.0
+#: Nodes closer than this fraction of the median edge are one point meshed twice: a mesh of
+#: pieces whose shared nodes were not merged (the closest distinct nodes of a valid mesh are
+#: an edge apart, a graded mesh's shortest edge rarely below 1e-3 of its median).
+COINCIDENT_NODES = 1e-6
 
 
 class PeriodicPairError(ValueError):
@@ -87,8 +92,9 @@ class PeriodicPairError(ValueError):
 class MeshDomain(Domain):
     """Any triangle mesh meshio reads, periodic in x (keys: `mesh`, the file, relative to the
     scene; `periodic`, the periodic pair of boundary names, default ["left", "right"];
-    `boundaries`, names of the file's integer tags; `h`, the nominal spacing, default the
-    median edge; `Lx`, `Ly`, if given, must match the mesh).
+    `boundaries`, names of the file's integer tags; `h`, a nominal spacing, optional: without
+    it the mesh is judged by its effective spacing √(area/dofs); `Lx`, `Ly`, if given, must
+    match the mesh).
 
     A channel on a triangular mesh, periodic in x, with its P1 operators.
 
@@ -130,7 +136,7 @@ class MeshDomain(Domain):
         the facets. ``tolerance`` (length) is the matching tolerance of the periodic nodes,
         by default 1e-8 of the period. Raises ValueError naming what does not match.
         """
-        _check_triangles(mesh)
+        _check_mesh(mesh)
         boundaries = channel_sides(mesh) if boundaries is None else dict(boundaries)
         low, high = periodic
         for name in periodic:
@@ -457,13 +463,41 @@ class MeshDomain(Domain):
         return area, self.centroids(layout, phi), tensors
 
 
-def _check_triangles(mesh: MeshTri) -> None:
-    _, areas = element_gradients(mesh)
+def _check_mesh(mesh: MeshTri) -> None:
+    """Refuse triangulations that would run with a wrong domain: degenerate triangles,
+    coincident nodes and edges shared by more than two triangles."""
+    with np.errstate(divide="ignore", invalid="ignore"):  # a degenerate triangle's gradients: refused below
+        _, areas = element_gradients(mesh)
     small = areas <= 1e-12 * np.median(areas)
     if small.any():
         k = int(np.flatnonzero(small)[0])
         corners = ", ".join(f"({a:.6g}, {b:.6g})" for a, b in mesh.p[:, mesh.t[:, k]].T)
         raise ValueError(f"{int(small.sum())} degenerate triangles (zero area), e.g. {corners}")
+    edges = np.sort(mesh.t[[0, 1, 2, 1, 2, 0]].reshape(2, -1), axis=0).astype(np.int64)
+    lengths = np.hypot(*(mesh.p[:, edges[1]] - mesh.p[:, edges[0]]))
+    # pieces meshed apart and joined without merging their shared nodes: each piece's edge
+    # along the seam is then a boundary facet, i.e. a no-slip wall inside the fluid
+    # (a seam across the channel blocks it, and its Stokes flow is round-off scaled up)
+    pairs = cKDTree(mesh.p.T).query_pairs(COINCIDENT_NODES * float(np.median(lengths)), output_type="ndarray")
+    if len(pairs):
+        x, y = mesh.p[:, pairs[0, 0]]
+        raise ValueError(
+            f"{len(pairs)} pairs of coincident nodes (closer than {COINCIDENT_NODES:g} of the median edge), e.g. at "
+            f"({x:.6g}, {y:.6g}): pieces joined without merging their shared nodes, whose seam would be a wall "
+            "inside the fluid; merge them (gmsh: Coherence, or remove duplicate nodes)")
+    corners = np.sort(mesh.t, axis=0)
+    order = np.lexsort(corners)
+    repeated = order[1:][(np.diff(corners[:, order], axis=1) == 0).all(axis=0)]
+    if repeated.size:
+        corners = ", ".join(f"({a:.6g}, {b:.6g})" for a, b in mesh.p[:, mesh.t[:, repeated[0]]].T)
+        raise ValueError(f"{repeated.size} triangles repeat others, e.g. {corners}")
+    codes, counts = np.unique(edges[0] * mesh.p.shape[1] + edges[1], return_counts=True)
+    if (counts > 2).any():
+        a, b = np.divmod(codes[counts > 2][0], mesh.p.shape[1])
+        raise ValueError(
+            f"{int((counts > 2).sum())} edges belong to more than two triangles (repeated or overlapping "
+            f"triangles), e.g. the edge from ({mesh.p[0, a]:.6g}, {mesh.p[1, a]:.6g}) to "
+            f"({mesh.p[0, b]:.6g}, {mesh.p[1, b]:.6g})")
 
 
 def channel_sides(mesh: MeshTri, tolerance: float | None = None) -> dict[str, np.ndarray]:
@@ -515,6 +549,7 @@ def read_domain(
     data = read_meshio(path)
     try:
         mesh, lines, tags = _mesh_and_lines(data)
+        _check_mesh(mesh)  # before the boundaries: a broken mesh breaks them, and would be blamed on them
         boundaries = None
         if lines.shape[1]:
             table = names or _file_names(data) or BOUNDARY_TAGS
@@ -534,6 +569,10 @@ def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]
     kinds = {block.type for block in data.cells}
     if "triangle" not in kinds:
         raise ValueError(f"no linear triangle cells (the file has {sorted(kinds)})")
+    others = sorted(kinds - {"triangle", "line", "vertex"})
+    if others:  # a part of the domain meshed in other cells would be left out, silently
+        raise ValueError(f"cells other than linear triangles and boundary lines: {others}; the domain must be "
+                         "meshed in linear triangles alone (the phase fields are P1)")
     if data.points.ndim != 2 or data.points.shape[1] < 2 or not np.isfinite(data.points).all():
         raise ValueError("the points are not finite (x, y) coordinates")
     if data.points.shape[1] > 2 and np.ptp(data.points[:, 2]) > 0:
@@ -547,6 +586,7 @@ def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]
     mesh = MeshTri(np.ascontiguousarray(data.points[used, :2].T, dtype=float),
                    np.ascontiguousarray(renumbered.reshape(triangles.shape).T, dtype=np.int64))
     key = next((k for k in TAG_KEYS if k in data.cell_data), None)
+    _check_one_surface(data, key)
     line_blocks = [i for i, b in enumerate(data.cells) if b.type == "line"]
     if not line_blocks:
         return mesh, np.zeros((2, 0), dtype=int), np.zeros(0, dtype=int)
@@ -561,6 +601,23 @@ def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]
     if (lines < 0).any():
         raise ValueError("line cells use points that belong to no triangle")
     return mesh, lines, tags.astype(int)
+
+
+def _check_one_surface(data: meshio.Mesh, key: str | None) -> None:
+    """Refuse triangles tagged as several physical surfaces: every triangle is taken as
+    fluid, and a file that meshes a solid obstacle as a second surface would run through it."""
+    if key is None:
+        return
+    tags = np.unique(np.concatenate([np.asarray(data.cell_data[key][i]).ravel()
+                                     for i, block in enumerate(data.cells) if block.type == "triangle"]))
+    if tags.size > 1:
+        names = {int(np.ravel(v)[0]): name for name, v in data.field_data.items()
+                 if np.size(v) >= 2 and int(np.ravel(v)[1]) == 2}
+        surfaces = ", ".join(f"{int(t)} ({names[int(t)]})" if int(t) in names else str(int(t)) for t in tags)
+        raise ValueError(f"the triangles belong to {tags.size} physical surfaces ({key}: {surfaces}); every "
+                         "triangle is taken as fluid, so a solid meshed as a surface would be flowed through: "
+                         "write the fluid as one physical surface (gmsh: Physical Surface(\"fluid\") = {…}) and "
+                         "leave solids unmeshed")
 
 
 def _file_names(data: meshio.Mesh) -> dict[str, int]:

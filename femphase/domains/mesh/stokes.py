@@ -96,6 +96,10 @@ __all__ = ["STOKES_DRIVES", "StokesCacheWarning", "StokesFlow", "cache_dir", "ca
 
 #: Keys of a scene's ``flow = {type = "stokes", ...}`` table; exactly one driving key.
 STOKES_DRIVES = ("max_velocity", "flux", "pressure_drop")
+#: A channel whose Stokes flux is below this fraction of an open channel's of its height is
+#: closed: walls or obstacles span it. A slit of a hundredth of the height along the whole
+#: period still passes (1/100)³ = 1e-6; a closed channel passes round-off, about 1e-17.
+CLOSED_CHANNEL = 1e-9
 #: Format version of the cache files (a file of another version is solved again).
 CACHE_VERSION = 2
 
@@ -552,5 +556,18 @@ def domain_stokes_flow(domain: MeshDomain, spec: dict) -> StokesFlow:
     units = _UNIT_FLOWS.setdefault(domain, {})
     if viscosity not in units:
         cache = cache_path(domain, viscosity) if domain.source else None
-        units[viscosity] = unit_stokes_flow(domain, viscosity, cache)
+        units[viscosity] = _open_channel(domain, unit_stokes_flow(domain, viscosity, cache))
     return stokes_flow(domain, spec, units[viscosity])
+
+
+def _open_channel(domain: MeshDomain, unit: StokesFlow) -> StokesFlow:
+    """``unit``, if a pressure drop drives a flux through the mesh; a SceneError if walls or
+    obstacles close the channel (its flux is then round-off, and a flow scaled to a given
+    velocity or flux would be that round-off magnified)."""
+    low, high = domain.y_range
+    open_flux = (high - low) ** 3 / (12 * unit.viscosity * unit.period) * unit.pressure_drop
+    if not unit.flux > CLOSED_CHANNEL * open_flux:
+        raise SceneError("flow.type", "stokes", f"a flow through a channel open from side to side; a pressure drop "
+                         f"through {domain.source or 'the mesh'} drives a flux of {unit.flux:.3g}, "
+                         f"{unit.flux / open_flux:.2g} of an open channel of its height's: walls or obstacles close it")
+    return unit
