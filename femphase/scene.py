@@ -130,10 +130,15 @@ class Scene:
 
     def to_dict(self) -> dict:
         """The resolved scene as plain data (what ``scene.toml`` of a run directory holds):
-        the domain table gains its measured Lx, Ly and h, a mesh file its absolute path."""
+        the domain table gains its measured Lx and Ly, a grid its h, a mesh file its absolute
+        path. A mesh keeps the h its scene gives, if any: a nominal h judges the mesh where it
+        is coarser than the nodes
+        (:attr:`femphase.domains.mesh.domain.MeshDomain.resolution`), so a measured one written
+        there would make the file describe another scene than the one that ran."""
         domain = self.domain
-        table = {"kind": domain.kind, **self.domain_table, "Lx": domain.period, "Ly": domain.width,
-                 "h": float(self.domain_table.get("h", domain.spacing))}
+        table = {"kind": domain.kind, **self.domain_table, "Lx": domain.period, "Ly": domain.width}
+        if domain.kind != "mesh":
+            table["h"] = float(self.domain_table.get("h", domain.spacing))
         if table.get("mesh"):
             table["mesh"] = str((Path(self.base_dir) / table["mesh"]).resolve())
         return {
@@ -341,8 +346,8 @@ def _check_area_ceiling(scene: Scene) -> None:
 def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     """What the time stepping would refuse at its first step, refused now: a time mass the
     scheme cannot step with, the finite-difference scheme off the structured channel or
-    above its explicit stability limit, and the tensor solver where the system has no
-    tensor-product form.
+    above its explicit stability limit, the tensor solver where the system has no
+    tensor-product form, and on a mesh a choice of the structured channel's diagonals.
 
     ``scheme``: the time scheme the run uses, if not the scene's ``numerics.scheme`` (``femphase
     run --method fd`` uses "fd-heun"); :func:`femphase.run.runner.run_scene` should call this
@@ -355,6 +360,9 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
 
     given, instead = ("fd", '"fem"') if key == "--method" else (scheme, fem_schemes())
     SCHEMES.get(scheme).check_mass(numerics.mass)
+    if domain.kind == "mesh" and numerics.diagonals != Numerics.diagonals:
+        raise SceneError("numerics.diagonals", numerics.diagonals, f'"{Numerics.diagonals}" (the default) on a mesh: '
+                         "the diagonals are the structured channel's triangulation, a mesh's triangles its file's")
     if scheme == "fd-heun":
         if domain.kind != "grid":
             raise SceneError(key, given, f'{instead} on this domain: the finite-difference reference needs the '
@@ -380,7 +388,7 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
                       "alternating diagonals)")
         if reason is not None:
             raise SceneError("numerics.solver", "tensor",
-                             f'"auto", "direct" or "amg": the tensor solver needs {reason}')
+                             f'"auto", "direct", "amg" or "batched": the tensor solver needs {reason}')
 
 
 def _table(data: dict, name: str) -> dict:
@@ -570,15 +578,16 @@ def _check_particles(scene: Scene) -> None:
         raise SceneError(key, value, f"{valid} (a root-mean-square radius ≤ {largest:g} for {n} particles)")
     if p.layout == "hexagonal" and p.per_row is not None and p.per_row > n:
         raise SceneError("particles.per_row", p.per_row, f"a whole number from 1 to particles.N = {n}")
-    if p.layout == "random":
-        low, high = domain.y_range
-        diameter = 2 * float(np.max(scene.initial_radii()))
-        if diameter >= high - low:
-            key = "particles.initial_radius" if p.initial_radius is not None else "model.radius"
-            raise SceneError(key, diameter / 2, f"initial discs that fit between the walls: a radius < "
-                             f"{(high - low) / 2:g} (half the width)")
+    # a disc wider than the channel is cut by both walls, one longer than the period overlaps
+    # its own image: the particle started so vanished (its area 182 of 1597, x and y NaN)
+    diameter = 2 * float(np.max(scene.initial_radii()))
+    if diameter >= min(domain.width, domain.period):
+        key = "particles.initial_radius" if p.initial_radius is not None else "model.radius"
+        raise SceneError(key, diameter / 2, f"initial discs that fit between the walls and within the period: a "
+                         f"radius < {min(domain.width, domain.period) / 2:g} (half the width Ly = {domain.width:g} "
+                         f"and half the period Lx = {domain.period:g})")
     if p.layout != "random":  # fixed centres: check them now, not at the run
-        initial_centres(scene)
+        _warn_cut_discs(scene, initial_centres(scene))
     lam, smallest = scene.model.interface_width, float(np.min(scene.radii))
     if smallest < BULK_RADIUS * lam:
         key = "particles.radii" if p.radii is not None else "model.radius"
@@ -603,12 +612,36 @@ def initial_centres(scene: Scene) -> np.ndarray:
         centres = np.asarray(p.centres, dtype=float)[: 1 if p.layout == "single" else None]
     else:
         centres = np.array([[domain.x0 + 0.5 * domain.period, 0.5 * (low + high)]])
+    where = (f"y between the walls, {low:g} ≤ y ≤ {high:g}" if domain.kind == "grid"
+             else "in the mesh's triangles, not in an obstacle or beyond a wall")
     outside = ~domain.inside(centres[:, 0], centres[:, 1])
+    if outside.any() and p.centres:
+        raise SceneError("particles.centres", centres[outside].tolist(), f"centres inside the domain ({where})")
     if outside.any():
-        raise SceneError("particles.centres", centres[outside].tolist(),
-                         f"centres inside the domain (y between the walls, {low:g} ≤ y ≤ {high:g})")
+        x, y = centres[np.argmax(outside)]
+        raise SceneError("particles.layout", p.layout, f"a layout whose centres lie inside the domain ({where}); "
+                         f"the {p.layout} layout puts {int(outside.sum())} of its centres outside, e.g. "
+                         f"({x:.4g}, {y:.4g}): layout = \"random\" places discs clear of walls and obstacles, or "
+                         "list the centres")
     _check_distinct(centres, domain.period, domain.spacing)
     return centres
+
+
+def _warn_cut_discs(scene: Scene, centres: np.ndarray) -> None:
+    """ModelWarning when a placed layout starts discs that a wall or obstacle cuts: they start
+    with less than their area, and a disc over an obstacle grows around it."""
+    walls = scene.domain.wall_points()
+    dx = (walls[0][None, :] - centres[:, :1] + 0.5 * scene.domain.period) % scene.domain.period - 0.5 * scene.domain.period
+    clearance = np.hypot(dx, walls[1][None, :] - centres[:, 1:]).min(axis=1)
+    # wall points are nodes: a disc that only touches a wall between two of them is not cut
+    cut = clearance < scene.initial_radii() - 0.5 * scene.domain.spacing
+    if cut.any():
+        k = int(np.argmax(cut))
+        warnings.warn(f"the {scene.particles.layout} layout starts {int(cut.sum())} of {len(centres)} particles cut by "
+                      f"a wall or obstacle, e.g. particle {k} at ({centres[k, 0]:.4g}, {centres[k, 1]:.4g}), whose "
+                      f"initial disc of radius {scene.initial_radii()[k]:g} has a wall node {clearance[k]:.3g} from its "
+                      "centre: they start with less than their area (layout = \"random\" places "
+                      "discs clear of walls and obstacles)", ModelWarning, stacklevel=4)
 
 
 def _check_distinct(centres: np.ndarray, period: float, spacing: float) -> None:

@@ -357,6 +357,78 @@ def test_a_nominal_h_cannot_make_a_mesh_finer_than_its_nodes(tmp_path):
     assert info.value.key == "domain.h"
 
 
+def test_a_mesh_runs_scene_toml_is_the_scene_that_ran(tmp_path):
+    """scene.toml wrote a mesh's median edge as domain.h, a nominal h that judges the mesh
+    where it is coarser than the nodes: the run's own scene.toml was refused ("needs h ≤ λ")
+    for a mesh of effective spacing 1.9 and median edge 2.04, and described a coarser
+    resolution for every Delaunay mesh (1.07 for 1.0)."""
+    import h5py
+
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+
+    write_domain(tmp_path / "channel.vtu", *delaunay_channel(40.0, edge_for_spacing(1.9), lambda x: 0 * x,
+                                                            lambda x: 0 * x + 40.0, seed=1))
+    table = {"domain": {"kind": "mesh", "mesh": "channel.vtu"}, "particles": {"layout": "single"},
+             "phases": [{"duration": 2.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the resolution warning of h = 1.9
+        scene = scene_from_dict(table, tmp_path)
+        assert scene.domain.median_edge > 2.0 > scene.domain.resolution  # λ = 2 between them
+        again = scene_from_dict(scene.to_dict(), tmp_path)
+        assert again.domain.resolution == scene.domain.resolution and "h" not in again.to_dict()["domain"]
+        assert main(["run", str(write_scene(tmp_path / "scene.toml", table)), "-o", str(tmp_path / "run"), "-q"]) == 0
+        # a checkpoint written with the median edge as domain.h (femphase ≤ 0.2.0) resumes
+        with h5py.File(tmp_path / "run" / CHECKPOINT, "a") as handle:
+            saved = json.loads(handle.attrs["meta_scene"])
+            saved["domain"]["h"] = scene.domain.median_edge
+            handle.attrs["meta_scene"] = json.dumps(saved)
+        assert main(["run", str(tmp_path / "run" / "scene.toml"), "-o", str(tmp_path / "run"), "--resume", "-q",
+                     "--set", "phases.0.duration=3.0"]) == 0
+
+
+def test_a_layout_off_the_fluid_names_the_layout_and_a_cut_disc_is_warned(tmp_path):
+    # the hexagonal layout's centre in an obstacle was refused as 'particles.centres' (never
+    # set) "y between the walls" (it was); its discs over an obstacle started cut, silently
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import delaunay_channel, edge_for_spacing
+    from femphase.errors import ModelWarning
+
+    write_domain(tmp_path / "c.vtu", *delaunay_channel(40.0, edge_for_spacing(1.0), lambda x: 0 * x,
+                                                      lambda x: 0 * x + 40.0, obstacles=[(25.0, 10.0, 3.0)], seed=1))
+    table = {"domain": {"kind": "mesh", "mesh": "c.vtu"}, "particles": {"layout": "hexagonal", "N": 4, "per_row": 2},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    centres = hexagonal_centres(4, 40.0, 40.0, 2)
+    assert np.hypot(*(centres - [25.0, 10.0]).T).min() < 1e-9  # one centre in the obstacle
+    with pytest.raises(SceneError, match=r"the hexagonal layout puts 1 of its centres outside, e\.g\. \(25, 10\)") as info:
+        scene_from_dict(table, tmp_path)
+    assert info.value.key == "particles.layout" and "not in an obstacle" in str(info.value)
+    table["domain"]["mesh"] = "d.vtu"
+    write_domain(tmp_path / "d.vtu", *delaunay_channel(40.0, edge_for_spacing(1.0), lambda x: 0 * x,
+                                                      lambda x: 0 * x + 40.0, obstacles=[(25.0, 15.0, 2.5)], seed=1))
+    with pytest.warns(ModelWarning, match=r"starts 1 of 4 particles cut by a wall or obstacle, e\.g\. particle 1 at "
+                                          r"\(25, 10\), whose initial disc of radius 4 has a wall node 2\.[5-7]"):
+        scene_from_dict(table, tmp_path)  # the obstacle's edge is 2.5 from (25, 10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        scene_from_dict({**table, "domain": {"kind": "grid", "Lx": 40.0, "Ly": 40.0}})
+
+
+def test_numerics_of_the_structured_channel_are_refused_on_a_mesh(tmp_path):
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import structured_channel
+    from femphase.scene import check_numerics
+
+    write_domain(tmp_path / "channel.vtu", *structured_channel(20.0, 20.0, 1.0))
+    table = {"domain": {"kind": "mesh", "mesh": "channel.vtu"}, "particles": {"layout": "single"},
+             "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with pytest.raises(SceneError, match=r'"right" \(the default\) on a mesh') as info:
+        check_numerics(scene_from_dict({**table, "numerics": {"diagonals": "left"}}, tmp_path))
+    assert info.value.key == "numerics.diagonals"
+    with pytest.raises(SceneError, match=r'"auto", "direct", "amg" or "batched": the tensor solver needs'):
+        check_numerics(scene_from_dict({**table, "numerics": {"solver": "tensor"}}, tmp_path))
+
+
 def test_a_periodic_pair_in_the_wrong_order_or_of_walls_names_the_pair(tmp_path):
     from femphase.domains.mesh.domain import write_domain
     from femphase.domains.mesh.generation import structured_channel

@@ -83,6 +83,11 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
             for settings in (saved, current):
                 if placed_count(settings.get("particles", {})) is not None:
                     settings["particles"].pop("N", None)
+            # femphase ≤ 0.2.0 wrote a mesh's median edge as domain.h where the scene gave none
+            domain = simulation.domain
+            if (domain.kind == "mesh" and "h" not in current["domain"]
+                    and saved.get("domain", {}).get("h") == domain.median_edge):
+                saved["domain"].pop("h")
             phase, phase_step, changes = resume_position(saved, current, metadata["time"])
             state, observers = load_checkpoint(checkpoint, simulation.domain)
             state.phase, state.phase_step = phase, phase_step
