@@ -61,6 +61,7 @@ from femphase.domains.base import Domain
 from femphase.domains.grid.domain import GridDomain
 from femphase.domains.grid.lattice import ChannelGrid, grid_dof_map
 from femphase.io.reader import FieldFrames, match_times, open_run
+from femphase.io.rundir import COMPARISON
 from femphase.state import State
 
 __all__ = ["ENERGIES", "FIELD_NORMS", "GRID_SUFFIXES", "OBSERVABLES", "ORIENTATION_MIN_ELONGATION", "START_OFFSET",
@@ -510,7 +511,8 @@ def write_comparison(result: dict, directory: str | Path) -> Path:
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     names = list(result["series"])
-    with (directory / "compare.csv").open("w", newline="") as handle:
+    table, summary, figure = COMPARISON
+    with (directory / table).open("w", newline="") as handle:
         writer = csv.writer(handle)
         writer.writerow(["time"] + names)
         for k, t in enumerate(result["time"]):
@@ -527,8 +529,8 @@ def write_comparison(result: dict, directory: str | Path) -> Path:
             return None
         return value
 
-    (directory / "compare.json").write_text(json.dumps(plain(result), indent=1) + "\n")
-    _plot(result, directory / "compare.png")
+    (directory / summary).write_text(json.dumps(plain(result), indent=1) + "\n")
+    _plot(result, directory / figure)
     return directory
 
 

@@ -326,6 +326,29 @@ def test_overwrite_deletes_the_replaced_runs_figures_and_comparisons_but_not_oth
     assert (run / "notes.txt").read_text() == "old"
 
 
+def test_overwrite_keeps_the_users_files_in_femphases_folders(scene, tmp_path, capsys):
+    # figures/ and compare/ were deleted whole and fields/ emptied: a user's paper.png in
+    # figures/ went with them; a folder in fields/ stopped the overwrite with an internal
+    # error after particles.csv was gone
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    assert main(["plot", str(run)]) == 0
+    mine = ("figures/paper.png", "compare/notes.txt", "fields/extra.h5")
+    for name in (*mine, "compare/compare.csv"):
+        (run / name).parent.mkdir(exist_ok=True)
+        (run / name).write_text("mine")
+    assert _run(scene, run, "--overwrite") == 0
+    assert all((run / name).read_text() == "mine" for name in mine)
+    assert sorted(p.name for p in (run / "figures").iterdir()) == ["paper.png"]  # plot's figures went
+    assert not (run / "compare" / "compare.csv").exists()
+    (run / "fields" / "frame_000000.h5").unlink()
+    (run / "fields" / "frame_000000.h5").mkdir()
+    capsys.readouterr()
+    assert _run(scene, run, "--overwrite") == 2
+    assert "fields/frame_000000.h5 is not one (nothing was deleted)" in capsys.readouterr().err
+    assert (run / "particles.csv").is_file()
+
+
 def test_a_sweep_directory_is_not_taken_for_a_run(scene, tmp_path, capsys):
     # a run's files written among a sweep's index and runs/ were read as neither
     sweep = tmp_path / "sweep"
@@ -335,3 +358,20 @@ def test_a_sweep_directory_is_not_taken_for_a_run(scene, tmp_path, capsys):
         assert _run(scene, sweep, *flags) == 2
         assert "it holds sweep.json" in capsys.readouterr().err
     assert sorted(p.name for p in sweep.iterdir()) == ["sweep.json"]
+
+
+def test_a_run_without_checkpoints_does_not_claim_one_when_it_stops(scene, tmp_path, capsys):
+    # "The last good checkpoint is kept" was printed where output.checkpoint = false wrote none
+    from femphase.cli import _report
+
+    assert _run(scene, tmp_path / "run", "--set", "output.checkpoint=false", "--set", "numerics.blowup_margin=1e-9") == 3
+    message = capsys.readouterr().err
+    assert "the run blew up at step 1" in message and "checkpoint is kept" not in message
+    assert "it writes no checkpoint (output.checkpoint = false) and cannot be continued" in message
+    assert not (tmp_path / "run" / "checkpoint.h5").exists()
+    assert _run(scene, tmp_path / "kept", "--set", "numerics.blowup_margin=1e-9") == 3
+    assert "The last good checkpoint is kept." in capsys.readouterr().err
+    interrupt = KeyboardInterrupt()
+    interrupt.checkpoints = False
+    assert _report(interrupt) == (130, "interrupted; its frames so far are kept; it writes no checkpoint "
+                                       "(output.checkpoint = false) and cannot be continued")

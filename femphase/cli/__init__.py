@@ -117,12 +117,18 @@ def _report(exc: BaseException) -> tuple[int | None, str]:
     """(exit code, message) for an error; code None: let it propagate (SystemExit)."""
     if isinstance(exc, SystemExit):
         return None, ""
+    # a run stopped without checkpoints (output.checkpoint = false) kept its frames only
+    unresumable = "its frames so far are kept; it writes no checkpoint (output.checkpoint = false) and cannot be continued"
+    checkpoints = getattr(exc, "checkpoints", True)
     if isinstance(exc, Interrupted):
-        return exc.exit_code, f"{exc}; the checkpoint of that step is kept (continue with --resume)"
+        return exc.exit_code, f"{exc}; " + ("the checkpoint of that step is kept (continue with --resume)"
+                                            if checkpoints else unresumable)
     if isinstance(exc, KeyboardInterrupt):
-        return 130, "interrupted; the last checkpoint is kept (continue with --resume)"
+        return 130, "interrupted; " + ("the last checkpoint is kept (continue with --resume)" if checkpoints
+                                       else unresumable)
     if isinstance(exc, (BlowUpError, FlowError)):
-        return 3, f"error: {exc}. The last good checkpoint is kept."
+        return 3, f"error: {exc}. " + ("The last good checkpoint is kept." if checkpoints
+                                       else unresumable[0].upper() + unresumable[1:] + ".")
     if isinstance(exc, FemphaseError):
         return 2, f"error: {exc}"
     return 1, (f"internal error ({type(exc).__name__}: {exc}); this is a bug: rerun with --traceback and "

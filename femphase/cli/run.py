@@ -46,8 +46,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                       help="continue DIR from its checkpoint (the scene may extend durations, change later "
                            "phases' dt or the output cadence)")
     mode.add_argument("--overwrite", action="store_true",
-                      help="replace the run in DIR (deletes femphase's files there: the run's outputs, and the figures/ and "
-                           "compare/ that plot and compare wrote of it)")
+                      help="replace the run in DIR (deletes femphase's files there, and only those: the run's outputs, "
+                           "and the figures and comparison that plot and compare wrote into figures/ and compare/)")
     parser.add_argument("--method", default="fem", choices=["fem", "fd"],
                         help="fem: the finite-element solver with the scene's numerics.scheme; fd: the paper's "
                              "finite-difference scheme (numerics.scheme = \"fd-heun\")")

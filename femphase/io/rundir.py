@@ -40,7 +40,6 @@ import datetime
 import json
 import logging
 import os
-import shutil
 import time as wallclock
 from pathlib import Path
 from typing import Iterable
@@ -53,7 +52,7 @@ from femphase.errors import SceneError
 from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, output_directory
 from femphase.io.provenance import now
 
-__all__ = ["CHECKPOINT", "DERIVED", "FIELDS_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
+__all__ = ["CHECKPOINT", "COMPARISON", "DERIVED", "FIELDS_DIR", "FIGURES", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
            "Status", "frame_time", "prepare_directory", "resume_position"]
 
 CHECKPOINT = "checkpoint.h5"
@@ -61,8 +60,13 @@ RUN_LOG = "run.log"
 #: The lock file of the process writing a run (:func:`prepare_directory`); never deleted.
 LOCK = ".femphase.lock"
 #: Where ``femphase plot`` and ``femphase compare`` write by default inside a run directory:
-#: they describe its run, so ``--overwrite`` deletes them with it.
+#: they describe its run, so ``--overwrite`` deletes their files with it (:data:`FIGURES`,
+#: compare.csv, .json and .png), and other files there stay.
 DERIVED = ("figures", "compare")
+#: The figures ``femphase plot`` writes into ``figures/``, each in any format (``NAME.png`` …).
+FIGURES = ("snapshot", "elongation", "limit_cycle", "order")
+#: The files ``femphase compare`` writes into its output folder.
+COMPARISON = ("compare.csv", "compare.json", "compare.png")
 #: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
 OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json", RUN_LOG)
 FIELDS_DIR = "fields"
@@ -93,8 +97,8 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
     Returns the lock, held: the caller releases it when the run ends.
 
     A directory holding femphase outputs is refused unless ``resume`` (continue it) or
-    ``overwrite`` (delete femphase's files in it, and only those: :data:`OUTPUTS` and the
-    figures and comparisons of the run replaced, :data:`DERIVED`); a directory another
+    ``overwrite`` (delete femphase's files in it, and only those: :data:`OUTPUTS`, and the
+    figures and comparisons of the run replaced in :data:`DERIVED`); a directory another
     process is running in is refused either way (two resumes of one run appended every frame
     twice; an overwrite deleted the files of the run under way)."""
     directory = output_directory(directory)
@@ -129,18 +133,30 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
                          "is running a run there; wait for it to end, or stop it with Ctrl-C or kill (it keeps its "
                          "last checkpoint)")
     if overwrite and not resume:
-        for name in existing:
-            target = directory / name
-            if target.is_dir():
-                for child in target.iterdir():
-                    child.unlink()
-                target.rmdir()
-            else:
-                target.unlink()
-        for name in DERIVED:
-            if (directory / name).is_dir():
-                shutil.rmtree(directory / name)
+        files, folders = _own_files(directory)
+        for path in files:
+            path.unlink()
+        for folder in folders:  # emptied of femphase's files; a user's files keep it
+            if not any(folder.iterdir()):
+                folder.rmdir()
     return lock
+
+
+def _own_files(directory: Path) -> tuple[list[Path], list[Path]]:
+    """(files, folders): what femphase wrote into a run directory, by name, for
+    ``--overwrite`` to delete (:data:`OUTPUTS`, the field frames, the figures and comparison
+    of :data:`DERIVED`); other files in those folders are the user's and stay. SceneError,
+    before anything is deleted, where one of those names is not a file."""
+    derived = {"figures": [f"{name}.*" for name in FIGURES], "compare": list(COMPARISON),
+               FIELDS_DIR: ["mesh.h5", "frame_[0-9][0-9][0-9][0-9][0-9][0-9].h5", ".mesh.h5.tmp"]}
+    files = [directory / name for name in OUTPUTS if name != FIELDS_DIR and (directory / name).exists()]
+    folders = [directory / name for name in derived if (directory / name).is_dir()]
+    files += [path for folder in folders for pattern in derived[folder.name] for path in sorted(folder.glob(pattern))]
+    odd = [path for path in files if not path.is_file()]
+    if odd:
+        raise SceneError("--overwrite", str(directory), f"a run directory whose femphase outputs are files: "
+                         f"{odd[0].relative_to(directory)} is not one (nothing was deleted)")
+    return files, folders
 
 
 class Outputs:

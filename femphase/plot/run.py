@@ -45,7 +45,7 @@ from femphase.analysis.periods import limit_cycle
 from femphase.io.checkpoints import load_checkpoint
 from femphase.io.fields import point_data
 from femphase.io.reader import RunData, open_run
-from femphase.io.rundir import CHECKPOINT
+from femphase.io.rundir import CHECKPOINT, FIGURES
 from femphase.model.minimal import MAX_HALF_PERIODS, ParameterError
 from femphase.oscillations import K_PAPER, ode_fits, ode_solution, order_series
 from femphase.plot.figures import pyplot, save
@@ -56,7 +56,6 @@ __all__ = ["FIGURES", "N_SHOWN", "SNAPSHOT_PIXELS", "Snapshot", "draw_elongation
 
 #: Individual particles drawn in the elongation and limit-cycle figures.
 N_SHOWN = 3
-FIGURES = ("snapshot", "elongation", "limit_cycle", "order")
 
 
 

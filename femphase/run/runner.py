@@ -103,5 +103,8 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
         trackers.append(AccuracyGuard())  # last: a frame is written before a strict stop
         with stop_on_signals() as stop:
             return simulation.run(state, trackers, initial_frame=not resume, stop=stop)
+    except BaseException as exc:
+        exc.checkpoints = scene.output.checkpoint  # what a stopped run can say it kept (femphase.cli)
+        raise
     finally:
         lock.release()
