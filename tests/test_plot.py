@@ -84,6 +84,25 @@ def test_a_bad_ode_option_is_named_and_no_figure_written(tiny_run, tmp_path, cap
     assert not (tmp_path / "figures").exists()
 
 
+def test_the_ode_is_drawn_at_the_runs_shear_rate_in_the_papers_convention(tmp_path, capsys):
+    # the run's "rate" was taken as it stood: a shear towards −x failed the whole plot
+    # ("option '--rate' = -0.3 is invalid", exit 2), a scale = "shear_rate" flow of rate
+    # 0.0125 on Ly = 24 (u = 0.3 y/Ly) drew the ODE at γ̇ = 0.0125, and Poiseuille runs
+    # drew the ODE of simple shear at their rate
+    runs = {}
+    for name, flow in (("towards_minus_x", {"type": "shear", "rate": -0.3}),
+                       ("gradient", {"type": "shear", "rate": 0.0125, "scale": "shear_rate"}),
+                       ("poiseuille", {"type": "poiseuille", "rate": 0.3})):
+        data = {**TINY, "output": {"fields": False}, "phases": [TINY["phases"][0], {**TINY["phases"][1], "flow": flow}]}
+        run_scene(scene_from_dict(data), tmp_path / name, progress=False)
+        runs[name] = open_run(tmp_path / name).complete()
+    assert runs["towards_minus_x"].shear_rate == -0.3 and runs["poiseuille"].shear_rate is None
+    assert runs["gradient"].shear_rate == pytest.approx(0.3)
+    with pytest.warns(UserWarning, match=r"no minimal-model curve: .* γ̇ = -0\.3 .*--ode-rate 0\.3 draws that"):
+        _written(plot_run(tmp_path / "towards_minus_x", tmp_path / "minus"))
+    assert main(["plot", str(tmp_path / "towards_minus_x"), "-o", str(tmp_path / "cli")]) == 0
+
+
 def test_run_without_flow(tmp_path):
     data = {**TINY, "output": {"fields": False}, "phases": TINY["phases"][:1]}
     run_scene(scene_from_dict(data), tmp_path / "run", progress=False)

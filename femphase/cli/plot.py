@@ -45,7 +45,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "directory (sweep.json; its figures are described in docs/aggregation.md)")
     parser.add_argument("-o", "--output", default=None, help="output directory (default DIR/figures)")
     parser.add_argument("--ode-rate", type=float, default=None,
-                        help="shear rate γ̇ of the ODE model (default: the run's shear rate)")
+                        help="shear rate γ̇ of the ODE model (default: the run's, where its flow is a linear shear: "
+                             "u = γ̇ y/Ly)")
     parser.add_argument("--ode-k", type=float, default=K_PAPER, help=f"ω = kγ̇ of the ODE (default {K_PAPER}, the paper's)")
     parser.add_argument("--format", default="png", choices=["png", "pdf", "svg"], help="image format (default png)")
     parser.set_defaults(func=run)

@@ -171,9 +171,15 @@ class RunData:
 
     @property
     def shear_rate(self) -> float | None:
-        """γ̇ of the first phase with a flow (its "rate"), None without flow."""
+        """γ̇ of the first phase with a flow where that flow is a linear shear, as the paper
+        and the minimal model give it (u = γ̇ y/Ly, a velocity; a ``scale = "shear_rate"``
+        flow's rate times Ly); None for other flows (the minimal model is of simple shear)
+        and without flow."""
         index = self.flow_phase
-        return None if index is None else self.scene["phases"][index]["flow"].get("rate")
+        flow = None if index is None else self.scene["phases"][index]["flow"]
+        if flow is None or flow.get("type") != "shear":
+            return None
+        return float(flow["rate"]) * (self.width if flow.get("scale") == "shear_rate" else 1.0)
 
     @property
     def radius(self) -> float:

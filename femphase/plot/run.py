@@ -200,7 +200,7 @@ def draw_elongation(ax, run: RunData, ode_rate: float | None = None, ode_k: floa
     if unfinished:
         ax.set_title(unfinished, fontsize=8, color="darkred")
     rate = ode_rate if ode_rate is not None else run.shear_rate
-    solution, offset = ode_solution(run, rate, ode_k) if rate else (None, 0.0)
+    solution, offset = ode_solution(run, rate, ode_k) if rate and rate > 0 else (None, 0.0)
     if solution is not None:
         shown = solution.time + offset >= t[0]
         ax.plot(solution.time[shown] + offset, solution.elongation[shown], color="red", lw=1.2,
@@ -235,7 +235,7 @@ def draw_limit_cycle(ax, run: RunData, ode_rate: float | None = None, ode_k: flo
     drawn = drawn[np.isfinite(drawn)]  # vanished particles' rows are NaN
     reach = float(drawn.max()) if drawn.size else 0.0
     rate = ode_rate if ode_rate is not None else run.shear_rate
-    solution, offset = ode_solution(run, rate, ode_k) if rate else (None, 0.0)
+    solution, offset = ode_solution(run, rate, ode_k) if rate and rate > 0 else (None, 0.0)
     if solution is not None:
         ode_late = solution.time + offset >= run.time[late][0]
         ax.plot(*limit_cycle(solution.elongation[ode_late], solution.orientation[ode_late]), color="red", lw=1.2,
@@ -304,9 +304,10 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
              ode_k: float = K_PAPER, fmt: str = "png") -> dict[str, Path]:
     """Write the four figures of a run directory; returns {figure name: path}.
 
-    `output` defaults to DIR/figures; `ode_rate` to the run's shear rate (no ODE when the
-    run has no flow and none is given, or when one solve of it would not span the run,
-    :func:`~femphase.oscillations.ode_fits`: a warning says so). A run written without
+    `output` defaults to DIR/figures; `ode_rate` to the run's shear rate
+    (:attr:`~femphase.io.reader.RunData.shear_rate`, linear shears only: no ODE when the run
+    has none and none is given; none either, with a warning, when that shear runs towards
+    −x or when one solve of it would not span the run, :func:`~femphase.oscillations.ode_fits`). A run written without
     fields and checkpoint has no snapshot: the other three, and a warning."""
     run = open_run(directory).complete()
     if len(run.time) == 0:
@@ -318,7 +319,11 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
     if not (np.isfinite(ode_k) and ode_k > 0):
         raise ParameterError("ode_k", ode_k, "the ODE's k (ω = k γ̇): a finite number > 0")
     rate = ode_rate if ode_rate is not None else run.shear_rate
-    if rate and not ode_fits(run, rate, ode_k):  # one solve would take hours: the figures without it
+    if rate is not None and rate < 0:  # the run's own rate: a shear towards −x
+        warnings.warn(f"no minimal-model curve: it is drawn for γ̇ > 0, and the run's shear is γ̇ = {rate:g} "
+                      f"(the mirror image of γ̇ = {-rate:g}, θ → −θ; --ode-rate {-rate:g} draws that)", stacklevel=2)
+        ode_rate = 0.0
+    elif rate and not ode_fits(run, rate, ode_k):  # one solve would take hours: the figures without it
         warnings.warn(f"no minimal-model curve: at γ̇ = {rate:g} the run spans more than {MAX_HALF_PERIODS} of its "
                       f"half periods π/(2kγ̇) = {np.pi / (2 * ode_k * rate):.3g}", stacklevel=2)
         ode_rate = 0.0  # no ODE
