@@ -4,7 +4,8 @@ Conventions (see docs/model.md): γ̇ ("rate") is a velocity scale, not a rate i
 units. Linear shear is u = γ̇ y/Ly with the bottom wall at rest and the top wall moving at
 γ̇; ``scale = "shear_rate"`` gives the plain u = γ̇ y (γ̇ is then ∂u/∂y). Poiseuille is
 u = 4 γ̇ y (Ly − y)/Ly², so γ̇ is the centre-line velocity. y is measured from the lower
-wall of the domain.
+wall of the domain. A flow that changes in time sees the run's time t, from the start of
+its first phase, not the time since its own phase began.
 
 A flow whose velocity is (u(y, t), 0) is a *row flow*: on the structured channel its
 advection is an exact shift of every row of nodes (:mod:`femphase.domains.grid.advection`). A scene
@@ -178,8 +179,9 @@ def _poiseuille(spec: dict, domain: FlowDomain) -> Flow:
 
 @FLOWS.register("oscillating_shear")
 def _oscillating_shear(spec: dict, domain: FlowDomain) -> Flow:
-    """Oscillatory linear shear u = γ̇ sin(ωt + φ0) y/Ly (keys: `rate` = γ̇, `frequency` = ω in
-    radians per time unit, `phase` = φ0 in radians, default 0)."""
+    """Oscillatory linear shear u = γ̇ sin(ωt + φ0) y/Ly, t the run's time, not the phase's
+    (keys: `rate` = γ̇, `frequency` = ω in radians per time unit, `phase` = φ0 in radians,
+    default 0; after phases of total duration T, φ0 = −ωT starts it from rest)."""
     check_keys(spec, {"type", "rate", "frequency", "phase"})
     y0, width = _walls(domain)
     rate = number(spec, "rate", "the velocity amplitude γ̇")
@@ -192,7 +194,7 @@ def _oscillating_shear(spec: dict, domain: FlowDomain) -> Flow:
 @FLOWS.register("python")
 def _python(spec: dict, domain: FlowDomain) -> Flow:
     """Any importable callable (keys: `function` = "module:name"; `row_flow` = true for u(y);
-    `steady` = false to pass the time t as the last argument)."""
+    `steady` = false to pass the time t, the run's, as the last argument)."""
     check_keys(spec, {"type", "function", "row_flow", "steady"})
     for key in ("row_flow", "steady"):
         if key in spec and not isinstance(spec[key], bool):

@@ -143,6 +143,18 @@ def test_paper_dt_is_accepted_and_too_large_dt_raises_a_clear_error():
         fd_stepper(fine, 0.1)
 
 
+def test_the_limit_a_refusal_names_is_accepted():
+    # the message gave the limit 0.3197856 as "0.3198", and dt = 0.3198 was refused
+    import re
+
+    for h, flow in ((1.0, None), (1.0, linear_shear(8.0, 32.0)), (0.5, None)):
+        domain = GridDomain(channel_grid(32.0, 32.0, h))
+        with pytest.raises(SceneError) as info:
+            fd_stepper(domain, 1.0, flow)
+        named = float(re.search(r"a time step ≤ ([0-9.e-]+)", str(info.value)).group(1))
+        assert fd_stepper(domain, named, flow).dt == named
+
+
 def test_isolated_particle_relaxation_agrees_with_fem_to_the_fem_time_error():
     """Without flow FD and lumped-mass FEM discretise space identically (5-point Laplacian =
     −M_L⁻¹K, same nodal terms and quadrature), so their difference is the time stepping:

@@ -45,11 +45,14 @@ The region is convex, so a step is stable when twice each part's spectrum lies i
                                          :meth:`femphase.model.energy.FreeEnergy.curvature_bound`)
     dt (max|u| + max|v|)/h  ≤ 0.4      (advection Courant number)
 
-At the paper's parameters and h = 1 the first gives dt ≤ 0.3198 (so dt = 0.1 is safe); at
-h = 0.5, dt ≤ 0.1665; at h = 0.25, dt ≤ 0.0571: the diffusion limit ∝ h² takes over below h ≈ 0.5.
+At the paper's parameters and h = 1 the first gives dt ≤ 0.3197 (so dt = 0.1 is safe); at
+h = 0.5, dt ≤ 0.1664; at h = 0.25, dt ≤ 0.05705 (limits rounded down, as the messages give
+them): the diffusion limit ∝ h² takes over below h ≈ 0.5.
 """
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -97,6 +100,13 @@ def explicit_stability_limit(
     if speed > 0:
         limit = min(limit, COURANT_NUMBER * h / speed)
     return limit
+
+
+def rounded_down(value: float, digits: int = 4) -> str:
+    """``value`` > 0 to ``digits`` significant digits, rounded down: a limit that a value
+    copied from the message keeps (0.3197856 is "0.3197", not "0.3198")."""
+    unit = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
+    return f"{math.floor(value / unit) * unit:.{digits}g}"
 
 
 def padded_index(layout: Layout, lattice: tuple[int, int], width: int = _PAD) -> list[np.ndarray]:
@@ -191,7 +201,7 @@ class FiniteDifferenceHeun(TimeScheme):
         if stepper.dt > self.dt_max * (1 + 1e-12):
             raise SceneError(
                 "phases.dt", stepper.dt,
-                f"a time step ≤ {self.dt_max:.4g} for the explicit finite-difference scheme at "
+                f"a time step ≤ {rounded_down(self.dt_max)} for the explicit finite-difference scheme at "
                 f"h = {domain.grid.h:g} (diffusion+reaction: dt·J0·(8·D/h² + L) ≤ {DIFFUSION_NUMBER:g}; "
                 f"advection: dt·(max|u| + max|v|)/h ≤ {COURANT_NUMBER:g} with max|u| + max|v| = "
                 f"{speed:.4g}); use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids",
@@ -237,7 +247,7 @@ class FiniteDifferenceHeun(TimeScheme):
                 raise UnstableStepError(state.step + 1, state.time, (
                     f"the flow's max|u| + max|v| = {speed:.4g} at t = {time:g} makes the explicit scheme's advective "
                     f"Courant number dt·speed/h = {dt * speed / h:.3g} exceed {COURANT_NUMBER:g}, past which it goes "
-                    f"unstable; set the phase's dt ≤ {COURANT_NUMBER * h / speed:.4g}"))
+                    f"unstable; set the phase's dt ≤ {rounded_down(COURANT_NUMBER * h / speed)}"))
 
     def advance(self, phi: np.ndarray, layout: Layout, state: State) -> tuple[np.ndarray, Layout]:
         dt, time, radii = self.stepper.dt, state.time, state.radii
