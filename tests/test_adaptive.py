@@ -69,6 +69,31 @@ def test_a_too_large_first_substep_is_rejected_and_redone(reference):
     assert np.max(np.abs(r - r_ref)) / np.max(r_ref) < 2e-3
 
 
+def test_a_substep_taken_above_the_tolerance_at_the_smallest_size_is_warned():
+    # at tolerance_t = 1e-12 every substep was dt/12288, taken whatever its estimate, and
+    # the run ended as if the tolerance had been met
+    import warnings
+
+    from femphase.errors import StiffnessWarning
+    from femphase.timestepping.adaptive import AdaptiveSAV2
+
+    scene = scene_from_dict({
+        "domain": {"Lx": 30.0, "Ly": 30.0},
+        "particles": {"layout": "single", "initial_radius": 4.0},
+        "numerics": {"tolerance_t": 1e-12},
+        "output": {"fields": False},
+        "phases": [{"duration": 2.0, "dt": 2.0, "frame_interval": 2.0}],
+    })
+    with pytest.warns(StiffnessWarning, match=r"tolerance_t not met: at t = 0 a substep of the smallest size "
+                                              rf"dt/{AdaptiveSAV2.UNITS}") as caught:
+        Simulation(scene).run(scene.initial_state(), [])
+    assert sum("tolerance_t not met" in str(w.message) for w in caught) == 1  # once per phase
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StiffnessWarning)
+        default = scene_from_dict({**scene.to_dict(), "numerics": {}})
+        Simulation(default).run(default.initial_state(), [])
+
+
 def test_a_resumed_adaptive_run_continues_bit_for_bit(tmp_path):
     from femphase.cli import main
     from femphase.io.checkpoints import load_checkpoint

@@ -9,10 +9,12 @@ a tenth of it at the default, its power 3/4 about the default in general
 from __future__ import annotations
 
 
+import warnings
+
 import numpy as np
 
 from femphase.domains.layout import Layout
-from femphase.errors import BlowUpError
+from femphase.errors import BlowUpError, StiffnessWarning
 from femphase.model.energy import WindowedFields
 from femphase.state import State
 from femphase.timestepping.base import SCHEMES, StepperProtocol, check_fields
@@ -99,6 +101,8 @@ class AdaptiveSAV2(RelaxedSAV2):
         #: mesh they share the flow's matrices; with per-window solvers each keeps a complex
         #: LU per window there too)
         self._advections = stepper.domain.caches.cache("advections")
+        #: whether a substep of the smallest size has been accepted above the tolerance
+        self._floor_warned = False
 
     def start_phase(self, state: State) -> None:
         """A new phase (the flow switched on, off or changed) starts the controller afresh,
@@ -212,6 +216,14 @@ class AdaptiveSAV2(RelaxedSAV2):
                     new_r = self.restart(WindowedFields(new, layout, state.radii))
                     after = self.free_energy(new, layout, state.radii)
                 before = after
+            if error > self.tolerance and not self._floor_warned:  # at the smallest size: taken anyway
+                self._floor_warned = True
+                warnings.warn(
+                    f"numerics.tolerance_t not met: at t = {time:g} a substep of the smallest size dt/{self.UNITS} = "
+                    f"{h:.3g} had an error estimate {error:.3g} of the allowed {self.tolerance:.3g}, and was taken; "
+                    "a larger tolerance_t, or a smaller phase dt (the smallest substep is dt/"
+                    f"{self.UNITS}), brings the substeps back under control (warned once per phase)",
+                    StiffnessWarning, stacklevel=2)
             phi, layout, r = new, trial_layout, new_r
             owed = (m,)
             done += self.UNITS // m
