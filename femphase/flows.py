@@ -42,6 +42,9 @@ class Flow:
     steady        v does not depend on t (advection operators are then built once)
     stokes        the :class:`femphase.domains.mesh.stokes.StokesFlow` behind a ``stokes`` flow, whose P2
                   field the meshed domain's advection integrates exactly
+    speed_bound   for a flow that changes in time, max|u| + max|v| over all times where the flow knows it
+                  (lattice units per time unit), else None: an explicit scheme checks its step against it
+                  before the run, not only at the step that would break it
     ============= =======================================================================================
     """
 
@@ -50,6 +53,7 @@ class Flow:
     row_velocity: Callable[[np.ndarray, float], np.ndarray] | None = None
     steady: bool = True
     stokes: object = None
+    speed_bound: float | None = None
 
     @property
     def is_still(self) -> bool:
@@ -82,12 +86,13 @@ def no_flow() -> Flow:
     return Flow("none", None)
 
 
-def row_flow(name: str, u: Callable[[np.ndarray, float], np.ndarray], steady: bool = True) -> Flow:
+def row_flow(name: str, u: Callable[[np.ndarray, float], np.ndarray], steady: bool = True,
+             speed_bound: float | None = None) -> Flow:
     """The flow (u(y, t), 0)."""
     def velocity(x, y, t):
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
         return np.asarray(u(y, t), dtype=float) + 0.0 * x, np.zeros_like(x)
-    return Flow(name, velocity, u, steady)
+    return Flow(name, velocity, u, steady, speed_bound=speed_bound)
 
 
 def linear_shear(rate: float, width: float, scale: str = "wall_velocity", y0: float = 0.0) -> Flow:
@@ -188,7 +193,7 @@ def _oscillating_shear(spec: dict, domain: FlowDomain) -> Flow:
     omega = number(spec, "frequency", "ω, radians per time unit")
     phase = number(spec, "phase", "radians", default=0.0)
     return row_flow("oscillating_shear", lambda y, t: rate * np.sin(omega * t + phase) * (y - y0) / width,
-                    steady=False)
+                    steady=False, speed_bound=abs(rate))
 
 
 @FLOWS.register("python")

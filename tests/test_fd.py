@@ -155,6 +155,20 @@ def test_the_limit_a_refusal_names_is_accepted():
         assert fd_stepper(domain, named, flow).dt == named
 
 
+def test_an_oscillating_shear_is_checked_at_its_fastest_before_the_run():
+    # at t = 0 sin(ωt) = 0, so the advective limit was skipped: the run went through its
+    # earlier phases and stopped at the first unstable step (exit 3) instead of being refused
+    from femphase.flows import flow_from_spec
+
+    domain = GridDomain(channel_grid(32.0, 32.0, 1.0))
+    fast = flow_from_spec({"type": "oscillating_shear", "rate": 100.0, "frequency": 1.0}, domain)
+    assert fast.velocity(np.array([0.0]), np.array([32.0]), 0.0)[0] == 0.0 and fast.speed_bound == 100.0
+    with pytest.raises(SceneError, match=r"max\|u\| \+ max\|v\| = 100 at its fastest"):
+        fd_stepper(domain, 0.3, fast)
+    slow = flow_from_spec({"type": "oscillating_shear", "rate": 0.1, "frequency": 1.0}, domain)
+    assert fd_stepper(domain, 0.3, slow).dt == 0.3
+
+
 def test_isolated_particle_relaxation_agrees_with_fem_to_the_fem_time_error():
     """Without flow FD and lumped-mass FEM discretise space identically (5-point Laplacian =
     −M_L⁻¹K, same nodal terms and quadrature), so their difference is the time stepping:

@@ -195,7 +195,8 @@ class FiniteDifferenceHeun(TimeScheme):
         self.domain = domain
         self._advection_order = {"upwind3": 3, "upwind1": 1}[stepper.numerics.fd_advection]
         u, v = self._nodal_flow(0.0)
-        speed = _speed(u, v)
+        # a flow that changes in time: its fastest moment, where known (each step is checked too)
+        speed = max(_speed(u, v), stepper.flow.speed_bound or 0.0)
         self.dt_max = explicit_stability_limit(stepper.params, domain.grid.h, speed, stepper.smallest_radius,
                                                stepper.energy)
         if stepper.dt > self.dt_max * (1 + 1e-12):
@@ -204,7 +205,7 @@ class FiniteDifferenceHeun(TimeScheme):
                 f"a time step ≤ {rounded_down(self.dt_max)} for the explicit finite-difference scheme at "
                 f"h = {domain.grid.h:g} (diffusion+reaction: dt·J0·(8·D/h² + L) ≤ {DIFFUSION_NUMBER:g}; "
                 f"advection: dt·(max|u| + max|v|)/h ≤ {COURANT_NUMBER:g} with max|u| + max|v| = "
-                f"{speed:.4g}); use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids",
+                f"{speed:.4g}{' at its fastest' if stepper.flow.speed_bound else ''}); use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids",
             )
         self._steady = None if not stepper.flow.steady else (u, v)
         #: a changing flow's nodal velocity at the last two times asked (a step's two stages)
@@ -236,8 +237,8 @@ class FiniteDifferenceHeun(TimeScheme):
         return self._recent[time]
 
     def _check_courant(self, state: State) -> None:
-        """For a flow that changes in time, which the check at construction saw at t = 0 only:
-        stop before a step whose advective Courant number exceeds :data:`COURANT_NUMBER`,
+        """For a flow that changes in time, which the check at construction saw at t = 0 and at
+        its :attr:`~femphase.flows.Flow.speed_bound`, if it has one: stop before a step whose advective Courant number exceeds :data:`COURANT_NUMBER`,
         where the explicit step is unstable or nearly (:class:`~femphase.errors.UnstableStepError`,
         the state before the step kept)."""
         dt, h = self.stepper.dt, self.domain.grid.h
