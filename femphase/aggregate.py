@@ -57,7 +57,7 @@ from femphase.errors import InputError
 from femphase.io.files import atomic_write
 from femphase.io.reader import TIME_TOLERANCE, RunData, frame_index, mean_present, merge_times, open_run
 from femphase.io.rundir import Status
-from femphase.oscillations import measured_period, order_series
+from femphase.oscillations import order_series, period_estimate
 
 if TYPE_CHECKING:
     import xarray as xr
@@ -135,12 +135,14 @@ SUMMARY_COLUMNS = {
     "Psi2_std": Column("—", "standard deviation (ddof = 0) of Psi2^L over the window's frames"),
     "elongation_mean": Column("—", "elongation r of the bulk particles, averaged over them and the window"),
     "period": Column("time units", "period of the bulk-mean r(t) after shear onset; NaN if none is detectable"),
+    "period_uncertainty": Column("time units", "one standard uncertainty of period, from its cycles"),
+    "period_cycles": Column("count", "cycles (primary-peak intervals) the period was measured over"),
     "t1_rate": Column("1/(particle · time unit)", "T1 events per particle per time unit over the window"),
     "cpu_time_s": Column("s", "CPU time of the run's segments (run.json; a branched run's include the shared "
                               "relaxation's); NaN for runs written before femphase recorded it"),
 }
 #: Summary columns that count (written as integers).
-_COUNTS = ("n_frames", "n_particles", "window_frames")
+_COUNTS = ("n_frames", "n_particles", "window_frames", "period_cycles")
 #: Per-run text columns of summary.csv and the dataset.
 TEXT_COLUMNS = ("status", "run_status", "error")
 
@@ -293,16 +295,19 @@ def summarise_run(run: RunData | None) -> dict[str, float]:
     :func:`femphase.analysis.lattice.frame_average` over :func:`averaging_window`. Elongation:
     mean over the window and the bulk particles (farther than 2R from the walls at shear
     onset, :meth:`femphase.io.reader.RunData.bulk_particles`: at a wall r is not an aspect
-    ratio). Period: :func:`femphase.oscillations.measured_period`, the period of the bulk-mean r(t)
-    after shear onset with its first quarter discarded, NaN when none is detectable.
+    ratio). Period: :func:`femphase.oscillations.period_estimate`, the period of the bulk-mean r(t)
+    after shear onset with its first quarter discarded, with its uncertainty and cycles, NaN
+    (and 0 cycles) when none is detectable.
     T1 rate: :func:`t1_rate`. CPU time: run.json's ``cpu_time_s``."""
     out = {name: 0 if name in _COUNTS else float("nan") for name in SUMMARY_COLUMNS}
     if run is None:
         return out
     out["n_frames"], out["n_particles"] = len(run.time), run.n_particles
     out["cpu_time_s"] = float(run.info.get("cpu_time_s", float("nan")))
-    period = measured_period(run)
-    out["period"] = float("nan") if period is None else period
+    period = period_estimate(run)
+    if period is not None:
+        out["period"], out["period_uncertainty"], out["period_cycles"] = (period.period, period.uncertainty,
+                                                                          period.n_cycles)
     window = averaging_window(run.time, run.scene["phases"])
     if window.size == 0:
         return out

@@ -222,7 +222,20 @@ def test_summary_is_the_average_over_the_last_fifth_of_the_frames(sweep):
         events = frames["t1_count"][reference[-1]] - frames["t1_count"][reference[0]]  # the run's own count
         assert row["t1_rate"] == pytest.approx(events / (n * (t[reference[-1]] - t[reference[0]])), rel=1e-12)
         # 80 time units hold no three clear cycles: no period, and none is invented
-        assert np.isnan(row["period"])
+        assert np.isnan(row["period"]) and np.isnan(row["period_uncertainty"]) and row["period_cycles"] == 0
+
+
+def test_a_runs_period_comes_with_its_uncertainty_and_cycles(sweep, monkeypatch):
+    # summary.csv gave the period alone: a red-noise period from 3 cycles at ±12 % read as
+    # well as the lattice's ±0.4 % from 7 (verification/README.md, "Periods in records that
+    # do not oscillate")
+    import femphase.aggregate as aggregate
+    from femphase.analysis.periods import PeriodEstimate
+
+    run = open_run(next((sweep / "runs").iterdir()))
+    monkeypatch.setattr(aggregate, "period_estimate", lambda r: PeriodEstimate(277.4, 1.2, 7, "test"))
+    row = aggregate.summarise_run(run)
+    assert (row["period"], row["period_uncertainty"], row["period_cycles"]) == (277.4, 1.2, 7)
 
 
 def test_runs_without_t1_interval_count_their_t1s_again_from_the_frames(sweep):

@@ -184,3 +184,15 @@ def test_quick_levels_leave_the_stored_results_and_the_readme_alone(tmp_path, ca
         assert json.loads((directory / "mms.json").read_text())["quick"] is True and (directory / "mms.png").is_file()
     temporary = [line for line in capsys.readouterr().out.splitlines() if line.startswith("results in ")]
     assert len(temporary) == 2 and len(list(tmp_path.glob("verification-quick-*"))) == 1
+
+
+def test_false_periods_come_from_few_cycles_at_several_percent(tmp_path):
+    # verification/README.md and docs/aggregation.md tell a false period by its cycles and
+    # its relative uncertainty: the full study (a second) must keep saying so
+    from verification import period_false_alarms
+
+    results = period_false_alarms.run(quick=False, output=tmp_path)
+    false = [f for row in results["red"] for f in row["found"]]
+    assert 0 < len(false) < 0.1 * results["red_records"]
+    assert all(cycles <= 10 and relative >= 0.04 for _, relative, cycles in false)
+    assert results["periodic_within_10_percent"] > 0.75 * results["periodic_records"]
