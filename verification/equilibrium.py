@@ -59,7 +59,7 @@ from femphase.model.parameters import ModelParameters  # noqa: E402
 from femphase.state import State, discs_state  # noqa: E402
 from femphase.config import Numerics  # noqa: E402
 from femphase.timestepping.stepper import Stepper
-from verification.mms import command_line, log_axes, observed_orders, save_results  # noqa: E402
+from verification.mms import command_line, log_axes, observed_orders, save_figure, save_results  # noqa: E402
 
 PARAMS = ModelParameters()
 SIZE = 48.0  # Lx = Ly
@@ -244,9 +244,7 @@ def plot(results: dict, path: Path) -> None:
     ax.set(xlabel="h", title=f"|Q − limit| / limit, dt = {data['extrapolation_dt']:g}")
     ax.legend(fontsize=7)
     fig.suptitle(f"Isolated particle at rest, R = {PARAMS.radius:g}: equilibrium vs h and dt")
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(quick: bool = False, output: Path | None = None) -> dict:

@@ -50,7 +50,7 @@ from femphase.model.parameters import ModelParameters, interface_profile  # noqa
 from femphase.state import State  # noqa: E402
 from femphase.config import Numerics  # noqa: E402
 from femphase.timestepping.stepper import Stepper
-from verification.mms import command_line, log_axes, observed_orders, save_results  # noqa: E402
+from verification.mms import command_line, log_axes, observed_orders, save_figure, save_results  # noqa: E402
 
 PARAMS = replace(ModelParameters(), area_stiffness=0.0)
 LX, LY = 4.0, 64.0
@@ -157,9 +157,7 @@ def plot(results: dict, path: Path) -> None:
     log_axes(right, h)
     right.set(xlabel="h", ylabel="error", title="Flat interface: error vs h")
     right.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(quick: bool = False, output: Path | None = None) -> dict:

@@ -231,9 +231,7 @@ def plot(results: dict, path: Path) -> None:
     log_axes(right, np.union1d(dt, dt2))
     right.set(xlabel="dt", ylabel="error at t = T", title="MMS: error vs dt")
     right.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 def run(quick: bool = False, output: Path | None = None) -> dict:
@@ -275,6 +273,13 @@ def observed_orders(sizes, errors) -> list[float]:
     """log(e_i / e_{i+1}) / log(s_i / s_{i+1}) for consecutive levels."""
     sizes, errors = np.asarray(sizes, dtype=float), np.asarray(errors, dtype=float)
     return (np.log(errors[:-1] / errors[1:]) / np.log(sizes[:-1] / sizes[1:])).tolist()
+
+
+def save_figure(fig, path: Path) -> None:
+    """Lay out ``fig``, write it to ``path`` (120 dpi) and close it."""
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
 
 
 def save_results(name: str, results: dict, plot_function: Callable[[dict, Path], None], start: float,

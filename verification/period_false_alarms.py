@@ -39,7 +39,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from femphase.analysis.periods import oscillation_period  # noqa: E402
-from verification.mms import command_line, save_results  # noqa: E402
+from verification.mms import command_line, save_figure, save_results  # noqa: E402
 
 CORRELATIONS = (0.8, 0.9, 0.95, 0.98, 0.99)
 LENGTHS = (200, 400, 1000)
@@ -120,9 +120,7 @@ def plot(results: dict, path: Path) -> None:
     ax.set_xlabel("cycles measured")
     ax.set_ylabel("relative uncertainty u/T (%)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 if __name__ == "__main__":

@@ -48,7 +48,7 @@ from femphase.errors import ResolutionWarning  # noqa: E402
 from femphase.model.parameters import interface_profile  # noqa: E402
 from femphase.scene import load_scene  # noqa: E402
 from femphase.state import State  # noqa: E402
-from verification.mms import command_line, save_results  # noqa: E402
+from verification.mms import command_line, save_figure, save_results  # noqa: E402
 
 EXAMPLES = Path(__file__).resolve().parent.parent / "examples"
 RADIUS, WIDTH = 8.0, 2.0
@@ -133,9 +133,7 @@ def plot(results: dict, path: Path) -> None:
     ax.set_xlabel(f"r read at h = {results['reference_h']:g} (mean over the shapes)")
     ax.set_ylabel("r read − reference (mean ± s.d.)")
     ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    save_figure(fig, path)
 
 
 if __name__ == "__main__":
