@@ -95,7 +95,8 @@ def test_sides_that_do_not_match_are_named_in_the_error():
 
 def test_a_missing_or_crooked_periodic_side_is_an_error():
     mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
-    with pytest.raises(ValueError, match=r"periodic boundary 'inlet' is not in the mesh.*'bottom'"):
+    with pytest.raises(ValueError, match=r"periodic boundary 'inlet' is not in the mesh.*'bottom'.*domain\.periodic = "
+                                         r"\[min side, max side\]; in a file with tagged lines every untagged"):
         MeshDomain.from_mesh(mesh, boundaries, periodic=("inlet", "right"))
     p = mesh.p.copy()
     p[0, (p[0] == 0.0) & (p[1] == 3.0)] = 0.2
@@ -120,7 +121,7 @@ def test_unreadable_or_unnamed_files_raise_scene_errors(tmp_path):
         read_domain(tmp_path / "missing.vtu")
     mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
     write_domain(tmp_path / "c.vtu", mesh, boundaries)
-    with pytest.raises(SceneError, match=r"line tags \[3, 4\] have no name"):
+    with pytest.raises(SceneError, match=r"line tags \[3, 4\] have no name .*domain\.boundaries = \{left = TAG"):
         read_domain(tmp_path / "c.vtu", names={"left": 1, "right": 2})
 
 

@@ -145,7 +145,8 @@ class MeshDomain(Domain):
             if name not in boundaries:
                 raise PeriodicPairError(
                     f"the periodic boundary {name!r} is not in the mesh; its boundaries are "
-                    f"{sorted(boundaries)} (name the pair with periodic=(min side, max side))"
+                    f"{sorted(boundaries)} (name the pair with domain.periodic = [min side, max side]; in a file "
+                    "with tagged lines every untagged boundary facet is a wall, so the sides must be tagged too)"
                 )
         low_nodes = np.unique(mesh.facets[:, boundaries[low]])
         high_nodes = np.unique(mesh.facets[:, boundaries[high]])
@@ -632,7 +633,8 @@ def _named_facets(mesh: MeshTri, lines: np.ndarray, tags: np.ndarray,
     by_tag = {tag: name for name, tag in table.items()}
     unknown = sorted(int(t) for t in set(np.unique(tags)) - set(by_tag))
     if unknown:
-        raise ValueError(f"line tags {unknown} have no name (names: {table})")
+        raise ValueError(f"line tags {unknown} have no name (names: {table}); name them in the scene with "
+                         "domain.boundaries = {left = TAG, right = TAG, …}")
     boundaries = {by_tag[t]: np.unique(facets[tags == t]) for t in np.unique(tags)}
     interior = np.setdiff1d(facets, mesh.boundary_facets())
     if interior.size:
