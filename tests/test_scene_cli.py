@@ -387,6 +387,25 @@ def test_a_mesh_runs_scene_toml_is_the_scene_that_ran(tmp_path):
                      "--set", "phases.0.duration=3.0"]) == 0
 
 
+def test_resuming_on_an_edited_mesh_file_names_the_file(tmp_path, capsys):
+    # the refusal named '--resume' and the checkpoint's mesh_checksum, not the file
+    from femphase.domains.mesh.domain import write_domain
+    from femphase.domains.mesh.generation import structured_channel
+
+    write_domain(tmp_path / "channel.vtu", *structured_channel(20.0, 20.0, 1.0))
+    table = {"domain": {"kind": "mesh", "mesh": "channel.vtu"}, "particles": {"layout": "single"},
+             "phases": [{"duration": 2.0, "dt": 1.0, "frame_interval": 1.0}]}
+    path = write_scene(tmp_path / "scene.toml", table)
+    assert main(["run", str(path), "-o", str(tmp_path / "run"), "-q"]) == 0
+    write_domain(tmp_path / "channel.vtu", *structured_channel(20.0, 20.0, 0.5))
+    capsys.readouterr()
+    assert main(["run", str(path), "-o", str(tmp_path / "run"), "-q", "--resume",
+                 "--set", "phases.0.duration=3.0"]) == 2
+    message = capsys.readouterr().err
+    assert "scene key 'domain.mesh'" in message and "channel.vtu" in message
+    assert "the file's content differs: mesh_checksum" in message
+
+
 def test_a_layout_off_the_fluid_names_the_layout_and_a_cut_disc_is_warned(tmp_path):
     # the hexagonal layout's centre in an obstacle was refused as 'particles.centres' (never
     # set) "y between the walls" (it was); its discs over an obstacle started cut, silently

@@ -91,9 +91,11 @@ def load_checkpoint(path: Path, domain: Domain) -> tuple[State, dict[str, np.nda
             expected = json.loads(json.dumps(domain.describe(), sort_keys=True))
             if saved != expected:
                 differing = sorted(k for k in set(saved) | set(expected) if saved.get(k) != expected.get(k))
-                raise SceneError("--resume", str(path), "a checkpoint of the scene's domain; it differs in "
-                                 + ", ".join(f"{k} (checkpoint {saved.get(k)!r}, scene {expected.get(k)!r})"
-                                             for k in differing))
+                what = ", ".join(f"{k} (checkpoint {saved.get(k)!r}, scene {expected.get(k)!r})" for k in differing)
+                if "mesh_checksum" in differing and getattr(domain, "source", None):  # the same file, edited
+                    raise SceneError("domain.mesh", domain.source, f"the mesh {path} was written on; the file's "
+                                     f"content differs: {what}")
+                raise SceneError("--resume", str(path), f"a checkpoint of the scene's domain; it differs in {what}")
             windows = domain.windows_from_array(handle["windows"][()])
             sizes = handle["sizes"][()]
             fields = [f.copy() for f in np.split(handle["values"][()], np.cumsum(sizes)[:-1])] if len(sizes) else []
