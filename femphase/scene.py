@@ -305,7 +305,7 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
 
 
 #: Substeps per step of dt that the area-mode ceiling alone may force before a scene warns:
-#: the paper's μ needs none (ceiling 3.75 against dt = 10), μ × 10 about 27, μ × 100 about 270.
+#: the paper's μ needs none (ceiling 3.77 against dt = 10), μ × 10 about 27, μ × 100 about 270.
 CEILING_SUBSTEPS = 64
 
 

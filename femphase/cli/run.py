@@ -55,7 +55,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="no progress bar and no status lines on the console (run.log has them)")
     parser.add_argument("--status-interval", type=_seconds, default=30.0, metavar="SECONDS",
                         help="wall time between status lines in run.log (and on the console without a "
-                             "terminal); 0: every step (default: 30)")
+                             "terminal); 0: after every call of the stepper (a step, or the adaptive scheme's call of up to "
+                             "numerics.merged_steps steps) (default: 30)")
     parser.set_defaults(func=run, argv=None)
 
 

@@ -128,7 +128,7 @@ class AdaptiveSAV2(RelaxedSAV2):
     def largest_substep(self, phi: np.ndarray, layout: Layout, radii: np.ndarray) -> float:
         """The largest substep (time units) that damps the explicit rank-one modes,
         RANK_ONE_STEP / max_i c_i with c_i = J0 β_i (M_L φ_i)ᵀφ_i (≈ 0.4 per time unit at
-        the paper's values: 3.75); unbounded without such modes or with them implicit
+        the paper's values: 3.77); unbounded without such modes or with them implicit
         (``numerics.area_implicit``)."""
         if self.implicit_rank_one:
             return np.inf
