@@ -88,11 +88,15 @@ def no_flow() -> Flow:
 
 def row_flow(name: str, u: Callable[[np.ndarray, float], np.ndarray], steady: bool = True,
              speed_bound: float | None = None) -> Flow:
-    """The flow (u(y, t), 0)."""
+    """The flow (u(y, t), 0); ``u`` may return a number for a uniform flow."""
+    def row(y, t):
+        y = np.asarray(y, dtype=float)
+        return np.broadcast_to(np.asarray(u(y, t), dtype=float), y.shape).copy()
+
     def velocity(x, y, t):
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
-        return np.asarray(u(y, t), dtype=float) + 0.0 * x, np.zeros_like(x)
-    return Flow(name, velocity, u, steady, speed_bound=speed_bound)
+        return row(y, t), np.zeros_like(x)
+    return Flow(name, velocity, row, steady, speed_bound=speed_bound)
 
 
 def linear_shear(rate: float, width: float, scale: str = "wall_velocity", y0: float = 0.0) -> Flow:

@@ -49,6 +49,20 @@ def test_a_particle_crossing_the_periodic_seam_stays_whole():
     assert np.allclose(steps, 0.5, atol=0.05)  # moves steadily through the seam
 
 
+def test_a_row_flow_may_give_one_number_for_a_uniform_flow():
+    # row_flow passed u itself to the grid's advection, which indexed the number it returned
+    # (IndexError); the docs' plug example hid it with "+ 0.0 * y"
+    from femphase.flows import row_flow
+
+    domain, state = small_system([[20, 20]], width=40, initial_radius=8.0)
+    before = shape_observables(state).x[0]
+    for flow in (row_flow("plug", lambda y, t: 0.5), python_flow(lambda y: 0.5, row=True)):
+        assert flow.row_velocity(np.array([0.0, 1.0, 2.0]), 0.0).tolist() == [0.5, 0.5, 0.5]
+        step = stepper(domain, state, flow=flow)
+        step.step(state)
+    assert shape_observables(state).x[0] == pytest.approx(before + 1.0, abs=0.05)
+
+
 def test_a_particle_longer_than_the_period_gets_a_full_width_window_and_matches_the_full_mesh():
     fields = []
     for windows in (True, False):

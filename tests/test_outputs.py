@@ -373,3 +373,52 @@ def test_a_frame_recorder_records_a_registered_observable_the_scene_asks_for():
         FrameRecorder().series("elongation")
     # Frame.shape carries the wall contact the frame computed (it was None)
     np.testing.assert_array_equal(recorder.frames[-1].shape.wall_contact, recorder.series("wall_contact")[-1])
+
+
+def test_an_observables_mistakes_are_named_before_they_reach_the_outputs():
+    # a column named like another's overwrote it (particles.csv with two x; global.csv's time
+    # read back as -5), a missing column or a wrong shape failed far from its cause, a
+    # requirement of itself recursed without end, and global values of a requirement could
+    # not be read at all
+    from contextlib import contextmanager
+
+    from femphase.analysis.observables import Observable
+    from femphase.errors import SceneError
+
+    @contextmanager
+    def registered(name, **body):
+        cls = type(name.title(), (Observable,), {"name": name, **body})
+        OBSERVABLES.register(name)(cls)
+        try:
+            yield
+        finally:
+            OBSERVABLES.unregister(name)
+
+    def run(*observables):
+        scene = small_scene(observables=["shape", *observables])
+        recorder = FrameRecorder()
+        Simulation(scene).run(scene.initial_state(), recorder)
+        return recorder
+
+    constant = {"__call__": lambda self, state, values: {"x": np.zeros(state.n_particles), "step": 1.0}}
+    for columns, clash in ((dict(particle_columns=("x",)), "'x', which the observable 'shape' has already"),
+                           (dict(global_columns=("step",)), "'step', which the table itself has already")):
+        with registered("clash", **columns, **constant), pytest.raises(SceneError, match=clash):
+            run("clash")
+    returns = {"nothing": {}, "short": {"lonely": np.zeros(1)}, "text": {"lonely": np.array(["a", "b"])}}
+    for case, value in returns.items():
+        call = {"__call__": lambda self, state, values, value=value: value}
+        message = r"'lonely' is missing" if case == "nothing" else r"one value per particle \(3,\)"
+        with registered("wrong", particle_columns=("lonely",), **call), pytest.raises(SceneError, match=message):
+            run("wrong")
+    with registered("loop", requires=("loop",), **constant), pytest.raises(SceneError, match="loop → loop"):
+        run("loop")
+    with registered("needy", requires=("nosuch",), **constant), pytest.raises(SceneError, match="requires 'nosuch'"):
+        run("needy")
+    # the values so far hold the requirements' global values too; per particle first ("area")
+    reads = {"__call__": lambda self, state, values: {"twice": 2 * values["free_energy"],
+                                                      "area_sum": float(np.sum(values["area"]))}}
+    with registered("reads", requires=("energy",), global_columns=("twice", "area_sum"), **reads):
+        frame = run("energy", "reads").frames[-1]
+    assert frame.globals["twice"] == 2 * frame.globals["free_energy"]
+    assert frame.globals["area_sum"] == pytest.approx(float(np.sum(frame.particle["area"])))

@@ -24,6 +24,7 @@ from femphase.analysis.lattice import T1Counter, frame_order
 from femphase.analysis.shape import DEFAULT_THRESHOLD, present, shape_observables
 from femphase.config import Numerics
 from femphase.domains.base import Domain
+from femphase.errors import SceneError
 from femphase.model.energy import FreeEnergy, WindowedFields
 from femphase.registry import Registry
 from femphase.state import State
@@ -61,7 +62,10 @@ class Observable(ABC):
 
     @abstractmethod
     def __call__(self, state: State, values: dict) -> dict:
-        """Its columns at this frame (name → value)."""
+        """Its columns at this frame (name → value: an array of length N for a particle
+        column, a number for a global one). ``values`` holds the columns computed so far
+        at this frame, its requirements' among them, per particle and global (a name that is
+        both, "area", is the per-particle one there)."""
 
     def snapshot(self) -> dict[str, np.ndarray]:
         """Running state for a checkpoint (names must be unique across observables)."""
@@ -168,11 +172,21 @@ def resolve(names: tuple[str, ...] | list[str]) -> list[str]:
     """``names`` with everything they require, each after its requirements."""
     ordered: list[str] = []
 
-    def visit(name: str) -> None:
+    def visit(name: str, path: tuple[str, ...] = ()) -> None:
         if name in ordered:
             return
-        for required in OBSERVABLES.get(name).requires:
-            visit(required)
+        if name in path:  # a cycle of requirements has no order
+            raise SceneError("output.observables", path[0], f"observables whose requirements end: "
+                             f"{' → '.join((*path, name))} comes back to {name!r}")
+        entry = OBSERVABLES.get(name)
+        if not (isinstance(entry, type) and issubclass(entry, Observable)):
+            raise SceneError("output.observables", name, f"an Observable subclass registered under {name!r}; "
+                             f"{entry!r} is registered")
+        for required in entry.requires:
+            if required not in OBSERVABLES:
+                raise SceneError("output.observables", name, f"observables whose requirements are registered: "
+                                 f"{name!r} requires {required!r}, not one of {OBSERVABLES.names()}")
+            visit(required, (*path, name))
         ordered.append(name)
 
     for name in names:

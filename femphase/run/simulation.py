@@ -9,6 +9,7 @@ frames in memory, and are composed by the caller.
 from __future__ import annotations
 
 import signal
+from collections import ChainMap
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -47,7 +48,14 @@ class Frame:
 
 
 class Tracker:
-    """Base tracker: override what you need. ``needs`` names the observables it uses."""
+    """Base tracker: override what you need.
+
+    ``needs`` names the observables whose values its frames carry (e.g. ``{"shape"}``;
+    empty: none, only the state). ``after_step`` runs after every call of the stepper, which
+    is one step for fixed-step schemes and up to ``numerics.merged_steps`` steps for the
+    adaptive one (:meth:`Simulation.run`); ``frame`` at every frame. An exception raised in
+    either ends the run there, as an error (``finish`` receives it; a run directory marks the
+    run failed); to stop a run as interrupted, pass ``stop`` to :meth:`Simulation.run`."""
 
     needs: frozenset = frozenset()
 
@@ -103,12 +111,20 @@ class Simulation:
         return self.observables[name]
 
     def columns(self) -> tuple[list[str], list[str]]:
-        """(particle columns, global columns) of the scene's observables, in output order."""
-        particle, global_ = [], []
+        """(particle columns, global columns) of the scene's observables, in output order.
+        SceneError where two observables, or an observable and the tables' own time, id and
+        step, name one column: the later would overwrite the earlier in the outputs."""
+        particle: dict[str, str] = dict.fromkeys(("time", "id"), "the table itself")
+        global_: dict[str, str] = dict.fromkeys(("time", "step"), "the table itself")
         for name in resolve(self.scene.output.observables):
-            particle += self.observable(name).particle_columns
-            global_ += self.observable(name).global_columns
-        return particle, global_
+            for table, columns in ((particle, self.observable(name).particle_columns),
+                                   (global_, self.observable(name).global_columns)):
+                for column in columns:
+                    if column in table:
+                        raise SceneError("output.observables", name, f"observables whose columns differ: {name!r} "
+                                         f"names the column {column!r}, which {table[column]} has already")
+                    table[column] = f"the observable {name!r}"
+        return list(particle)[2:], list(global_)[2:]
 
     def stepper(self, phase: Phase, radii: np.ndarray) -> Stepper:
         return Stepper(self.domain, self.scene.model, self.scene.numerics, phase.dt, self.scene.flow(phase),
@@ -137,11 +153,14 @@ class Simulation:
         same scene; the running T1 count (``t1_count``) lives in the Simulation's observers,
         so a new one starts it from 0 unless given the old one's :meth:`observer_state`
         through :meth:`restore_observers` (a run directory's checkpoint carries it). A state
-        on another domain, or past the end of a phase of this scene, is refused (ValueError)."""
+        on another domain, or past the end of a phase of this scene, is refused (ValueError);
+        observables whose columns clash, or that return other than their columns, are refused
+        (SceneError naming the observable)."""
         if not isinstance(state, State):
             raise TypeError(f"state must be a femphase State (scene.initial_state(), or a checkpoint's), "
                             f"not {type(state).__name__}")
         self._check_state(state)
+        self.columns()  # observables that clash are refused before any step
         trackers = [trackers] if isinstance(trackers, Tracker) else list(trackers)
         if not all(isinstance(tracker, Tracker) for tracker in trackers):
             raise TypeError(f"trackers must be Tracker instances (femphase.run), not "
@@ -238,8 +257,26 @@ class Simulation:
         # only what a tracker uses and the scene asked for
         for name in resolve([name for name in self.scene.output.observables if name in needs]):
             observable = self.observable(name)
-            values = observable(state, frame.particle)
-            frame.particle.update({c: values[c] for c in observable.particle_columns})
-            frame.globals.update({c: values[c] for c in observable.global_columns})
+            # the values so far, per particle first where a name is both ("area")
+            values = observable(state, ChainMap(frame.particle, frame.globals))
+            frame.particle.update(_frame_values(observable, values, observable.particle_columns, state.n_particles))
+            frame.globals.update(_frame_values(observable, values, observable.global_columns, None))
         for tracker in trackers:
             tracker.frame(frame)
+
+
+def _frame_values(observable: Observable, values: dict, columns: tuple[str, ...], n_particles: int | None) -> dict:
+    """``observable``'s ``columns`` from what it returned: arrays of one value per particle
+    (``n_particles``), or numbers (None); SceneError naming it and the column otherwise."""
+    out = {}
+    for column in columns:
+        if column not in values:
+            raise SceneError("output.observables", observable.name, f"an observable that returns its columns: "
+                             f"{column!r} is missing from what it returned ({sorted(values)})")
+        value = np.asarray(values[column])
+        wanted = "a number" if n_particles is None else f"an array of one value per particle ({n_particles},)"
+        if value.shape != (() if n_particles is None else (n_particles,)) or value.dtype.kind not in "biuf":
+            raise SceneError("output.observables", observable.name, f"an observable whose column {column!r} is "
+                             f"{wanted}; it returned {value.dtype} of shape {value.shape}")
+        out[column] = values[column]
+    return out
