@@ -15,14 +15,13 @@ so a new flow is one registered function (``docs/architecture.md``).
 
 from __future__ import annotations
 
-import importlib
 from dataclasses import dataclass
 from typing import Callable, Protocol
 
 import numpy as np
 
 from femphase.errors import FlowError, SceneError
-from femphase.registry import Registry
+from femphase.registry import Registry, import_module
 
 __all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "linear_shear", "no_flow",
            "number", "poiseuille", "python_flow", "row_flow"]
@@ -214,10 +213,10 @@ def _python(spec: dict, domain: FlowDomain) -> Flow:
         raise SceneError("flow.function", target, "a string 'module:function' naming an importable callable, "
                          "e.g. 'mypackage.flows:vortex'")
     try:
-        function = getattr(importlib.import_module(module), attribute)
+        function = getattr(import_module(module), attribute)
     except (Exception, SystemExit) as exc:  # importing runs the module: it may raise anything
         raise SceneError("flow.function", target, f"an importable 'module:function' ({type(exc).__name__}: "
-                         f"{exc})") from None
+                         f"{exc}; the module is looked up on PYTHONPATH, then in the working directory)") from None
     if not callable(function):
         raise SceneError("flow.function", target, f"a callable; {target} is a {type(function).__name__}")
     flow = python_flow(function, spec.get("row_flow", False), spec.get("steady", True), target)

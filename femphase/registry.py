@@ -11,16 +11,26 @@ Adding an entry is one decorated definition::
 
     @FLOWS.register("vortex")
     def vortex(spec, domain): ...
+
+Entries defined outside femphase reach the command line and Dask workers by name: the modules
+listed in the environment variable ``FEMPHASE_IMPORT`` (comma-separated; ``femphase --import``
+sets it) are imported before a scene is read (:func:`import_extensions`).
 """
 
 from __future__ import annotations
 
+import importlib
 import inspect
+import os
+import sys
 from typing import Callable, Generic, Iterable, TypeVar
 
 from femphase.errors import SceneError
 
-__all__ = ["MARKERS", "Registry", "markdown", "with_registries"]
+__all__ = ["EXTENSIONS_VARIABLE", "MARKERS", "Registry", "import_extensions", "import_module", "markdown", "with_registries"]
+
+#: The environment variable naming the modules that register entries, comma-separated.
+EXTENSIONS_VARIABLE = "FEMPHASE_IMPORT"
 
 T = TypeVar("T")
 
@@ -48,7 +58,8 @@ class Registry(Generic[T]):
     def get(self, name: object, key: str | None = None) -> T:
         """The entry called ``name``; SceneError (naming ``key``) if there is none."""
         if not isinstance(name, str) or name not in self._entries:
-            raise SceneError(key or self.key, name, f"one of {self.names()}")
+            raise SceneError(key or self.key, name, f"one of {self.names()} (an entry of your own module is one "
+                             f"once the module is imported: femphase --import MODULE, or {EXTENSIONS_VARIABLE})")
         return self._entries[name]
 
     def names(self) -> tuple[str, ...]:
@@ -82,3 +93,31 @@ def with_registries(document: str, registries: Iterable[Registry]) -> str:
     head, _, rest = document.partition(begin)
     _, _, tail = rest.partition(end)
     return f"{head}{begin}\n{markdown(registries)}\n{end}{tail}"
+
+
+def import_extensions(names: str | None = None) -> None:
+    """Import the modules ``names`` (comma-separated; default: :data:`EXTENSIONS_VARIABLE`'s
+    value), whose definitions register entries (:func:`import_module`). SceneError (key
+    ``--import``) naming a module that cannot be imported, and why."""
+    names = os.environ.get(EXTENSIONS_VARIABLE, "") if names is None else names
+    for name in (part.strip() for part in names.split(",")):
+        if not name or name in sys.modules:
+            continue
+        try:
+            import_module(name)
+        except (Exception, SystemExit) as exc:  # importing runs the user's module: it may raise anything
+            raise SceneError("--import", name, f"an importable module of femphase extensions ({type(exc).__name__}: "
+                             f"{exc}; it is looked up on PYTHONPATH, then in the working directory)") from None
+
+
+def import_module(name: str):
+    """The module ``name``, imported from ``sys.path`` or, failing that, from the working
+    directory (the ``femphase`` command does not put it on the path, as ``python -m``
+    would). Raises what the import raises."""
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as exc:
+        if exc.name != name.split(".")[0] or os.getcwd() in sys.path:
+            raise
+        sys.path.append(os.getcwd())
+        return importlib.import_module(name)

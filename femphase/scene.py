@@ -25,7 +25,7 @@ from femphase.errors import FlowError, FlowWarning, ModelWarning, ResolutionWarn
 from femphase.flows import FLOWS, Flow, flow_defects, flow_from_spec
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
 from femphase.placement import hexagonal_centres
-from femphase.registry import Registry
+from femphase.registry import Registry, import_extensions
 from femphase.state import State, discs_state
 from femphase.timestepping import SCHEMES, Stepper
 
@@ -233,7 +233,9 @@ def _check_string(key: str, value, meaning: str = "") -> None:
 
 
 def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
-    """Validate a scene given as nested dicts (the parsed TOML)."""
+    """Validate a scene given as nested dicts (the parsed TOML). The modules of extensions
+    named in ``FEMPHASE_IMPORT`` are imported first (:func:`femphase.registry.import_extensions`)."""
+    import_extensions()
     if not isinstance(data, dict):
         raise SceneError("scene", data, "a TOML document of tables")
     known = {"name", "model", "domain", "particles", "numerics", "output", "phases"}

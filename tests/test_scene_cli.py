@@ -652,3 +652,48 @@ def test_a_grid_given_a_mesh_of_other_nodes_names_the_file(tmp_path):
     with pytest.raises(SceneError, match=r"'domain.mesh' = '.*obstacle.vtu' is invalid: .*nodes off the lattice; "
                                          r'a mesh of other nodes is a domain of kind "mesh"'):
         load_scene(write_scene(tmp_path / "scene.toml"), [f'domain.mesh="{mesh}"'])
+
+
+def test_extensions_reach_the_command_line_and_its_workers(tmp_path, monkeypatch, capsys):
+    # a flow or observable registered in the user's module could not be used by any command:
+    # 'output.observables' = 'top' is invalid: one of ('shape', 'energy', 'order')
+    from femphase.analysis.observables import OBSERVABLES
+    from femphase.flows import FLOWS
+    from femphase.registry import EXTENSIONS_VARIABLE
+
+    module = "femphase_test_extension"
+    (tmp_path / f"{module}.py").write_text(
+        "import numpy as np\n"
+        "from femphase.analysis.observables import OBSERVABLES, Observable\n"
+        "from femphase.flows import FLOWS, number, row_flow\n\n\n"
+        "@FLOWS.register('test_plug')\n"
+        "def plug(spec, domain):\n"
+        "    velocity = number(spec, 'velocity', 'U')\n"
+        "    return row_flow('test_plug', lambda y, t: velocity)\n\n\n"
+        "@OBSERVABLES.register('test_top')\n"
+        "class Top(Observable):\n"
+        "    name = 'test_top'\n"
+        "    particle_columns = ('phi_top',)\n\n"
+        "    def __call__(self, state, values):\n"
+        "        return {'phi_top': np.array([float(f.max()) for f in state.fields])}\n")
+    table = {"domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"},
+             "output": {"observables": ["shape", "test_top"]},
+             "phases": [{"duration": 4.0, "dt": 1.0, "frame_interval": 2.0,
+                         "flow": {"type": "test_plug", "velocity": 0.5}}]}
+    path = write_scene(tmp_path / "scene.toml", table)
+    monkeypatch.chdir(tmp_path)  # the module is in the working directory, not on sys.path
+    monkeypatch.setattr(sys, "path", [p for p in sys.path if p not in ("", str(tmp_path))])
+    monkeypatch.setenv(EXTENSIONS_VARIABLE, "")  # restored (unset) after the test, whatever main sets
+    try:
+        assert main(["run", str(path), "-o", "plain", "-q"]) == 2
+        assert "femphase --import MODULE" in capsys.readouterr().err
+        assert main(["--import", module, "run", str(path), "-o", "run", "-q"]) == 0
+        assert "phi_top" in (tmp_path / "run" / "particles.csv").read_text().splitlines()[0]
+        assert main(["run", str(path), "-o", "run", "-q", "--resume", "--set", "phases.0.duration=6.0"]) == 0
+        assert main(["plot", "run"]) == 0  # the environment carries the module on
+        assert main(["--import", "no_such_femphase_module", "run", str(path), "-o", "other", "-q"]) == 2
+        assert "option '--import' = 'no_such_femphase_module' is invalid" in capsys.readouterr().err
+    finally:
+        OBSERVABLES.unregister("test_top")
+        FLOWS.unregister("test_plug")
+        sys.modules.pop(module, None)

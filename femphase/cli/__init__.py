@@ -10,6 +10,7 @@
     femphase compare DIR_A DIR_B [-o OUT] [--fields]
     femphase ode --rate R -o OUT
     femphase converge SCENE.toml -o DIR --h 1,0.5,0.25 | --tolerance-t … | --dt … [--observable …]
+    femphase --import MODULE COMMAND …   (extensions: MODULE registers flows, observables, schemes)
 
 One module per command (:mod:`femphase.cli.run`, ``sweep``, ``aggregate``, ``plot``,
 ``compare``, ``ode``, ``converge``), each with ``register(subparsers)`` and ``run(args)``; argparse lives
@@ -43,6 +44,7 @@ from femphase import __version__
 from femphase.cli import aggregate, compare, converge, ode, plot, run, sweep
 from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted
 from femphase.io.console import console_handler, log_warning
+from femphase.registry import EXTENSIONS_VARIABLE, import_extensions
 
 __all__ = ["COMMANDS", "build_parser", "main"]
 
@@ -57,6 +59,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="femphase", description=__doc__.split("\n\n")[0])
     parser.add_argument("--version", action="version", version=f"femphase {__version__}")
     parser.add_argument("--traceback", action="store_true", help="show the Python traceback of an error (for bug reports)")
+    parser.add_argument("--import", dest="extensions", action="append", default=[], metavar="MODULE",
+                        help="import MODULE first: a module that registers flows, observables, schemes (repeatable; "
+                             "looked up on PYTHONPATH, then in the working directory; sweeps' workers import it too, "
+                             f"through {EXTENSIONS_VARIABLE})")
     commands = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.register(commands)
@@ -78,6 +84,10 @@ def main(argv: list[str] | None = None) -> int:
     LOGGER.addHandler(console)
     LOGGER.setLevel(logging.INFO)
     try:
+        if args.extensions:  # in the environment, so that sweeps' and studies' workers import them too
+            os.environ[EXTENSIONS_VARIABLE] = ",".join(
+                part for part in [os.environ.get(EXTENSIONS_VARIABLE, ""), *args.extensions] if part)
+        import_extensions()
         return args.func(args)
     except BaseException as exc:  # every error ends in one message and a documented code
         if args.traceback:
