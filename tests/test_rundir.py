@@ -375,3 +375,42 @@ def test_a_run_without_checkpoints_does_not_claim_one_when_it_stops(scene, tmp_p
     interrupt.checkpoints = False
     assert _report(interrupt) == (130, "interrupted; its frames so far are kept; it writes no checkpoint "
                                        "(output.checkpoint = false) and cannot be continued")
+
+
+def test_a_run_with_an_energy_term_of_its_own_resumes_with_it(scene, tmp_path):
+    # run_scene took no energy: such a run could not be written by it, and resuming one
+    # without the term was refused as if output.observables had changed
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    import numpy as np
+
+    from femphase.model.energy import EnergyTerm, FreeEnergy
+    from femphase.run.runner import run_scene
+    from femphase.scene import load_scene
+
+    @dataclass(frozen=True)
+    class Weight(EnergyTerm):
+        strength: float
+        name: ClassVar[str] = "weight"
+
+        def energy(self, fields):
+            return self.strength * fields.integral(fields.squares)
+
+        def explicit_derivative(self, fields):
+            return 2.0 * self.strength * fields.phi
+
+        def curvature_bound(self, smallest_radius, pairs):
+            return 2.0 * self.strength
+
+    loaded = load_scene(scene)
+    energy = FreeEnergy(list(FreeEnergy.paper(loaded.model).terms) + [Weight(1e-4)])
+    run_scene(loaded, tmp_path / "run", progress=False, energy=energy)
+    header = (tmp_path / "run" / "global.csv").read_text().splitlines()[0].split(",")
+    assert "weight" in header
+    longer = load_scene(scene, ["phases.1.duration=30.0"])
+    with pytest.raises(SceneError, match=r"the file lacks \[\] and has \['weight'\] besides"):
+        run_scene(longer, tmp_path / "run", resume=True, progress=False)
+    run_scene(longer, tmp_path / "run", resume=True, progress=False, energy=energy)
+    times = np.loadtxt(tmp_path / "run" / "global.csv", delimiter=",", skiprows=1)[:, 0]
+    assert times[-1] == 50.0

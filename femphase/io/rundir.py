@@ -188,14 +188,16 @@ class Outputs:
         for name, columns in self.columns.items():  # every check before any cut
             path = self.directory / name
             sizes[path] = size = int(record["bytes"][name])
-            header = (",".join(columns) + "\n").encode()
             if not path.is_file() or path.stat().st_size < size:
                 raise SceneError("--resume", str(path), f"a file of at least {size} bytes, as when the checkpoint "
                                  "was written (the run directory was changed since)")
             with open(path, "rb") as handle:
-                if handle.read(len(header)) != header:
-                    raise SceneError("--resume", str(path), f"a CSV with the columns {columns} (the scene's "
-                                     "output.observables must not change on resume)")
+                written = handle.readline().decode(errors="replace").rstrip("\n").split(",")
+            if written != columns:
+                missing, extra = [c for c in columns if c not in written], [c for c in written if c not in columns]
+                raise SceneError("--resume", str(path), f"a CSV with the columns this run writes, {columns}; the "
+                                 f"file lacks {missing} and has {extra} besides: output.observables, and the free "
+                                 "energy's terms given from Python, must stay as the run started")
         for path, size in sizes.items():
             os.truncate(path, size)
         self.field_times = [float(t) for t in record["field_times"]]

@@ -13,6 +13,7 @@ from femphase.errors import SceneError
 from femphase.io.checkpoints import load_checkpoint, read_checkpoint_metadata
 from femphase.io.files import output_directory
 from femphase.io.rundir import CHECKPOINT, prepare_directory, resume_position
+from femphase.model.energy import FreeEnergy
 from femphase.run.directory import RunDirectory
 from femphase.run.guards import AccuracyGuard
 from femphase.run.simulation import METHODS, Simulation, Tracker
@@ -52,7 +53,8 @@ def stop_on_signals():
 
 def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, overwrite: bool = False,
               method: str = "fem", progress: bool | None = None, argv: list[str] | None = None,
-              sets: list[str] | None = None, status_interval: float | None = 30.0) -> State:
+              sets: list[str] | None = None, status_interval: float | None = 30.0,
+              energy: FreeEnergy | None = None) -> State:
     """Run a scene into a run directory (what ``femphase run`` does), on any domain.
 
     A directory that already holds a run is refused unless ``resume`` (continue from its
@@ -62,9 +64,11 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
     directory is touched before every check has passed.
     ``progress``: the tqdm bar (None: only on a terminal); ``argv`` and ``sets``: the command
     line and its ``--set`` assignments, for run.json; ``status_interval``: seconds of wall
-    time between status lines in the log (:class:`femphase.run.trackers.StatusLog`; None: none)."""
+    time between status lines in the log (:class:`femphase.run.trackers.StatusLog`; None: none);
+    ``energy``: the free energy, if not the paper's (:class:`~femphase.run.simulation.Simulation`;
+    a resumed run needs the same terms, whose columns global.csv holds)."""
     directory = output_directory(directory)  # "" is refused here, before Path makes it "."
-    simulation = Simulation(scene, method)
+    simulation = Simulation(scene, method, energy)
     check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
     lock = prepare_directory(directory, resume=resume, overwrite=overwrite)
     try:
