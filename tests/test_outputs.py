@@ -422,3 +422,16 @@ def test_an_observables_mistakes_are_named_before_they_reach_the_outputs():
         frame = run("energy", "reads").frames[-1]
     assert frame.globals["twice"] == 2 * frame.globals["free_energy"]
     assert frame.globals["area_sum"] == pytest.approx(float(np.sum(frame.particle["area"])))
+
+
+def test_a_trackers_frame_without_its_observable_says_why():
+    # a tracker that did not set needs found frame.particle empty: a bare KeyError 'elongation'
+    from femphase.run.simulation import Tracker
+
+    class Reads(Tracker):
+        def frame(self, frame):
+            frame.particle["elongation"]
+
+    scene = small_scene(observables=["shape"])
+    with pytest.raises(KeyError, match=r"this frame holds no columns; .*needs = frozenset\(\{'shape'\}\)"):
+        Simulation(scene).run(scene.initial_state(), Reads())

@@ -30,6 +30,15 @@ __all__ = ["METHODS", "Frame", "Simulation", "Tracker"]
 METHODS = {"fem": None, "fd": "fd-heun"}
 
 
+class Columns(dict):
+    """A frame's values by column; a column it lacks names what the frame holds and why."""
+
+    def __missing__(self, column: str):
+        raise KeyError(f"{column!r}: this frame holds {sorted(self) or 'no columns'}; a tracker's frames carry the "
+                       "columns of the observables its needs name (e.g. needs = frozenset({'shape'})) that the "
+                       "scene's output.observables lists")
+
+
 @dataclass
 class Frame:
     """What trackers receive at a frame: the state, its phase and the observables' values,
@@ -38,8 +47,8 @@ class Frame:
 
     state: State
     phase: Phase
-    particle: dict = field(default_factory=dict)
-    globals: dict = field(default_factory=dict)
+    particle: dict = field(default_factory=Columns)
+    globals: dict = field(default_factory=Columns)
 
     @property
     def shape(self) -> ShapeObservables:
