@@ -61,6 +61,14 @@ class Interrupted(FemphaseError, RuntimeError):
         super().__init__(f"interrupted by {signal_name} after step {step} (t = {time:g})")
 
 
+class StopRun(Exception):
+    """Raised by a tracker (``after_step`` or ``frame``) to end a run early, as finished for
+    its purpose (a steady state reached, enough cycles recorded): :meth:`Simulation.run`
+    ends after the frames of that step and returns the state. A run directory keeps a
+    checkpoint there and marks the run "interrupted" with the reason, so ``--resume``
+    continues it to the scene's end."""
+
+
 class ResolutionWarning(UserWarning):
     """A scene runs, but at a resolution known to bias its results (the message says how)."""
 

@@ -435,3 +435,51 @@ def test_a_trackers_frame_without_its_observable_says_why():
     scene = small_scene(observables=["shape"])
     with pytest.raises(KeyError, match=r"this frame holds no columns; .*needs = frozenset\(\{'shape'\}\)"):
         Simulation(scene).run(scene.initial_state(), Reads())
+
+
+def test_a_tracker_ends_a_run_early_and_the_run_continues_from_there(tmp_path):
+    # py-pde's trackers can finish a simulation; here only an error could end one, and a
+    # run directory then marked the run failed
+    import json
+
+    from femphase.run import RunDirectory, StopRun
+    from femphase.run.simulation import Tracker
+
+    class Enough(Tracker):
+        needs = frozenset({"shape"})
+
+        def __init__(self, frames):
+            self.frames, self.seen = frames, 0
+
+        def frame(self, frame):
+            self.seen += 1
+            if self.seen == self.frames:
+                raise StopRun(f"{self.frames} frames")
+
+    scene = small_scene(observables=["shape"])
+    state = Simulation(scene).run(scene.initial_state(), [Enough(2), RunDirectory(tmp_path / "early")])
+    assert state.step == 1 and state.time == 1.0  # the initial frame, then the first step's
+    info = json.loads((tmp_path / "early" / "run.json").read_text())
+    assert info["status"] == "interrupted" and info["message"] == "stopped by a tracker: 2 frames"
+    run_scene(scene, tmp_path / "early", resume=True, progress=False)
+    run_scene(scene, tmp_path / "whole", progress=False)
+    for name in ("particles.csv", "global.csv"):
+        assert (tmp_path / "early" / name).read_text() == (tmp_path / "whole" / name).read_text()
+
+
+def test_a_stop_in_after_step_waits_for_the_steps_bookkeeping():
+    # raised before the phase was closed, it would leave a state at the end of a phase that
+    # no loop leaves
+    from femphase.run import StopRun
+    from femphase.run.simulation import Tracker
+
+    class AtTheEnd(Tracker):
+        def after_step(self, state):
+            if state.phase_step == 2:
+                raise StopRun("phase done")
+
+    scene = small_scene(observables=["shape"])
+    recorder = FrameRecorder()
+    state = Simulation(scene).run(scene.initial_state(), [AtTheEnd(), recorder])
+    assert (state.phase, state.phase_step, state.step) == (1, 0, 2)
+    assert [frame.state.time for frame in recorder.frames] == [0.0, 1.0, 2.0]  # the last step's frame too

@@ -11,6 +11,7 @@
 =============== =====================================================================
 """
 
+from femphase.errors import StopRun
 from femphase.run.directory import RunDirectory
 from femphase.run.guards import AccuracyGuard
 from femphase.run.runner import run_scene
@@ -18,4 +19,4 @@ from femphase.run.simulation import Frame, Simulation, Tracker
 from femphase.run.trackers import FrameRecorder, ProgressBar, StatusLog
 
 __all__ = ["AccuracyGuard", "Frame", "FrameRecorder", "ProgressBar", "RunDirectory", "Simulation", "StatusLog",
-           "Tracker", "run_scene"]
+           "StopRun", "Tracker", "run_scene"]

@@ -12,7 +12,7 @@ import numpy as np
 
 from femphase import __version__
 from femphase.analysis.observables import OBSERVABLES
-from femphase.errors import Interrupted
+from femphase.errors import Interrupted, StopRun
 from femphase.io.checkpoints import save_checkpoint
 from femphase.io.fields import point_data
 from femphase.io.files import FileLock, atomic_write, output_directory
@@ -142,12 +142,14 @@ class RunDirectory(Tracker):
     def finish(self, state: State, error: Exception | None) -> None:
         if error is None:
             status, message, level = "completed", "", logging.INFO
+        elif isinstance(error, StopRun):  # a tracker's end: resumable to the scene's end
+            status, message, level = "interrupted", f"stopped by a tracker: {error}", logging.INFO
         elif isinstance(error, (Interrupted, KeyboardInterrupt)):
             status, message, level = "interrupted", str(error) or "interrupted (KeyboardInterrupt)", logging.WARNING
         else:
             status, message, level = "failed", str(error) or type(error).__name__, logging.ERROR
         try:
-            if isinstance(error, Interrupted) and self.simulation.scene.output.checkpoint:
+            if isinstance(error, (Interrupted, StopRun)) and self.simulation.scene.output.checkpoint:
                 self._checkpoint(state)  # a consistent state between two steps: keep it
             self.outputs.close()
             self.status.update(status=status, message=message, time=frame_time(state.time), steps=state.step,

@@ -18,7 +18,7 @@ import numpy as np
 from femphase.analysis.observables import OBSERVABLES, Observable, resolve
 from femphase.analysis.shape import ShapeObservables
 from femphase.config import Numerics
-from femphase.errors import FlowError, Interrupted, SceneError
+from femphase.errors import FlowError, Interrupted, SceneError, StopRun
 from femphase.model.energy import FreeEnergy
 from femphase.scene import Phase, Scene
 from femphase.state import State
@@ -62,9 +62,12 @@ class Tracker:
     ``needs`` names the observables whose values its frames carry (e.g. ``{"shape"}``;
     empty: none, only the state). ``after_step`` runs after every call of the stepper, which
     is one step for fixed-step schemes and up to ``numerics.merged_steps`` steps for the
-    adaptive one (:meth:`Simulation.run`); ``frame`` at every frame. An exception raised in
-    either ends the run there, as an error (``finish`` receives it; a run directory marks the
-    run failed); to stop a run as interrupted, pass ``stop`` to :meth:`Simulation.run`."""
+    adaptive one (:meth:`Simulation.run`); ``frame`` at every frame. Raising
+    :class:`~femphase.errors.StopRun` in either ends the run as finished for the tracker's
+    purpose, after that step's frames (py-pde's ``FinishedSimulation``): ``run`` returns the
+    state, ``finish`` receives the StopRun, a run directory keeps a checkpoint and marks the
+    run "interrupted" with the reason. Any other exception ends it as an error (a run
+    directory marks it failed)."""
 
     needs: frozenset = frozenset()
 
@@ -181,7 +184,10 @@ class Simulation:
             tracker.start(self, state)
         try:
             if (state.step == 0 if initial_frame is None else initial_frame):
-                self._frame(state, self.scene.phases[min(state.phase, len(self.scene.phases) - 1)], trackers, needs)
+                request = self._frame(state, self.scene.phases[min(state.phase, len(self.scene.phases) - 1)],
+                                      trackers, needs)
+                if request is not None:
+                    raise request
             while state.phase < len(self.scene.phases):
                 phase = self.scene.phases[state.phase]
                 stepper = self.stepper(phase, state.radii)
@@ -194,19 +200,23 @@ class Simulation:
                     state.phase_step += steps
                     if t1_counter is not None and self._t1_look_due(state.time, phase.dt):
                         t1_counter.look(state)
-                    for tracker in trackers:
-                        tracker.after_step(state)
+                    # a tracker's StopRun waits until the step's bookkeeping and frame are done
+                    request = _stop_requests(lambda tracker: tracker.after_step(state), trackers)
                     finished = state.phase_step == phase.n_steps
                     if finished:
                         # the frame's checkpoint must resume in the next phase
                         state.phase, state.phase_step = state.phase + 1, 0
                     if finished or state.phase_step % phase.steps_per_frame == 0:
-                        self._frame(state, phase, trackers, needs)
+                        request = self._frame(state, phase, trackers, needs) or request
+                    if request is not None:
+                        raise request
                     number = stop() if stop is not None else None
                     if number is not None:
                         raise Interrupted(signal.Signals(number).name, 128 + number, state.step, state.time)
                     if finished:
                         break
+        except StopRun as exc:  # a tracker's end, at a consistent state: trackers see why, the run returns
+            error = exc
         except FlowError as exc:  # a user's flow function failed: name the step the run stands at
             error = FlowError(exc.function, exc.time, exc.reason, state.step)
             raise error from exc.__cause__
@@ -261,7 +271,9 @@ class Simulation:
         interval = self.scene.output.t1_interval
         return np.floor(time / interval + 1e-9) > np.floor((time - dt) / interval + 1e-9)
 
-    def _frame(self, state: State, phase: Phase, trackers: list[Tracker], needs: frozenset) -> None:
+    def _frame(self, state: State, phase: Phase, trackers: list[Tracker], needs: frozenset) -> StopRun | None:
+        """Compute the frame's values and hand them to every tracker; a tracker's StopRun,
+        returned once all have had the frame."""
         frame = Frame(state, phase)
         # only what a tracker uses and the scene asked for
         for name in resolve([name for name in self.scene.output.observables if name in needs]):
@@ -270,8 +282,7 @@ class Simulation:
             values = observable(state, ChainMap(frame.particle, frame.globals))
             frame.particle.update(_frame_values(observable, values, observable.particle_columns, state.n_particles))
             frame.globals.update(_frame_values(observable, values, observable.global_columns, None))
-        for tracker in trackers:
-            tracker.frame(frame)
+        return _stop_requests(lambda tracker: tracker.frame(frame), trackers)
 
 
 def _frame_values(observable: Observable, values: dict, columns: tuple[str, ...], n_particles: int | None) -> dict:
@@ -289,3 +300,14 @@ def _frame_values(observable: Observable, values: dict, columns: tuple[str, ...]
                              f"{wanted}; it returned {value.dtype} of shape {value.shape}")
         out[column] = values[column]
     return out
+
+
+def _stop_requests(call: Callable[[Tracker], None], trackers: list[Tracker]) -> StopRun | None:
+    """``call`` on every tracker; the first :class:`~femphase.errors.StopRun` one raised."""
+    request = None
+    for tracker in trackers:
+        try:
+            call(tracker)
+        except StopRun as exc:
+            request = request or exc
+    return request
