@@ -78,7 +78,7 @@ def _mesh_memory(data: dict) -> str:
     samples = data["configurations"]["default"]["samples"]
     (t0, m0, *_), (t1, m1, *counted) = samples[len(samples) // 2], samples[-1]
     budget = f" (caches {max(sample[2] for sample in samples):.0f} MiB at most)" if counted else ""
-    return (f"resident {m0:.0f} MB at t = {t0:g}, {m1:.0f} MB at t = {t1:g}{budget}; "
+    return (f"resident {m0:.0f} MiB at t = {t0:g}, {m1:.0f} MiB at t = {t1:g}{budget}; "
             f"flow phase {data['configurations']['default']['flow_cpu_seconds']:.0f} CPU s")
 
 

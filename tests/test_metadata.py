@@ -38,7 +38,7 @@ SCENE = ROOT / "examples" / "single.toml"
 SHORT = ["phases.0.duration=20", "phases.1.duration=10", "phases.0.frame_interval=5", "phases.1.frame_interval=5",
          'numerics.scheme="euler"', "phases.0.dt=1", "phases.1.dt=1"]
 STATUS = re.compile(r" INFO (status|start|resume|phase \d+:\w+ (?:start|end)): t=(\S+) step=(\d+)/(\d+) phase=\d+:\w+ "
-                    r"ms/step=\S+ (?:substep=\S+ rejected=\d+ )?windows=1 mean_dofs=\d+ rss=\d+MB peak=\d+MB eta=\S+$")
+                    r"ms/step=\S+ (?:substep=\S+ rejected=\d+ )?windows=1 mean_dofs=\d+ rss=\d+MiB peak=\d+MiB eta=\S+$")
 
 
 def _run(directory: Path, *flags: str, sets=SHORT) -> int:

@@ -14,7 +14,7 @@ stderr (:func:`femphase.io.console.console_handler`). From Python,
 
 A status line (level INFO) reads
 
-    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 capped=0 windows=1 mean_dofs=2304 rss=118MB peak=121MB eta=4s
+    status: t=450 step=450/1800 phase=1:shear ms/step=3.12 substep=3.33 rejected=0 capped=0 windows=1 mean_dofs=2304 rss=118MiB peak=121MiB eta=4s
 
 with t the simulated time (time units), step the steps done of the scene's total, the
 phase (index:name), the mean wall time per step since the previous line (ms), under the
@@ -118,8 +118,8 @@ class StatusLog(Tracker):
                  f"ms/step={1e3 * seconds_per_step:.3g}" if seconds_per_step is not None else "ms/step=-"]
         parts += self._substeps(state)
         parts += [f"windows={state.n_particles}", f"mean_dofs={dofs:.0f}"]
-        parts += [f"rss={rss:.0f}MB"] if rss is not None else []
-        parts += [f"peak={peak:.0f}MB"] if peak is not None else []
+        parts += [f"rss={rss:.0f}MiB"] if rss is not None else []
+        parts += [f"peak={peak:.0f}MiB"] if peak is not None else []
         parts.append(f"eta={format_duration((total - done) * seconds_per_step)}" if seconds_per_step is not None
                      else "eta=-")
         self.logger.info("%s: %s", event, " ".join(parts))
