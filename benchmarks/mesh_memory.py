@@ -91,7 +91,7 @@ def main() -> None:
         result = json.loads(done.stdout.strip().splitlines()[-1])
         out["configurations"][name] = {"environment": env, **result}
         rss = result["samples"]
-        print(f"{name:<18} flow phase {result['flow_cpu_seconds']:.1f} CPU s; resident MB (cache budget used, "
+        print(f"{name:<18} flow phase {result['flow_cpu_seconds']:.1f} CPU s; resident MiB (cache budget used, "
               "MiB) at t = " + ", ".join(f"{t:g}: {m:.0f} ({c:.0f})" for t, m, c in rss[1::2]), flush=True)
     RESULTS.mkdir(exist_ok=True)
     (RESULTS / args.output).write_text(json.dumps(out, indent=1) + "\n")

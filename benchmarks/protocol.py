@@ -52,7 +52,7 @@ def start(tree: Path, scene: str, rate: float | None, duration: float, directory
 
 
 def finish(child: subprocess.Popen, started: float) -> dict:
-    """Wait for ``child``: its CPU seconds, wall seconds and peak resident memory (MB)."""
+    """Wait for ``child``: its CPU seconds, wall seconds and peak resident memory (MiB: ru_maxrss / 1024)."""
     _, status, usage = os.wait4(child.pid, 0)
     child.returncode = os.waitstatus_to_exitcode(status)
     errors = child.stderr.read().decode()
@@ -110,7 +110,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="femphase-protocol-") as scratch:
         for rate in args.rates:
             rows[str(rate)] = run_rate(trees, args.scene, rate, args.duration, Path(scratch), args.set)
-            line = "; ".join(f"{name} {r['cpu_s'] / 60:.2f} CPU-min ({r['peak_mb']:.0f} MB)"
+            line = "; ".join(f"{name} {r['cpu_s'] / 60:.2f} CPU-min ({r['peak_mb']:.0f} MiB)"
                              for name, r in rows[str(rate)].items())
             if args.old is not None:
                 line += f"; new/old {rows[str(rate)]['new']['cpu_s'] / rows[str(rate)]['old']['cpu_s']:.3f}"

@@ -250,7 +250,7 @@ def report(result: dict) -> str:
             for r in result["by_N"]]
     table = markdown_table(["N", "channel", "mesh nodes", "window dofs (all)", "first order, ms/step (dt = 1)",
                             f"default ({result['by_N'][0]['default_scheme']}), ms per time unit",
-                            "its accepted substeps", "ms per frame", "peak memory (MB)"], rows)
+                            "its accepted substeps", "ms per frame", "peak memory (MiB)"], rows)
     exponents = result["exponents_N"]
     h_rows = [[f"{r['h']:g}", f"{r['nodes']:,}", f"{r['window_dofs']:,}", f"{r['ms_per_step']:.3g}"]
               for r in result["by_h"]]
@@ -263,7 +263,7 @@ def report(result: dict) -> str:
     return (f"{table}\n\nFitted exponents ({medians}from N = {rows[0][0]} to {rows[-1][0]}): first order per step "
             f"N^{exponents['euler_ms_per_step']:.2f}, default scheme per time unit "
             f"N^{exponents['default_ms_per_time_unit']:.2f}, frames N^{exponents['frame_ms']:.2f} (target ≤ 1.05); "
-            f"peak memory at N = {rows[-1][0]}: {rows[-1][-1]} MB (target < 1500).\n\n"
+            f"peak memory at N = {rows[-1][0]}: {rows[-1][-1]} MiB (target < 1500 MB, i.e. 1431 MiB).\n\n"
             + markdown_table(["h (N = 100)", "mesh nodes", "window dofs (all)", "first order, ms/step (dt = 1)"],
                              h_rows)
             + f"\n\ncost ∝ h^-{result['exponent_h']:.2f} over h = 2 … 0.5.\n\n![scaling](results/scaling.png)\n\n"

@@ -59,13 +59,13 @@ def _protocol(data: dict) -> str:
     runs = data["runs"]
     minutes = ", ".join(f"{runs[rate]['new']['cpu_s'] / 60:.2f}" for rate in runs)
     peak = max(run["new"]["peak_mb"] for run in runs.values())
-    return f"{minutes} CPU-min at γ̇ = {', '.join(f'{float(r):g}' for r in runs)}; peak {peak:.0f} MB"
+    return f"{minutes} CPU-min at γ̇ = {', '.join(f'{float(r):g}' for r in runs)}; peak {peak:.0f} MiB"
 
 
 def _scaling(data: dict) -> str:
     largest = max(data["by_N"], key=lambda row: row["N"])
     return (f"N^{data['exponents_N']['default_ms_per_time_unit']:.2f} from N = "
-            f"{min(r['N'] for r in data['by_N'])} to {largest['N']}; peak {largest['peak_rss_mb']:.0f} MB at "
+            f"{min(r['N'] for r in data['by_N'])} to {largest['N']}; peak {largest['peak_rss_mb']:.0f} MiB at "
             f"N = {largest['N']}")
 
 
@@ -94,7 +94,7 @@ def _tolerance(data: dict) -> str:
 def _protocol_beside(data: dict) -> str:
     run = next(iter(data["runs"].values()))
     new, old = run["new"], run["old"]
-    return (f"{new['cpu_s'] / 60:.1f} CPU-min, peak {new['peak_mb']:.0f} MB; {new['cpu_s'] / old['cpu_s']:.3f}× the CPU "
+    return (f"{new['cpu_s'] / 60:.1f} CPU-min, peak {new['peak_mb']:.0f} MiB; {new['cpu_s'] / old['cpu_s']:.3f}× the CPU "
             f"of {data['trees']['old']['commit']} beside it")
 
 
@@ -110,7 +110,7 @@ def _protocol_alone(data: dict) -> str:
     earlier = [json.loads((ROOT / "benchmarks" / "results" / name).read_text()) for name in OBSTACLE_ALONE_EARLIER]
     others = ", ".join(f"{d['runs']['None']['new']['cpu_s'] / 60:.1f} at {str(d['trees']['new']['commit'])[:7]}"
                        for d in earlier)
-    return f"{run['cpu_s'] / 60:.1f} CPU-min, peak {run['peak_mb']:.0f} MB (earlier runs alone: {others})"
+    return f"{run['cpu_s'] / 60:.1f} CPU-min, peak {run['peak_mb']:.0f} MiB (earlier runs alone: {others})"
 
 
 def _span(values: list[float], digits: int) -> str:
