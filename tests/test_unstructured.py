@@ -76,6 +76,20 @@ def test_a_mesh_without_line_cells_is_a_plain_channel(tmp_path):
     assert len(domain.wall_facets) == 20
 
 
+def test_a_mesh_read_from_a_file_is_checked_once(tmp_path, monkeypatch):
+    from femphase.domains.mesh import domain as mesh_domain
+
+    mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
+    write_domain(tmp_path / "channel.vtu", mesh, boundaries)
+    checked = []
+    original = mesh_domain._check_mesh
+    monkeypatch.setattr(mesh_domain, "_check_mesh", lambda m: (checked.append(m), original(m)))
+    read_domain(tmp_path / "channel.vtu")
+    assert len(checked) == 1
+    MeshDomain.from_mesh(mesh, boundaries)  # a mesh built in memory is checked by from_mesh
+    assert len(checked) == 2
+
+
 def test_names_of_integer_tags_can_be_given(tmp_path):
     mesh, boundaries = structured_channel(10.0, 6.0, 1.0)
     write_domain(tmp_path / "c.vtu", mesh, boundaries)  # tags left 1, right 2, bottom 3, top 4

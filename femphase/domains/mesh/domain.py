@@ -137,6 +137,13 @@ class MeshDomain(Domain):
         by default 1e-8 of the period. Raises ValueError naming what does not match.
         """
         _check_mesh(mesh)
+        return cls._from_checked_mesh(mesh, boundaries, periodic, tolerance)
+
+    @classmethod
+    def _from_checked_mesh(cls, mesh: MeshTri, boundaries: dict[str, np.ndarray] | None,
+                           periodic: tuple[str, str], tolerance: float | None) -> "MeshDomain":
+        """:meth:`from_mesh` for a mesh :func:`_check_mesh` has passed (a file's is checked
+        before its boundaries are named; checking it again cost 60 ms on 40 000 nodes)."""
         boundaries = channel_sides(mesh) if boundaries is None else dict(boundaries)
         low, high = periodic
         for name in periodic:
@@ -555,7 +562,7 @@ def read_domain(
         if lines.shape[1]:
             table = names or _file_names(data) or BOUNDARY_TAGS
             boundaries = _named_facets(mesh, lines, tags, table)
-        return MeshDomain.from_mesh(mesh, boundaries, periodic, tolerance)
+        return MeshDomain._from_checked_mesh(mesh, boundaries, periodic, tolerance)
     except SceneError:
         raise
     except PeriodicPairError as exc:
