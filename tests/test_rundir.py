@@ -349,6 +349,32 @@ def test_overwrite_keeps_the_users_files_in_femphases_folders(scene, tmp_path, c
     assert (run / "particles.csv").is_file()
 
 
+def test_overwrite_deletes_the_partial_files_a_killed_run_leaves(scene, tmp_path):
+    # a kill between writing and renaming leaves each output's partial file; --overwrite
+    # deleted only the field mesh's, and a fields/ holding one more was never removed
+    from femphase.io.files import partial_path
+
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "output.fields=false") == 0
+    partial = [partial_path(run / name) for name in ("run.json", "scene.toml", "checkpoint.h5", "fields.xdmf",
+                                                      "fields/mesh.h5", "fields/frame_000003.h5")]
+    for path in partial:
+        path.parent.mkdir(exist_ok=True)
+        path.write_text("partial")
+    assert _run(scene, run, "--overwrite", "--set", "output.fields=false") == 0
+    assert not [path for path in partial if path.exists()]
+    assert not (run / "fields").exists()
+
+
+def test_a_resume_leaves_other_files_in_the_field_folder_alone(scene, tmp_path):
+    # cutting the frames after the checkpoint read every frame_*.h5 as a frame number
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    (run / "fields" / "frame_notes.h5").write_text("mine")
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=40") == 0
+    assert (run / "fields" / "frame_notes.h5").read_text() == "mine"
+
+
 def test_a_sweep_directory_is_not_taken_for_a_run(scene, tmp_path, capsys):
     # a run's files written among a sweep's index and runs/ were read as neither
     sweep = tmp_path / "sweep"

@@ -52,11 +52,18 @@ def failpoint(name: str) -> None:
         os.kill(os.getpid(), signal.SIGKILL)
 
 
-def atomic_write(path: Path, data: bytes | str) -> None:
-    """Replace ``path`` by ``data`` atomically (a temporary file beside it, then a rename):
-    a kill at any instant leaves either the old or the new file."""
+def partial_path(path: Path) -> Path:
+    """Where a file is written before it is renamed into place at ``path`` (hidden, beside
+    it): what a kill between the two leaves behind."""
     path = Path(path)
-    tmp = path.with_name(f".{path.name}.tmp")
+    return path.with_name(f".{path.name}.tmp")
+
+
+def atomic_write(path: Path, data: bytes | str) -> None:
+    """Replace ``path`` by ``data`` atomically (:func:`partial_path`, then a rename): a
+    kill at any instant leaves either the old or the new file."""
+    path = Path(path)
+    tmp = partial_path(path)
     with open(tmp, "wb") as handle:
         handle.write(data.encode() if isinstance(data, str) else data)
     failpoint(path.name)

@@ -25,8 +25,10 @@ DIR/ ::
 
 Guarantees. Every file is either appended (the CSVs, flushed at every frame) or replaced
 atomically (write to a temporary name, then ``os.replace``), so a kill at any instant leaves
-every file either as it was or as it will be; the checkpoint records the byte length of each
-CSV and the number of field frames when it was written. ``--resume`` cuts every output back
+every file either as it was or as it will be (and at most a hidden partial file
+``.NAME.tmp`` beside it, which the next write replaces and ``--overwrite`` deletes); the
+checkpoint records the byte length of each CSV and the number of field frames when it was
+written. ``--resume`` cuts every output back
 to that record and continues from the checkpoint, so after any sequence of kills, interrupts
 and resumes the outputs equal those of an uninterrupted run (bit for bit: the stepping is
 deterministic). A frame's outputs are written before its checkpoint, so at most the frames
@@ -49,7 +51,7 @@ import numpy as np
 
 from femphase import tomlio
 from femphase.errors import SceneError
-from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, output_directory
+from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, output_directory, partial_path
 from femphase.io.provenance import now
 
 __all__ = ["CHECKPOINT", "COMPARISON", "DERIVED", "FIELDS_DIR", "FIGURES", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
@@ -70,6 +72,14 @@ COMPARISON = ("compare.csv", "compare.json", "compare.png")
 #: Everything femphase writes into a run directory (``--overwrite`` deletes only these).
 OUTPUTS = ("scene.toml", "particles.csv", "global.csv", "fields.xdmf", "fields", CHECKPOINT, "run.json", RUN_LOG)
 FIELDS_DIR = "fields"
+#: The field folder's mesh file, and its frame files (:func:`frame_file`) as a glob pattern.
+MESH_FILE = "mesh.h5"
+FRAME_FILES = "frame_[0-9][0-9][0-9][0-9][0-9][0-9].h5"
+
+
+def frame_file(index: int) -> str:
+    """The name of field frame ``index`` (from 0) in the field folder."""
+    return f"frame_{index:06d}.h5"
 #: The package logger (as :data:`femphase.run.trackers.LOGGER`; that module imports the simulation,
 #: which imports this one).
 _LOGGER = logging.getLogger("femphase")
@@ -145,11 +155,14 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
 def _own_files(directory: Path) -> tuple[list[Path], list[Path]]:
     """(files, folders): what femphase wrote into a run directory, by name, for
     ``--overwrite`` to delete (:data:`OUTPUTS`, the field frames, the figures and comparison
-    of :data:`DERIVED`); other files in those folders are the user's and stay. SceneError,
-    before anything is deleted, where one of those names is not a file."""
+    of :data:`DERIVED`, and the partial files a killed run leaves, :func:`partial_path`);
+    other files in those folders are the user's and stay. SceneError, before anything is
+    deleted, where one of those names is not a file."""
+    fields = [MESH_FILE, FRAME_FILES]
     derived = {"figures": [f"{name}.*" for name in FIGURES], "compare": list(COMPARISON),
-               FIELDS_DIR: ["mesh.h5", "frame_[0-9][0-9][0-9][0-9][0-9][0-9].h5", ".mesh.h5.tmp"]}
-    files = [directory / name for name in OUTPUTS if name != FIELDS_DIR and (directory / name).exists()]
+               FIELDS_DIR: fields + [partial_path(Path(name)).name for name in fields]}
+    files = [path for name in OUTPUTS if name != FIELDS_DIR
+             for path in (directory / name, partial_path(directory / name)) if path.exists()]
     folders = [directory / name for name in derived if (directory / name).is_dir()]
     files += [path for folder in folders for pattern in derived[folder.name] for path in sorted(folder.glob(pattern))]
     odd = [path for path in files if not path.is_file()]
@@ -203,11 +216,11 @@ class Outputs:
         self.field_times = [float(t) for t in record["field_times"]]
         fields = self.directory / FIELDS_DIR
         if fields.is_dir():
-            for child in fields.glob("frame_*.h5"):
+            for child in fields.glob(FRAME_FILES):
                 if int(child.stem.split("_")[1]) >= len(self.field_times):
                     child.unlink()
         if self.fields or self.field_times:
-            if not (fields / "mesh.h5").is_file():
+            if not (fields / MESH_FILE).is_file():
                 self._write_mesh(mesh)
             self._write_xdmf(mesh)
         self._open()
@@ -235,8 +248,8 @@ class Outputs:
         import h5py
 
         index = len(self.field_times)
-        path = self.directory / FIELDS_DIR / f"frame_{index:06d}.h5"
-        tmp = path.with_name(f".{path.name}.tmp")
+        path = self.directory / FIELDS_DIR / frame_file(index)
+        tmp = partial_path(path)
         with h5py.File(tmp, "w") as handle:
             handle.attrs["time"] = time
             for name, values in data.items():
@@ -257,18 +270,18 @@ class Outputs:
 
         folder = self.directory / FIELDS_DIR
         folder.mkdir(exist_ok=True)
-        tmp = folder / ".mesh.h5.tmp"
+        tmp = partial_path(folder / MESH_FILE)
         with h5py.File(tmp, "w") as handle:
             handle["points"] = np.vstack([mesh.p, np.zeros(mesh.p.shape[1])]).T
             handle["triangles"] = mesh.t.T.astype(np.int64)
-        os.replace(tmp, folder / "mesh.h5")
+        os.replace(tmp, folder / MESH_FILE)
 
     def _write_xdmf(self, mesh, names: list[str] | None = None) -> None:
         """fields.xdmf: the mesh, then one grid per frame referring to its frame file."""
         n_points, n_cells = mesh.p.shape[1], mesh.t.shape[1]
         grids = []
         for index, time in enumerate(self.field_times):
-            frame = f"{FIELDS_DIR}/frame_{index:06d}.h5"
+            frame = f"{FIELDS_DIR}/{frame_file(index)}"
             attributes = "".join(
                 f'<Attribute Name="{escape(name)}" AttributeType="Scalar" Center="Node">'
                 f'<DataItem DataType="Float" Dimensions="{n_points}" Format="HDF" Precision="8">'
@@ -283,10 +296,10 @@ class Outputs:
             + "".join(grids) + "</Grid>"
             '<Grid Name="mesh" GridType="Uniform"><Geometry GeometryType="XYZ">'
             f'<DataItem DataType="Float" Dimensions="{n_points} 3" Format="HDF" Precision="8">'
-            f"{FIELDS_DIR}/mesh.h5:/points</DataItem></Geometry>"
+            f"{FIELDS_DIR}/{MESH_FILE}:/points</DataItem></Geometry>"
             f'<Topology TopologyType="Triangle" NumberOfElements="{n_cells}">'
             f'<DataItem DataType="Int" Dimensions="{n_cells} 3" Format="HDF" Precision="8">'
-            f"{FIELDS_DIR}/mesh.h5:/triangles</DataItem></Topology></Grid></Domain></Xdmf>\n")
+            f"{FIELDS_DIR}/{MESH_FILE}:/triangles</DataItem></Topology></Grid></Domain></Xdmf>\n")
         atomic_write(self.directory / "fields.xdmf", xdmf)
 
     def _frame_names(self, index: int, names: list[str] | None) -> list[str]:
@@ -296,7 +309,7 @@ class Outputs:
         if index not in self._frame_datasets:
             import h5py
 
-            with h5py.File(self.directory / FIELDS_DIR / f"frame_{index:06d}.h5", "r") as handle:
+            with h5py.File(self.directory / FIELDS_DIR / frame_file(index), "r") as handle:
                 self._frame_datasets[index] = list(handle)
         return self._frame_datasets[index]
 
