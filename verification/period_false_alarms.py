@@ -12,6 +12,9 @@ report, against records that do oscillate:
 
 * **red noise**: AR(1) records x_k = ρ x_{k−1} + ε_k, ρ = 0.8 … 0.99 (correlation times of
   5 to 100 frames), n = 200, 400 and 1000 samples, 40 records each;
+* **smoothed noise**: white noise smoothed by a Gaussian of s.d. 2, 5 and 10 samples (a
+  wandering without the AR(1)'s small-scale roughness, whose autocorrelation falls as a
+  Gaussian), the same lengths, 40 records each;
 * **oscillations**: the paper's asymmetric cycle, sin ωt + ½ sin(2ωt + 1), of period 10, 20
   and 40 samples, under AR(1) noise (ρ = 0.5) of standard deviation 0.1, 0.3, 0.6 and 1 ×
   the cycle's amplitude, the same lengths, 10 records each.
@@ -42,6 +45,7 @@ from femphase.analysis.periods import oscillation_period  # noqa: E402
 from verification.mms import command_line, save_figure, save_results  # noqa: E402
 
 CORRELATIONS = (0.8, 0.9, 0.95, 0.98, 0.99)
+SMOOTHING = (2.0, 5.0, 10.0)
 LENGTHS = (200, 400, 1000)
 PERIODS = (10.0, 20.0, 40.0)
 NOISE_LEVELS = (0.1, 0.3, 0.6, 1.0)
@@ -56,6 +60,13 @@ def ar1(rng: np.random.Generator, n: int, rho: float) -> np.ndarray:
     for k in range(1, n):
         out[k] = rho * out[k - 1] + noise[k]
     return out
+
+
+def smoothed(rng: np.random.Generator, n: int, width: float) -> np.ndarray:
+    """White noise smoothed by a Gaussian of s.d. ``width`` samples."""
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(rng.normal(size=n), width)
 
 
 def measured(record: np.ndarray) -> tuple[float, float, int] | None:
@@ -77,6 +88,12 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
             found = [measured(ar1(rng, n, rho)) for _ in range(red_records)]
             red.append({"rho": rho, "n": n, "records": red_records,
                         "found": [list(f) for f in found if f is not None]})
+    smooth = []
+    for width in SMOOTHING:
+        for n in LENGTHS:
+            found = [measured(smoothed(rng, n, width)) for _ in range(red_records)]
+            smooth.append({"width": width, "n": n, "records": red_records,
+                           "found": [list(f) for f in found if f is not None]})
     periodic = []
     for period in PERIODS:
         for level in NOISE_LEVELS:
@@ -88,6 +105,7 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
                 periodic.append({"period": period, "noise": level, "n": n, "records": periodic_records,
                                  "found": [list(f) for f in found if f is not None]})
     red_found = [f for row in red for f in row["found"]]
+    smooth_found = [f for row in smooth for f in row["found"]]
     periodic_found = [(row["period"], f) for row in periodic for f in row["found"]]
     close = [f for period, f in periodic_found if abs(f[0] - period) <= 0.1 * period]
     results = {
@@ -98,6 +116,12 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
         "red_found": len(red_found),
         "red_relative_uncertainty": [min(f[1] for f in red_found), max(f[1] for f in red_found)] if red_found else [],
         "red_cycles": [min(f[2] for f in red_found), max(f[2] for f in red_found)] if red_found else [],
+        "smooth": smooth,
+        "smooth_records": sum(row["records"] for row in smooth),
+        "smooth_found": len(smooth_found),
+        "smooth_relative_uncertainty": ([min(f[1] for f in smooth_found), max(f[1] for f in smooth_found)]
+                                        if smooth_found else []),
+        "smooth_cycles": [min(f[2] for f in smooth_found), max(f[2] for f in smooth_found)] if smooth_found else [],
         "periodic_records": sum(row["records"] for row in periodic),
         "periodic_found": len(periodic_found),
         "periodic_within_10_percent": len(close),
@@ -110,9 +134,11 @@ def run(quick: bool = False, output: Path | None = None) -> dict:
 def plot(results: dict, path: Path) -> None:
     fig, ax = plt.subplots(figsize=(5.5, 4))
     red = [(f[2], f[1]) for row in results["red"] for f in row["found"]]
+    smooth = [(f[2], f[1]) for row in results["smooth"] for f in row["found"]]
     periodic = [(f[2], f[1]) for row in results["periodic"] for f in row["found"]
                 if abs(f[0] - row["period"]) <= 0.1 * row["period"]]
-    for points, label, marker in ((periodic, "oscillations (period within 10 %)", "."), (red, "red noise", "x")):
+    for points, label, marker in ((periodic, "oscillations (period within 10 %)", "."), (red, "red noise", "x"),
+                                  (smooth, "smoothed noise", "+")):
         if points:
             cycles, relative = np.array(points).T
             ax.scatter(cycles, 100 * relative, marker=marker, label=label, s=18)
@@ -125,5 +151,7 @@ def plot(results: dict, path: Path) -> None:
 
 if __name__ == "__main__":
     command_line("period_false_alarms", run, ("red_found", "red_records", "red_relative_uncertainty", "red_cycles",
+                                              "smooth_found", "smooth_records", "smooth_relative_uncertainty",
+                                              "smooth_cycles",
                                               "periodic_found", "periodic_records", "periodic_within_10_percent",
                                               "periodic_relative_uncertainty_quantiles"))

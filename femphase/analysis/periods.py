@@ -46,6 +46,21 @@ _MIN_PROMINENCE = 0.2
 #: of up to 0.4 periods.
 _PRIMARY_SEPARATION = 0.6
 
+#: A primary peak rises at least this fraction of the retained signal's range above the
+#: troughs beside it (its prominence). A cycle's primary rises by most of the range; the
+#: round-off wiggles of a quiet stretch before an oscillation starts (1e-9 on a signal of
+#: amplitude 1) would otherwise each count as a cycle's primary.
+_PRIMARY_PROMINENCE = 0.1
+
+#: A segment of the autocorrelation whose variance (sum of squared deviations) is at most
+#: this fraction of the whole record's is constant up to round-off (:func:`_autocorrelation`).
+_QUIET_VARIANCE = 1e-10
+
+#: A linear trend of the intervals between primary peaks counts as a drift of the period
+#: when its slope is this many of its standard errors from zero; the trend's change over
+#: the record then enters the uncertainty (:func:`oscillation_period`).
+_DRIFT_SIGNIFICANCE = 3.0
+
 #: The autocorrelation and the peak spacing are two measurements of one period; when they
 #: differ by more than this fraction, one of them has locked on to the wrong feature.
 _METHOD_AGREEMENT = 0.25
@@ -94,9 +109,10 @@ def oscillation_period(
        its mean, a linear drift (a slow remainder of the transient) or the fraction of a
        cycle at either end.
     4. Independently, the primary peak of every cycle is located: peaks at least 0.6 periods
-       apart (a secondary peak has a higher primary closer than that), each refined by a
-       parabola.  The intervals between successive primary peaks give a second estimate,
-       their mean.
+       apart (a secondary peak has a higher primary closer than that) that rise at least a
+       tenth of the signal's range above the troughs beside them (not a quiet stretch's
+       wiggles), each refined by a parabola.  The intervals between successive primary peaks
+       give a second estimate, their mean.
 
     The uncertainty combines, in quadrature,
 
@@ -106,7 +122,12 @@ def oscillation_period(
     * half the difference between the two estimates: their systematic disagreement;
     * the error the mean interval would have with its first and last peak known only to the
       nearest sample, step / (√6 n_cycles): the floor for a noise-free signal, where the
-      other two terms vanish.
+      other two terms vanish;
+    * where the period drifts (the intervals' least-squares slope is at least 3 of its
+      standard errors from zero, with 4 or more intervals), half the fitted change of the
+      period over the record: the reported period is then the record's mean, and the
+      uncertainty spans the local periods (``method`` says so). A period changing from 100
+      to 110 over a record reads 106.2 ± 3.6, not ± 0.6.
 
     Parameters
     ----------
@@ -168,17 +189,36 @@ def oscillation_period(
     standard_error = intervals.std(ddof=1) / np.sqrt(len(intervals))
     # the first and last peak each known to the nearest sample (a uniform error of ± step/2)
     resolution = step / (np.sqrt(6) * len(intervals))
+    drift = _period_drift(intervals, step / np.sqrt(6))
+    method = ("autocorrelation peak; uncertainty from primary-peak intervals (standard error, half the "
+              "difference between the two estimates, sampling resolution")
+    if drift:
+        method += f", and half the drift of the period over the record, {drift:.4g})"
     return PeriodEstimate(
         period=float(period),
         uncertainty=float(
-            np.sqrt(standard_error**2 + ((period - mean_interval) / 2) ** 2 + resolution**2)
+            np.sqrt(standard_error**2 + ((period - mean_interval) / 2) ** 2 + resolution**2 + (drift / 2) ** 2)
         ),
         n_cycles=len(intervals),
-        method=(
-            "autocorrelation peak; uncertainty from primary-peak intervals (standard "
-            "error, half the difference between the two estimates, sampling resolution)"
-        ),
+        method=method + ("" if drift else ")"),
     )
+
+
+def _period_drift(intervals: np.ndarray, resolution: float) -> float:
+    """The change of the period over the record (its fitted value half an interval past the
+    last, less that half an interval before the first): the least-squares slope of the
+    intervals against their number, times their count. 0 unless the slope is
+    :data:`_DRIFT_SIGNIFICANCE` of its standard errors from zero (4 intervals or more) and
+    the change exceeds ``resolution``, how well an interval is known from its samples."""
+    n = len(intervals)
+    if n < 4:
+        return 0.0
+    index = np.arange(n) - (n - 1) / 2
+    slope = float(index @ intervals / (index @ index))
+    residuals = intervals - intervals.mean() - slope * index
+    slope_error = np.sqrt(residuals @ residuals / (n - 2) / (index @ index))
+    drift = abs(slope) * n
+    return drift if abs(slope) > _DRIFT_SIGNIFICANCE * slope_error and drift > resolution else 0.0
 
 
 def first_peaks(time: ArrayLike, signal: ArrayLike) -> np.ndarray:
@@ -255,7 +295,9 @@ def _uniform_resampling(
 
 def _first_major_autocorrelation_lag(values: np.ndarray) -> float:
     """Lag, in samples, of the first major peak of the autocorrelation of `values`."""
-    correlation = _autocorrelation(values)
+    # a lag at which one segment is constant correlates nothing: 0, not NaN, which
+    # find_peaks would carry into the lag
+    correlation = np.nan_to_num(_autocorrelation(values), nan=0.0)
     peaks, _ = find_peaks(correlation, prominence=_MIN_PROMINENCE)
     heights = correlation[peaks]
     if heights.max(initial=-1.0) < _MIN_CORRELATION:
@@ -293,14 +335,19 @@ def _autocorrelation(values: np.ndarray) -> np.ndarray:
     tail_variance = tail_squares - tail_sum**2 / overlap
     if head_variance[0] <= 0:
         raise ValueError("no oscillation found: the signal is constant")
-    with np.errstate(invalid="ignore", divide="ignore"):  # a constant stretch at some lag: no correlation there (NaN)
-        return covariance / np.sqrt(head_variance * tail_variance)
+    # a segment that is constant (a quiet stretch as long as it) has no correlation: its
+    # variance from the cumulative sums is then round-off, and divided by it, any number
+    quiet = np.minimum(head_variance, tail_variance) <= _QUIET_VARIANCE * head_variance[0]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        correlation = covariance / np.sqrt(head_variance * tail_variance)
+    correlation[quiet] = np.nan
+    return correlation
 
 
 def _primary_peak_times(grid: np.ndarray, values: np.ndarray, period: float) -> np.ndarray:
     step = grid[1] - grid[0]
     separation = max(1, int(_PRIMARY_SEPARATION * period / step))
-    peaks, _ = find_peaks(values, distance=separation)
+    peaks, _ = find_peaks(values, distance=separation, prominence=_PRIMARY_PROMINENCE * np.ptp(values))
     # a peak within `separation` of an end was compared with one side only, so a secondary
     # whose primary the end cut off passes; keep such a peak only if it is as high as a
     # primary compared on both sides
