@@ -11,8 +11,11 @@ flow (a velocity scale, docs/model.md).
 Aligning the ODE with the simulation.  The ODE starts at t = 0 from the hexagonal lattice
 (φ = π/3) and has its first T1 at τ0 = π/(2kγ̇).  The simulation's first T1 after shear
 onset is found with :func:`femphase.analysis.lattice.t1_event_times` on the centroids of
-particles.csv; the ODE is shifted so that its τ0 falls on it.  Without a T1 (no lattice, too
-short a run) the ODE starts at shear onset, or at the first frame of a run without flow.
+particles.csv; the ODE is shifted so that its τ0 falls on it, but never starts before shear
+onset: where the first T1 comes sooner after onset than τ0 (a random packing's first
+rearrangements, long before a lattice's), the ODE starts at onset, and the comparison says
+which alignment it used.  Without a T1 (no lattice, too short a run) the ODE starts at
+shear onset, or at the first frame of a run without flow.
 The alignment is exact at the first T1 only: when the ODE's period π/(kγ̇) differs from the
 simulation's, the phases drift apart, which is why the comparison also offers k matched to
 the measured period.
@@ -27,8 +30,8 @@ from femphase.analysis.periods import PeriodEstimate, oscillation_period
 from femphase.io.reader import RunData
 from femphase.model.minimal import K_PAPER, MAX_HALF_PERIODS, MinimalModelParameters, solve_minimal_model
 
-__all__ = ["K_PAPER", "measured_period", "ode_comparison", "ode_fits", "ode_solution", "order_series",
-           "period_estimate"]
+__all__ = ["K_PAPER", "measured_period", "ode_alignment", "ode_comparison", "ode_fits", "ode_solution",
+           "order_series", "period_estimate"]
 
 def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
     """The minimal model at `rate` with ω = kγ̇, and the simulation time of its t = 0.
@@ -48,11 +51,19 @@ def ode_solution(run: RunData, rate: float, k: float = K_PAPER):
 
 def _ode_span(run: RunData, rate: float, k: float) -> tuple[float, float]:
     """(the simulation time of the ODE's t = 0, the ODE time the run's frames reach)."""
-    if run.t1_times.size:
-        offset = float(run.t1_times[0]) - np.pi / (2 * k * rate)
-    else:
-        offset = run.shear_start if run.flow_phase is not None else float(run.time[0])
+    offset = ode_alignment(run, rate, k)[0]
     return offset, float(run.time[-1]) - offset
+
+
+def ode_alignment(run: RunData, rate: float, k: float) -> tuple[float, str]:
+    """(the simulation time of the ODE's t = 0, what it was aligned by: "first T1", "shear
+    onset" or "first frame"), as the module docstring says."""
+    onset = run.shear_start if run.flow_phase is not None else float(run.time[0])
+    if run.t1_times.size:
+        by_t1 = float(run.t1_times[0]) - np.pi / (2 * k * rate)
+        if run.flow_phase is None or by_t1 >= onset:
+            return by_t1, "first T1"
+    return onset, "shear onset" if run.flow_phase is not None else "first frame"
 
 
 def ode_fits(run: RunData, rate: float, k: float = K_PAPER) -> bool:
@@ -83,8 +94,10 @@ def ode_comparison(run: RunData, rate: float, t_from: float | None = None) -> di
     """Bulk-mean r(t) of the simulation against the minimal model, after `t_from`.
 
     Two ODEs: the paper's k = 0.01 and k matched to the measured period of r̄ (k = π/(Tγ̇)),
-    each aligned by the first T1.  For each: the RMS difference and the Pearson correlation
-    of r̄ and r_ODE on the simulation's frames, and the mean and range of both.
+    each aligned by the first T1 where that does not start it before shear onset
+    (``aligned_by`` says which: module docstring).  For each: the RMS difference and the
+    Pearson correlation of r̄ and r_ODE on the simulation's frames, and the mean and range of
+    both.
     """
     start = run.shear_start if t_from is None else t_from
     frames = run.time >= start - 1e-9
@@ -102,7 +115,7 @@ def ode_comparison(run: RunData, rate: float, t_from: float | None = None) -> di
             continue
         r_ode = np.interp(t - offset, solution.time, solution.elongation)
         out[name] = {
-            "k": float(k), "offset": float(offset),
+            "k": float(k), "offset": float(offset), "aligned_by": ode_alignment(run, rate, k)[1],
             "rms_difference": float(np.sqrt(np.mean((mean_r - r_ode) ** 2))),
             "correlation": float(np.corrcoef(mean_r, r_ode)[0, 1]) if np.std(r_ode) > 0 else None,
             "mean": float(r_ode.mean()), "min": float(r_ode.min()), "max": float(r_ode.max()),

@@ -177,6 +177,39 @@ def test_cli_writes_csv_and_json(tmp_path):
     assert table[-1, 0] == pytest.approx(metadata["t_end"])
 
 
+@pytest.mark.parametrize("rate", [0.0778, 0.1487, 1.0])
+def test_ode_csv_times_increase_strictly_and_a_t1_row_is_after_the_reset(tmp_path, rate):
+    # a grid point 5e-13 from a T1 time printed as the same time (2–4 repeated rows),
+    # and anything differentiating or re-integrating ode.csv met dt = 0
+    args = parse(["ode", "--rate", str(rate), "-o", str(tmp_path / "run")])
+    assert args.func(args) == 0
+    table = np.loadtxt(tmp_path / "run" / "ode.csv", delimiter=",", skiprows=1)
+    assert (np.diff(table[:, 0]) > 0).all()
+    first = np.flatnonzero(np.isclose(table[:, 0][:, None], t1_times(rate, table[-1, 0])[None], rtol=0,
+                                      atol=1e-6).any(axis=1))
+    assert first.size and np.allclose(table[first, 2], -np.pi / 4)
+    assert not np.isclose(table[first - 1, 2], -np.pi / 4).any()
+
+
+def test_the_ode_never_starts_before_the_flow():
+    # aligned by the first T1 alone, a random packing's first rearrangement 400 after
+    # onset put the ODE's start 1050 time units into the relaxation (rate 0.1083)
+    from types import SimpleNamespace
+
+    from femphase.oscillations import ode_alignment, ode_solution
+
+    half = np.pi / (2 * 0.01 * 0.1083)
+    early = SimpleNamespace(flow_phase=1, shear_start=2000.0, t1_times=np.array([2400.0]),
+                            time=np.linspace(0.0, 6000.0, 61))
+    assert ode_alignment(early, 0.1083, 0.01) == (2000.0, "shear onset")
+    assert ode_solution(early, 0.1083)[1] == 2000.0
+    late = SimpleNamespace(flow_phase=1, shear_start=2000.0, t1_times=np.array([3600.0]), time=early.time)
+    offset, how = ode_alignment(late, 0.1083, 0.01)
+    assert how == "first T1" and offset == pytest.approx(3600.0 - half)
+    none = SimpleNamespace(flow_phase=1, shear_start=2000.0, t1_times=np.zeros(0), time=early.time)
+    assert ode_alignment(none, 0.1083, 0.01) == (2000.0, "shear onset")
+
+
 @pytest.mark.parametrize(
     ("call", "named"),
     [

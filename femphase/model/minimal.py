@@ -42,6 +42,13 @@ __all__ = ["K_PAPER", "DEFAULT_INITIAL_ELONGATION", "DEFAULT_PERIODS", "MAX_EVAL
 #: 2 minutes; t_end = 1e9 at γ̇ = 0.1 would have been 636 620, about 2 hours.
 MAX_HALF_PERIODS = 10_000
 
+#: A sample of the equally spaced grid closer than this fraction of a half period to a T1
+#: time gives way to the T1 time (:func:`solve_minimal_model`): ode.csv writes times to 12
+#: significant digits, which would print the two alike (a grid point 5e-13 from τ1 did at
+#: γ̇ = 0.1487), and t_end ≤ :data:`MAX_HALF_PERIODS` half periods keeps 12 digits finer
+#: than this.
+T1_SAMPLE_GAP = 1e-4
+
 #: The most right-hand-side evaluations one half period may take. The paper's parameters
 #: take 600–1900 (γ̇ from 1e-5 to 1e4); where the model's time scales lie too far apart for
 #: LSODA in double precision (γ̇ = 1e300, ε = 1e12, r(0) = 1e-300, t ~ 1e11) it would
@@ -233,7 +240,9 @@ def solve_minimal_model(
     """Integrate θ and r together from t = 0 to t_end (time units).
 
     r(0) = `initial_elongation` (must be > 0, see :data:`DEFAULT_INITIAL_ELONGATION`),
-    θ(0) = π/2. The output holds `n_samples` equally spaced times plus the T1 times.
+    θ(0) = π/2. The output holds `n_samples` equally spaced times plus the T1 times, less
+    any equally spaced time within :data:`T1_SAMPLE_GAP` half periods of a T1 time; at a T1
+    time the state is the one after θ's reset.
 
     The integration restarts at every multiple of π/(2ω): at the T1 times (odd multiples) to
     reset θ to −π/4, at the others because ``|sin 2ωt|`` has a kink there that would otherwise
@@ -259,7 +268,12 @@ def solve_minimal_model(
 
     starts = _half_period_marks(rate, t_end, parameters.k)
     ends = np.append(starts[1:], t_end)
-    time = np.union1d(np.linspace(0.0, t_end, n_samples), starts[1::2])
+    grid, marks = np.linspace(0.0, t_end, n_samples), starts[1::2]
+    if marks.size:
+        nearest = np.clip(np.searchsorted(marks, grid), 1, marks.size) - 1
+        gap = np.minimum(np.abs(grid - marks[nearest]), np.abs(grid - marks[np.minimum(nearest + 1, marks.size - 1)]))
+        grid = grid[gap >= T1_SAMPLE_GAP * half_period]
+    time = np.union1d(grid, marks)
     segment_of_sample = np.searchsorted(starts, time, side="right") - 1
 
     evaluations = 0

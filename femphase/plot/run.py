@@ -47,7 +47,7 @@ from femphase.io.fields import point_data
 from femphase.io.reader import RunData, open_run
 from femphase.io.rundir import CHECKPOINT, FIGURES
 from femphase.model.minimal import MAX_HALF_PERIODS, ParameterError
-from femphase.oscillations import K_PAPER, ode_fits, ode_solution, order_series
+from femphase.oscillations import K_PAPER, ode_alignment, ode_fits, ode_solution, order_series
 from femphase.plot.figures import pyplot, save
 
 __all__ = ["FIGURES", "N_SHOWN", "SNAPSHOT_PIXELS", "Snapshot", "draw_elongation", "draw_limit_cycle",
@@ -203,8 +203,9 @@ def draw_elongation(ax, run: RunData, ode_rate: float | None = None, ode_k: floa
     solution, offset = ode_solution(run, rate, ode_k) if rate and rate > 0 else (None, 0.0)
     if solution is not None:
         shown = solution.time + offset >= t[0]
+        aligned = ode_alignment(run, rate, ode_k)[1]
         ax.plot(solution.time[shown] + offset, solution.elongation[shown], color="red", lw=1.2,
-                label=f"ODE, γ̇ = {rate:g}, k = {ode_k:.4g}")
+                label=f"ODE, γ̇ = {rate:g}, k = {ode_k:.4g}" + (", from flow onset" if aligned == "shear onset" else ""))
     if run.flow_phase is not None and run.shear_start >= t[0]:
         ax.axvline(run.shear_start, color="k", ls=":", lw=0.8, label="flow onset")
     t1 = run.t1_times[run.t1_times >= t[0]]
