@@ -21,19 +21,23 @@ and r = s₂/s₃ the finest pair's ratio:
   at a constant ratio, solved over all real p at any other (:func:`_observed_order`); with
   two levels, p is the ``expected_order``;
 * limit f∞ = f₃ + (f₃ − f₂)/(r^q − 1) (Richardson), q = min(p, formal order): an observed
-  order above the formal one (2 in h and in dt, 1 in the tolerance; ``--order``) comes from
-  levels outside the asymptotic range and would shrink the error bar;
+  order above the formal one (2 in h; in dt the scheme's, 2, or 1 for ``euler``; 1 in the
+  tolerance; ``--order``: :func:`formal_order`) comes from levels outside the asymptotic
+  range and would shrink the error bar;
 * error bar: Roache's grid convergence index, ``F·|f₃ − f₂|/(r^q − 1)``, with the safety
   factor F = 1.25 when p is observed and 3 when it is assumed, in quadrature with twice the
   limit's measurement uncertainty (a period's own, from its cycles: :func:`_with_noise`);
 * each run's error f_k − f∞;
 * for a tolerance study, the neighbouring levels whose last phase took the same substeps
-  (:func:`same_substeps`), named in every observable's note.
+  (:func:`same_substeps`), named in every observable's note; where such a pair lies among
+  the finest three levels, no order and no limit (their difference is not the error the
+  tolerance controls).
 
 The limit is not reported (NaN, with the reason) when the differences change sign
 (oscillatory convergence) or p ≤ 0 (divergence): the levels are not in the asymptotic
-range and a finer one is needed. Where the finest two values are equal, the limit is that
-value at any order, with an error bar of 0.
+range and a finer one is needed. Where the finest two values are equal (and took different
+substeps, in a tolerance study), the limit is that value at any order, with an error bar
+of 0.
 
 **Observables** (:data:`OBSERVABLES`), all from the run directories:
 
@@ -54,6 +58,7 @@ with each level's substeps in the last phase, :func:`last_phase_substeps`) and
 
 from __future__ import annotations
 
+import ast
 import csv
 import io
 import json
@@ -73,7 +78,8 @@ from femphase.io.reader import RunData, mean_present, open_run
 from femphase.tomlio import toml_value
 
 __all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "StudyIncomplete", "analyse",
-           "last_phase_substeps", "richardson", "run_convergence", "same_substeps", "study_sweep"]
+           "formal_order", "last_phase_substeps", "option_of", "richardson", "run_convergence", "same_substeps",
+           "study_sweep"]
 
 #: Refinement parameters: command-line name → (scene key, its unit). For "mesh" the values are
 #: mesh files and s is each run's effective spacing √(area / dofs).
@@ -81,9 +87,21 @@ PARAMETERS = {"h": ("domain.h", "lattice units"), "mesh": ("domain.mesh", "latti
               "tolerance_t": ("numerics.tolerance_t", "dimensionless"), "dt": ("phases.*.dt", "time units")}
 
 
-#: Formal order of each refinement: P1 in h (and a mesh's spacing), the default second-order
-#: scheme in dt, and an error per substep proportional to the tolerance.
+#: Formal order of each refinement: P1 in h (and a mesh's spacing), a second-order scheme in
+#: dt (:func:`formal_order`: the scheme's own, 1 for ``euler``), and an error per substep
+#: proportional to the tolerance.
 FORMAL_ORDER = {"h": 2.0, "mesh": 2.0, "dt": 2.0, "tolerance_t": 1.0}
+
+
+def formal_order(parameter: str, settings: dict, method: str = "fem") -> float:
+    """The formal order of refining ``parameter`` in a run of the resolved scene
+    ``settings``: in dt that of its time scheme (``TimeScheme.order``; the FD reference's
+    Heun step is 2), else :data:`FORMAL_ORDER`."""
+    if parameter != "dt" or method == "fd":
+        return FORMAL_ORDER[parameter]
+    from femphase.timestepping import SCHEMES
+
+    return float(SCHEMES.get(settings["numerics"]["scheme"], "numerics.scheme").order)
 
 
 class ConvergenceError(SceneError):
@@ -117,8 +135,9 @@ def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
     the left side positive. With x = ln(s₁/s₂) and y = ln(s₂/s₃) the right side is
     expm1(p x)/(−expm1(−p y)), which rises from 0 to ∞ over all real p, through x/y at p = 0
     (r^p at a constant ratio r): a ratio of differences below x/y has a negative p, however
-    the levels are spaced. Solved by bisection on [−50, 50] (:data:`ORDER_RANGE`); ±inf
-    beyond."""
+    the levels are spaced. Solved by bisection on [−50, 50] (:data:`ORDER_RANGE`), narrowed
+    where the levels lie so far apart that s^p would leave the doubles (|p|·ln(s₁/s₃) up to
+    700); ±inf beyond."""
     s1, s2, s3 = s[-3:]
     target = (f[-3] - f[-2]) / (f[-2] - f[-1])
     x, y = math.log(s1 / s2), math.log(s2 / s3)
@@ -126,7 +145,8 @@ def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
     def ratio(p: float) -> float:
         return x / y if p == 0 else math.expm1(p * x) / -math.expm1(-p * y)
 
-    low, high = -ORDER_RANGE, ORDER_RANGE
+    high = min(ORDER_RANGE, 700.0 / max(x, y))
+    low = -high
     if target <= ratio(low):
         return -math.inf
     if target >= ratio(high):
@@ -154,10 +174,12 @@ def richardson(spacings: list[float], values: list[float], expected_order: float
     u = np.zeros(s.size) if uncertainties is None else np.asarray(uncertainties, dtype=float)[order_of]
     estimate = _richardson(s, f, order_of, float(expected_order))
     differences = f[:-1] - f[1:]
-    if s.size > 3 and np.all(np.isfinite(f)) and np.any(differences[:-2] * differences[-1] <= 0):
+    reversed_pairs = np.flatnonzero(differences[:-2] * differences[-1] <= 0) if s.size > 3 else []
+    if np.all(np.isfinite(f)) and len(reversed_pairs):
+        named = ", ".join(f"{s[k]:g} to {s[k + 1]:g}" for k in reversed_pairs)
         estimate = replace(estimate, note=((estimate.note + "; ") if estimate.note else "") + (
-            "levels coarser than the finest three, which set the order, do not converge with them (their "
-            "differences change sign): they are outside the asymptotic range"))
+            f"levels coarser than the finest three, which set the order, do not converge with them (from {named} "
+            "the difference has the other sign): they are outside the asymptotic range"))
     return _with_noise(estimate, f, u, float(s[-2] / s[-1]))
 
 
@@ -299,6 +321,8 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
     for entry in index["runs"]:
         run = open_run(directory / entry["directory"])
         info = run.info
+        if parameter == "mesh":
+            _check_mesh_unchanged(run, entry["id"])
         spacing = (run.domain.effective_spacing if parameter == "mesh"
                    else float(entry["values"][keys[0]]))
         measured = {name: OBSERVABLES[name][0](run) for name in observables}
@@ -308,17 +332,39 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
                        "uncertainty": {name: uncertainty for name, (_, uncertainty) in measured.items()}})
     levels.sort(key=lambda level: -level["s"])
     spacings = [level["s"] for level in levels]
-    formal = FORMAL_ORDER[parameter] if expected_order is None else expected_order
+    formal = (formal_order(parameter, run.info["settings"], run.info.get("method", "fem"))
+              if expected_order is None else expected_order)
     estimates = {name: richardson(spacings, [level[name] for level in levels], formal,
                                   [level["uncertainty"][name] for level in levels]) for name in observables}
     if parameter == "tolerance_t":
         warning = same_substeps(levels)
         if warning:
-            estimates = {name: replace(e, note=f"{e.note}; {warning}" if e.note else warning)
+            unresolved = same_substeps(levels[-3:]) != ""  # a pair among the three the limit comes from
+            estimates = {name: _without_limit(e, warning) if unresolved else
+                         replace(e, note=f"{e.note}; {warning}" if e.note else warning)
                          for name, e in estimates.items()}
     _write_tables(directory, parameter, levels, estimates)
     _plot(directory / "convergence.png", parameter, levels, estimates)
     return {"parameter": parameter, "levels": levels, "estimates": estimates}
+
+
+def _without_limit(estimate: Estimate, reason: str) -> Estimate:
+    """``estimate`` with no order, limit, error bar or errors (NaN), and ``reason`` as its note."""
+    nan = (math.nan,) * len(estimate.errors)
+    return replace(estimate, order=math.nan, order_used=math.nan, limit=math.nan, error_bar=math.nan, errors=nan,
+                   note=f"no limit: {reason}")
+
+
+def _check_mesh_unchanged(run: RunData, run_id: str) -> None:
+    """ConvergenceError where a mesh study's run computed on another mesh than its file
+    holds now: its spacing s is read from the file (run.json's ``domain`` records the mesh's
+    digest; runs written without it are taken as they are)."""
+    recorded = run.info.get("domain", {}).get("mesh_checksum")
+    current = run.domain.describe().get("mesh_checksum")
+    if recorded is not None and recorded != current:
+        raise ConvergenceError("--mesh", run.scene["domain"]["mesh"], f"the mesh file run {run_id} computed on; "
+                               f"it has changed since (digest {current}, the run's {recorded}), so its spacing "
+                               "would be another mesh's: restore the file, or start the study in a new directory")
 
 
 def last_phase_substeps(info: dict) -> dict:
@@ -422,9 +468,11 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
     fig, (by_s, by_cpu) = plt.subplots(1, 2, figsize=(9, 3.6))
     s = np.array([level["s"] for level in levels])
     cpu = np.array([level["cpu_s"] for level in levels])
+    undrawn = []
     for name, estimate in estimates.items():
         error = np.abs(np.asarray(estimate.errors))
         if not np.any(np.isfinite(error) & (error > 0)):
+            undrawn.append(f"{name}: {estimate.note or 'no error against a limit'}")
             continue
         label = f"{name} (p = {estimate.order:.2f}{'' if estimate.order_observed else '*, assumed'})"
         by_s.loglog(s, error, "o-", label=label)
@@ -436,11 +484,18 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
         ax.grid(True, which="both", alpha=0.3)
     if by_s.lines:  # an observable without a finite error draws nothing
         by_s.legend(fontsize=8)
-    fig.tight_layout()
+    if undrawn:  # said on the figure, which would otherwise be blank or silently short
+        import textwrap
+
+        text = "\n".join(textwrap.fill(f"not drawn, {line}", 120) for line in undrawn)
+        fig.text(0.01, 0.01, text, fontsize=7, va="bottom", ha="left", color="darkred")
+        fig.tight_layout(rect=(0, 0.06 + 0.03 * text.count("\n"), 1, 1))
+    else:
+        fig.tight_layout()
     save(fig, path)
 
 
-def _option_of(scene_key: str) -> str:
+def option_of(scene_key: str) -> str:
     """The converge option that sets ``scene_key`` (``--dt`` for any phase's dt), else
     ``--set KEY``."""
     for name, (key, _) in PARAMETERS.items():
@@ -449,36 +504,61 @@ def _option_of(scene_key: str) -> str:
     return f"--set {scene_key}"
 
 
-def _study_error(exc: SceneError, refined: str) -> ConvergenceError:
-    """A sweep's refusal of a changed study (SweepError naming ``set.KEY`` or ``axes``) as the
-    study's: the option that set the key, or the refined option ``refined``."""
-    key, value = exc.key, exc.value
+def _study_error(exc: SceneError, refined: str, levels: list) -> ConvergenceError:
+    """A sweep's refusal of a changed study (SweepError naming ``set.KEY``, ``axes`` or the
+    scene) as the study's: the option that set the key, or the refined option ``refined``
+    with the ``levels`` given."""
+    key, value, valid = exc.key, exc.value, exc.valid
     if key.startswith("set."):
-        key = _option_of(key[4:])
+        option = option_of(key[4:])
+        # an option or its --set spelling: both are the same assignment of every run
+        key = option if option.startswith("--set") else f"{option} (or --set {key[4:]})"
+        valid = re.sub(r"^unset ", "not given (the scene's own value) ", valid)
     elif key == "axes" or key.startswith("axes."):
         key = refined
         if isinstance(value, dict):  # the axes as the sweep file has them: the levels given
             value = next(iter(value.values()))
-    valid = (exc.valid.replace("as in the sweep of", "as in the study of")
+        elif isinstance(value, list) and all(isinstance(v, str) for v in value):  # another refined parameter
+            value = levels
+            valid = re.sub(r"the axes (\[[^]]*\]), in that order",
+                           lambda match: f"levels of {_options_of(ast.literal_eval(match[1]))}, the option refined", valid)
+    elif key == "sweep.scene":
+        key = "scene"  # the study's SCENE argument, as femphase run names its own
+    valid = (valid.replace("as in the sweep of", "as in the study of")
              .replace("added values only", "added levels only").replace("another sweep", "another study"))
     return ConvergenceError(key, value, valid)
 
 
+def _options_of(keys: list[str]) -> str:
+    """The converge options that set scene keys (``--dt`` once for every phase's dt)."""
+    return ", ".join(sorted({option_of(key) for key in keys}))
+
+
 def _check_levels(scene: str | Path, parameter: str, levels: list, assignments: list[str], phases: int) -> None:
     """ConvergenceError naming the option and the level whose scene is invalid (``--h 0.7``
-    where Lx is no multiple of it), before any run; the sweep would name its own keys."""
+    where Lx is no multiple of it), or the mesh files of one spacing, before any run; the
+    sweep would name its own keys, and the analysis would refuse equal spacings after every
+    run."""
     from femphase.scene import load_scene
 
     keys = _level_keys(parameter, phases)
+    spacings = {}
     for level in levels:
         value = toml_value(str(level) if parameter == "mesh" else float(level))
         try:
             with warnings.catch_warnings():  # the sweep warns once per run
                 warnings.simplefilter("ignore")
-                load_scene(scene, assignments + [f"{k}={value}" for k in keys])
+                loaded = load_scene(scene, assignments + [f"{k}={value}" for k in keys])
         except SceneError as exc:
             raise ConvergenceError(f"--{parameter.replace('_', '-')}", str(level) if parameter == "mesh" else level,
                                    f"a level every run's scene accepts ({exc})") from None
+        if parameter == "mesh":
+            spacing = loaded.domain.effective_spacing
+            twin = next((other for other, s in spacings.items() if math.isclose(s, spacing, rel_tol=1e-9)), None)
+            if twin is not None:
+                raise ConvergenceError("--mesh", [str(twin), str(level)], f"meshes of different spacings: both have "
+                                       f"the effective spacing √(area/dofs) = {spacing:.6g}, one level twice")
+            spacings[level] = spacing
 
 
 def run_convergence(scene: str | Path, directory: str | Path, parameter: str, values: list[float],
@@ -541,7 +621,7 @@ def run_convergence(scene: str | Path, directory: str | Path, parameter: str, va
             index = run_sweep(sweep_file, directory, client, assignments=list(assignments), scheduler=scheduler,
                               workers=workers, log=log)
         except SweepError as exc:  # named as the study's options, not as its sweep file's keys
-            raise _study_error(exc, option) from None
+            raise _study_error(exc, option, list(values)) from None
     unfinished = [run for run in index["runs"] if run["status"] != "done"]
     if unfinished:
         listed = "; ".join(f"{run['id']} {run['status']}" + (f" ({run['error']})" if run.get("error") else "")

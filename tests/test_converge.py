@@ -115,6 +115,54 @@ def test_coarse_levels_that_do_not_converge_with_the_finest_three_are_named():
     assert "coarser than the finest three" not in quiet.note
     wild = richardson([4.0, 2.0, 1.0, 0.5], [0.0, 5.0, 3.5, 3.125])
     assert wild.limit == pytest.approx(3.0) and "coarser than the finest three" in wild.note
+    assert "from 4 to 2 the difference has the other sign" in wild.note  # which levels
+
+
+def test_levels_far_apart_give_an_order_not_an_overflow():
+    # expm1(50 ln(1e7)) overflowed after every run had finished
+    estimate = richardson([1.0, 0.1, 1e-8], [1.1, 1.01, 1.001], 1.0)
+    assert estimate.order == pytest.approx(1.04, abs=0.01) and estimate.limit == pytest.approx(1.001, abs=1e-6)
+
+
+def test_the_formal_order_in_dt_is_the_schemes():
+    from femphase.converge import formal_order
+
+    def settings(scheme):
+        return {"numerics": {"scheme": scheme}}
+
+    assert formal_order("dt", settings("euler")) == 1.0  # was 2 whatever the scheme
+    assert formal_order("dt", settings("sav2")) == 2.0 and formal_order("dt", settings("adaptive")) == 2.0
+    assert formal_order("dt", settings("euler"), method="fd") == 2.0  # the FD reference's Heun step
+    assert formal_order("h", settings("euler")) == 2.0 and formal_order("tolerance_t", settings("adaptive")) == 1.0
+
+
+def test_sigterm_interrupts_as_ctrl_c_and_is_recorded():
+    import os
+    import signal
+
+    from femphase.cli.interrupts import sigterm_as_interrupt
+
+    before = signal.getsignal(signal.SIGTERM)
+    with pytest.raises(KeyboardInterrupt):
+        with sigterm_as_interrupt() as terminated:
+            os.kill(os.getpid(), signal.SIGTERM)  # the handler runs before the next statement
+            pytest.fail("SIGTERM did not interrupt")
+    assert terminated == [signal.SIGTERM] and signal.getsignal(signal.SIGTERM) is before
+
+
+def test_a_figure_names_the_observables_it_cannot_draw(tmp_path, monkeypatch):
+    # a study with no limit wrote a blank figure, and one with some dropped the others silently
+    from femphase import converge
+    from femphase.plot import figures
+
+    drawn = []
+    monkeypatch.setattr(figures, "save", lambda fig, path: drawn.append(fig))
+    levels = [{"s": s, "cpu_s": 1.0} for s in (1.0, 0.5, 0.25)]
+    estimates = {"area": richardson([1.0, 0.5, 0.25], [3.0 + s**2 for s in (1.0, 0.5, 0.25)]),
+                 "period": richardson([1.0, 0.5, 0.25], [1.0, 2.0, 1.5])}
+    converge._plot(tmp_path / "convergence.png", "h", levels, estimates)
+    texts = " ".join(text.get_text() for text in drawn[0].texts)
+    assert "not drawn, period: the differences change sign" in texts and "area" not in texts
 
 
 def test_levels_that_agree_to_1e9_are_refused_before_any_run(tmp_path):
@@ -211,6 +259,9 @@ def test_a_tolerance_study_names_the_levels_whose_substeps_the_tolerance_did_not
     assert levels[0]["substeps"] == levels[1]["substeps"] < levels[2]["substeps"]
     note = result["estimates"]["area"].note
     assert "tolerance_t = 0.1 and 0.03 took the same substeps" in note and "refine from 0.03 down" in note
+    # a pair among the finest three: their difference is no time error, so no order and no
+    # limit (with the finest two equal the study reported a limit ± 0, 0.011 off)
+    assert math.isnan(result["estimates"]["area"].limit) and note.startswith("no limit: ")
     assert all(0 <= level["capped"] <= level["substeps"] for level in levels)
     header = (tmp_path / "study" / "convergence.csv").read_text().splitlines()[0]
     assert "substeps,rejected,capped,mean_substep" in header
@@ -290,6 +341,21 @@ def test_a_mesh_scene_is_refined_by_its_mesh_files(tmp_path):
     area = result["estimates"]["area"]
     assert area.order_observed and 1.0 < area.order < 3.5
     assert abs(area.errors[2]) < abs(area.errors[0])
+    # a mesh file replaced after its run: the run's spacing was read from the new file
+    # (order 1.90 → 6.45, no word); run.json's mesh digest now refuses it
+    from femphase.converge import analyse
+
+    write_domain(files[1], *delaunay_channel(40.0, edge_for_spacing(0.85), lambda x: 0 * x, lambda x: 0 * x + 40.0,
+                                             seed=1))
+    with pytest.raises(ConvergenceError, match=r"'--mesh' = .*channel_0\.7071\.vtu.* it has changed since"):
+        analyse(tmp_path / "study", "mesh", ["area"])
+    # two files of one mesh: refused before any run, not after all of them
+    twin = tmp_path / "twin.vtu"
+    twin.write_bytes(files[0].read_bytes())
+    with pytest.raises(ConvergenceError, match="one level twice"):
+        run_convergence(scene, tmp_path / "twins", "mesh", [str(files[0]), str(twin)], ["area"], workers=1,
+                        log=lambda line: None)
+    assert not (tmp_path / "twins" / "runs").exists()
 
 
 def test_the_command_prints_each_levels_substeps_for_the_adaptive_scheme(tmp_path, capsys):
@@ -339,9 +405,20 @@ def test_a_changed_study_is_refused_in_the_terms_of_its_options(tmp_path):
     quick = ["phases.0.duration=2.0", "phases.0.frame_interval=2.0"]
     run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5], ["area"], [*quick, "phases.0.dt=1.0"], workers=1,
                     log=lambda line: None)
-    with pytest.raises(ConvergenceError, match=r"option '--dt' = 0\.5 is invalid: 1\.0 as in the study of"):
+    with pytest.raises(ConvergenceError,
+                       match=r"option '--dt \(or --set phases\.0\.dt\)' = 0\.5 is invalid: 1\.0 as in the study of"):
         run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5], ["area"], [*quick, "phases.0.dt=0.5"],
                         workers=1, log=lambda line: None)
+    # another refined option: the sweep's axis keys were shown as the value given
+    with pytest.raises(ConvergenceError, match=r"option '--tolerance-t' = \[0\.1, 0\.01\] is invalid: levels of --h, "
+                                               r"the option refined, as in the study of"):
+        run_convergence(scene, tmp_path / "study", "tolerance_t", [0.1, 0.01], ["area"],
+                        [*quick, "phases.0.dt=1.0"], workers=1, log=lambda line: None)
+    # a --set of a key the study left alone: "unset as in the study"
+    with pytest.raises(ConvergenceError, match=r"option '--tolerance-t \(or --set numerics\.tolerance_t\)' = 0\.01 "
+                                               r"is invalid: not given \(the scene's own value\) as in the study of"):
+        run_convergence(scene, tmp_path / "study", "h", [1.0, 0.5], ["area"],
+                        [*quick, "phases.0.dt=1.0", "numerics.tolerance_t=0.01"], workers=1, log=lambda line: None)
     with pytest.raises(ConvergenceError,
                        match=r"option '--h' = \[1\.0, 0\.25\] is invalid: .*accepts added levels only"):
         run_convergence(scene, tmp_path / "study", "h", [1.0, 0.25], ["area"], [*quick, "phases.0.dt=1.0"],
@@ -354,7 +431,26 @@ def test_a_negative_level_list_gets_the_options_own_message(tmp_path, capsys):
 
     scene = tmp_path / "disc.toml"
     scene.write_text(DISC)
-    assert main(["converge", str(scene), "-o", str(tmp_path / "s"), "--h", "-1,0.5"]) == 2
+    with pytest.raises(SystemExit) as exited:
+        main(["converge", str(scene), "-o", str(tmp_path / "s"), "--h", "-1,0.5"])
+    assert exited.value.code == 2
     message = capsys.readouterr().err
-    assert "option '--h' = [-1.0, 0.5] is invalid: two or more numbers > 0" in message
+    assert "argument --h: '-1,0.5': every value must be a finite number > 0" in message
+    assert not (tmp_path / "s").exists()
+    # a single bad value was refused only as a study of one level, never as a bad value
+    with pytest.raises(SystemExit):
+        main(["converge", str(scene), "-o", str(tmp_path / "s"), "--h", "0"])
+    assert "argument --h: '0': every value must be a finite number > 0" in capsys.readouterr().err
+
+
+def test_a_set_that_contradicts_a_fixed_option_is_refused(tmp_path, capsys):
+    # --dt 1 --set phases.0.dt=0.5 ran at 0.5 without a word
+    from femphase.cli import main
+
+    scene = tmp_path / "disc.toml"
+    scene.write_text(DISC)
+    assert main(["converge", str(scene), "-o", str(tmp_path / "s"), "--h", "2,1", "--dt", "1",
+                 "--set", "phases.0.dt=0.5"]) == 2
+    assert ("option '--set' = 'phases.0.dt=0.5' is invalid: a key no option of the study sets: --dt sets "
+            "phases.0.dt=1.0" in capsys.readouterr().err)
     assert not (tmp_path / "s").exists()

@@ -8,6 +8,8 @@ import math
 import sys
 from pathlib import Path
 
+from femphase.cli.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED, sigterm_as_interrupt
+
 __all__ = ["register", "run"]
 
 #: Refinement options: attribute of the parsed arguments → parameter name.
@@ -25,11 +27,16 @@ def _items(text: str) -> list[str]:
 
 
 def _numbers(text: str) -> list[float]:
+    """Levels of --h, --dt or --tolerance-t: numbers > 0 (said here, where a single bad value
+    would otherwise be refused only as a study of one level)."""
     items = _items(text)
     try:
-        return [float(item) for item in items]
+        numbers = [float(item) for item in items]
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers, e.g. 1,0.5,0.25")
+    if not all(math.isfinite(number) and number > 0 for number in numbers):
+        raise argparse.ArgumentTypeError(f"{text!r}: every value must be a finite number > 0, e.g. 1,0.5,0.25")
+    return numbers
 
 
 def _limit(limit: float, error_bar: float) -> str:
@@ -42,7 +49,7 @@ def _limit(limit: float, error_bar: float) -> str:
 
 def run(args: argparse.Namespace) -> int:
     """`femphase converge`: run (or continue) the study, then print its table."""
-    from femphase.converge import PARAMETERS, ConvergenceError, StudyIncomplete, run_convergence
+    from femphase.converge import PARAMETERS, ConvergenceError, StudyIncomplete, option_of, run_convergence
     from femphase.sweep import EXIT_INCOMPLETE
 
     given = {name: getattr(args, name) for name in REFINED if getattr(args, name) is not None}
@@ -67,14 +74,21 @@ def run(args: argparse.Namespace) -> int:
         elif name != parameter:
             value = f'"{Path(values[0]).resolve()}"' if name == "mesh" else repr(values[0])
             fixed.append(f"{PARAMETERS[name][0]}={value}")
+    fixed_keys = {assignment.partition("=")[0]: assignment for assignment in fixed}
+    for assignment in args.set:  # the later --set would win silently, as the refined key's is refused
+        key = assignment.partition("=")[0].strip()
+        if key in fixed_keys:
+            raise ConvergenceError("--set", assignment, f"a key no option of the study sets: "
+                                   f"{option_of(key)} sets {fixed_keys[key]}; give one or the other")
     observables = [name.strip() for name in args.observable.split(",") if name.strip()]
     try:
-        result = run_convergence(args.scene, args.output, parameter, given[parameter], observables,
-                                 [*fixed, *args.set], expected_order=args.order, workers=args.workers,
-                                 scheduler=args.scheduler, log=lambda line: print(line, flush=True))
+        with sigterm_as_interrupt() as terminated:
+            result = run_convergence(args.scene, args.output, parameter, given[parameter], observables,
+                                     [*fixed, *args.set], expected_order=args.order, workers=args.workers,
+                                     scheduler=args.scheduler, log=lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         print(f"femphase converge: interrupted; rerun the same command to continue ({args.output})", file=sys.stderr)
-        return 130
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     except StudyIncomplete as exc:  # as femphase sweep: some runs not done
         print(f"femphase converge: {exc}", file=sys.stderr)
         return EXIT_INCOMPLETE

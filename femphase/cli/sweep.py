@@ -4,9 +4,10 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 from pathlib import Path
+
+from femphase.cli.interrupts import EXIT_INTERRUPTED, EXIT_TERMINATED, sigterm_as_interrupt
 
 __all__ = ["register", "run"]
 
@@ -16,22 +17,14 @@ def run(args: argparse.Namespace) -> int:
     # the command's implementation loads when it runs: the parser and the other commands start without it
     from femphase.sweep import EXIT_INCOMPLETE, run_sweep
 
-    terminated: list[int] = []
-
-    def terminate(number, frame):  # SIGTERM (Slurm, timeout) stops the sweep as Ctrl-C does
-        terminated.append(number)
-        raise KeyboardInterrupt
-
-    previous = signal.signal(signal.SIGTERM, terminate)
     try:
-        index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler,
-                          workers=args.workers, log=lambda line: print(line, flush=True))
+        with sigterm_as_interrupt() as terminated:
+            index = run_sweep(args.sweep, args.output, assignments=args.set, scheduler=args.scheduler,
+                              workers=args.workers, log=lambda line: print(line, flush=True))
     except KeyboardInterrupt:
         print(f"femphase sweep: interrupted; rerun the same command to continue (sweep.json in {args.output} "
               "says where each run stands)", file=sys.stderr)
-        return 143 if terminated else 130
-    finally:
-        signal.signal(signal.SIGTERM, previous)
+        return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
     counts = {s: sum(r["status"] == s for r in index["runs"]) for s in ("done", "failed", "interrupted", "pending")}
     print("femphase sweep: " + ", ".join(f"{n} {s}" for s, n in counts.items() if n) + f"; index in "
           f"{Path(args.output) / 'sweep.json'}")

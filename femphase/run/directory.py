@@ -73,7 +73,7 @@ class RunDirectory(Tracker):
         atomic_write(self.directory / "scene.toml", to_toml(self.settings))
         self.status = Status(self.directory, {
             "femphase_version": __version__, "method": simulation.method, "scene": scene.name,
-            "settings": self.settings,
+            "settings": self.settings, "domain": simulation.domain.describe(),
         }, previous)
         origin = provenance()
         self.status.begin_segment({"resumed": self.resume_from is not None, "from_time": state.time,
