@@ -45,6 +45,7 @@ import json
 import math
 import os
 import time as wallclock
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -348,7 +349,31 @@ def aggregate(directory: str | Path) -> Aggregate:
         complete = tables[run.id].complete()
         row.update(summarise_run(complete if complete.scene and len(complete.time) else None))
         summary.append(row)
+    _warn_short_runs(sweep, tables, summary)
     return Aggregate(sweep, build_dataset(sweep, tables, summary), summary)
+
+
+def _warn_short_runs(sweep: Sweep, tables: dict[str, RunData], summary: list[dict]) -> None:
+    """Warn where sweep.json calls a run done but its directory does not hold a completed
+    run's frames up to the scene's end: a run directory deleted, or its tables cut, after the
+    sweep ran. Its row is kept as read (status "done", ``run_status``, ``n_frames``)."""
+    short = []
+    for run, row in zip(sweep.runs, summary):
+        if run.status != "done":
+            continue
+        table = tables[run.id].complete()  # the frames its row summarises
+        end = sum(float(phase["duration"]) for phase in table.scene.get("phases", [])) if table.scene else math.nan
+        reached = float(table.time[-1]) if len(table.time) else math.nan
+        if not run.directory.is_dir():
+            short.append(f"{run.id} (its directory is gone)")
+        elif row["run_status"] != "completed" or not reached >= end - TIME_TOLERANCE * max(1.0, abs(end)):
+            short.append(f"{run.id} (run.json: {row['run_status'] or 'missing'}, frames to t = {reached:g} of {end:g})")
+    if short:
+        warnings.warn(f"sweep.json calls {len(short)} run{'s' if len(short) > 1 else ''} done whose directories do "
+                      "not hold a completed run "
+                      f"(deleted or cut after the sweep ran): {'; '.join(short)}. Their rows are as read; delete "
+                      "those run directories and rerun femphase sweep on this directory, which redoes them, then "
+                      "aggregate again", stacklevel=3)
 
 
 def _coordinate(values: list) -> np.ndarray:

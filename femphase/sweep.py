@@ -87,14 +87,14 @@ import time as wallclock
 import uuid
 import warnings
 from collections.abc import Callable
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from femphase import tomlio
 from femphase.errors import FemphaseError, Interrupted, SceneError
 from femphase.io.console import console_handler, log_warning
-from femphase.io.files import atomic_write, jsonable, locked, output_directory
+from femphase.io.files import atomic_write, jsonable, locked, output_directory, writable_directory
 from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
 from femphase.run.runner import run_scene
 from femphase.scene import Scene, parse_assignment, read_scene_data, scene_from_dict
@@ -575,32 +575,35 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep, assignments)
     directory = output_directory(directory).resolve()  # "" is refused, not taken for "."
     recorded = _check_directory(sweep, directory)
+    writable_directory(directory)
     with locked(directory / "locks" / "sweep.lock", blocking=False) as mine:
         if not mine:
             raise SweepError("-o", str(directory), "a sweep directory no other femphase sweep is running on")
-        atomic_write(directory / "sweep.toml", sweep.text)
-        atomic_write(directory / "sweep-set.json", json.dumps(list(sweep.assignments)) + "\n")
-        atomic_write(directory / "base-scene.toml", sweep.scene.read_text(encoding="utf-8"))
         statuses = {run.id: run_status(directory / "runs" / run.id, run.total_steps) for run in sweep.runs}
         for run_id, entry in recorded.items():  # the error recorded when it last ran, kept until it is retried
             if statuses[run_id][0] != "done" and entry.get("error") and not statuses[run_id][1]:
                 statuses[run_id] = (statuses[run_id][0], entry["error"])
         todo = [run for run in sweep.runs if statuses[run.id][0] != "done"]
-        _write_index(directory, _index(sweep, statuses))
-        log(f"femphase sweep: {len(sweep.runs)} runs, {len(sweep.runs) - len(todo)} done, {len(todo)} to run")
-        if todo:
-            try:
-                with _client(client, scheduler, workers, log) as dask:
+        # the cluster first: one that cannot be reached leaves the directory as it was, not
+        # tied to a sweep file of which nothing ran
+        with _client(client, scheduler, workers, log) if todo else nullcontext() as dask:
+            atomic_write(directory / "sweep.toml", sweep.text)
+            atomic_write(directory / "sweep-set.json", json.dumps(list(sweep.assignments)) + "\n")
+            atomic_write(directory / "base-scene.toml", sweep.scene.read_text(encoding="utf-8"))
+            _write_index(directory, _index(sweep, statuses))
+            log(f"femphase sweep: {len(sweep.runs)} runs, {len(sweep.runs) - len(todo)} done, {len(todo)} to run")
+            if todo:
+                try:
                     _check_workers(dask, log)
                     _submit(sweep, directory, todo, statuses, dask, log)
-            except BaseException:
-                # a run a worker finished while the cluster shut down is done, not interrupted
-                for run in todo:
-                    if statuses[run.id][0] != "done" and run_status(directory / "runs" / run.id,
-                                                                    run.total_steps)[0] == "done":
-                        statuses[run.id] = ("done", None)
-                _write_index(directory, _index(sweep, statuses))
-                raise
+                except BaseException:
+                    # a run a worker finished while the cluster shut down is done, not interrupted
+                    for run in todo:
+                        if statuses[run.id][0] != "done" and run_status(directory / "runs" / run.id,
+                                                                        run.total_steps)[0] == "done":
+                            statuses[run.id] = ("done", None)
+                    _write_index(directory, _index(sweep, statuses))
+                    raise
         return _index(sweep, statuses)
 
 

@@ -185,6 +185,37 @@ def test_run_caught_while_appending_a_frame(sweep, tmp_path):
     assert summarise_run(complete)["n_frames"] == TIMES.size
 
 
+def test_a_damaged_run_file_is_named(sweep, tmp_path):
+    # "femphase: error: Expecting value: line 1 column 1 (char 0)", of which file in which run?
+    copy = tmp_path / "sweep"
+    shutil.copytree(sweep, copy)
+    (copy / "runs" / "001" / "run.json").write_text("garbage\n")
+    with pytest.raises(InputError, match=r"runs/001/run\.json' is not a readable JSON file"):
+        aggregate(copy)
+    shutil.copy2(sweep / "runs" / "001" / "run.json", copy / "runs" / "001" / "run.json")
+    with (copy / "runs" / "002" / "global.csv").open("a") as handle:
+        handle.write("garbage,1,2\n")
+    with pytest.raises(InputError, match=r"runs/002/global\.csv' is not a readable CSV table of numbers"):
+        aggregate(copy)
+
+
+def test_runs_called_done_whose_directories_were_cut_are_warned(sweep, tmp_path):
+    # a deleted run was summarised as done with 0 frames, a cut one over a window in its
+    # transient, without a word
+    copy = tmp_path / "sweep"
+    shutil.copytree(sweep, copy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        aggregate(copy)  # the intact sweep: its killed run is "interrupted" in sweep.json, no warning
+    shutil.rmtree(copy / "runs" / "000")
+    lines = (copy / "runs" / "001" / "particles.csv").read_text().splitlines(keepends=True)
+    (copy / "runs" / "001" / "particles.csv").write_text("".join(lines[:1 + 6 * 4]))  # 4 frames of 6 particles
+    with pytest.warns(UserWarning, match=r"calls 2 runs done .*000 \(its directory is gone\); 001 \(run\.json: "
+                                         r"completed, frames to t = 25 of 80\)"):
+        result = aggregate(copy)
+    assert [row["n_frames"] for row in result.summary[:2]] == [0, 4]
+
+
 def test_averaging_window_is_the_papers_last_50_of_250_frames():
     relax, shear = 2000.0, 100000.0  # examples/random.toml: frames every 400
     time = np.concatenate([np.arange(0.0, relax + 1, 400.0), relax + np.arange(400.0, shear + 1, 400.0)])

@@ -150,6 +150,15 @@ def test_a_scheduler_that_cannot_be_reached_is_named_as_the_option(tmp_path, add
     # the failed Client, alive while its exception is, is not left as Dask's default scheduler
     # (femphase converge's netCDF write in the same process then asked for it)
     assert dask.config.get("scheduler", None) == before
+    # nothing ran, so nothing ties the directory to this sweep file (a corrected one was refused)
+    assert sorted(path.name for path in (tmp_path / "out").iterdir()) == ["locks"]
+
+
+def test_an_output_path_through_a_file_is_bad_input(tmp_path, capsys):
+    # NotADirectoryError making locks/: "internal error …; this is a bug" (exit 1)
+    (tmp_path / "afile").write_text("")
+    assert main(["sweep", str(write(tmp_path)), "-o", str(tmp_path / "afile" / "sub")]) == 2
+    assert "'-o' = " in (err := capsys.readouterr().err) and "a directory femphase can write to (Not a directory)" in err
 
 
 def test_run_ids_labels_zip_and_sharing(tmp_path):

@@ -107,6 +107,19 @@ def output_directory(path: str | Path) -> Path:
     return path
 
 
+def writable_directory(path: Path) -> None:
+    """Create ``path`` (with its parents) and check that a file can be written in it:
+    SceneError naming ``-o`` otherwise (a parent that is a file, no permission), before any
+    output, rather than an OSError from the first file written."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        probe = path / f".femphase-write-test-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise SceneError("-o", str(path), f"a directory femphase can write to ({exc.strerror or exc})") from None
+
+
 class FileLock:
     """An exclusive ``flock`` on ``path`` (created), held from :meth:`acquire` until
     :meth:`release`. The kernel drops it when its process dies, so a killed process never

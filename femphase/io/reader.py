@@ -25,7 +25,7 @@ import numpy as np
 from femphase import tomlio
 from femphase.analysis.lattice import t1_event_times
 from femphase.domains.base import Domain
-from femphase.errors import ResolutionWarning
+from femphase.errors import InputError, ResolutionWarning
 from femphase.io.files import read_csv
 from femphase.scene import Scene, scene_from_dict
 
@@ -282,6 +282,16 @@ def mean_present(values: np.ndarray, axis: int | None = None) -> np.ndarray | fl
     return float(mean) if axis is None else mean
 
 
+def _read_damaged(path: Path, kind: str, read):
+    """``read(path)``; InputError naming the file where it cannot be read as ``kind`` (a
+    damaged file in one run of many must be found by its path)."""
+    try:
+        return read(path)
+    except (ValueError, StopIteration) as exc:  # StopIteration: a CSV without even a header
+        raise InputError(f"{str(path)!r} is not a readable {kind} ({exc or 'it is empty'}): the file is damaged; "
+                         "rerun its run (or restore the file)") from None
+
+
 def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
     """Read a run directory written by ``femphase run``.
 
@@ -299,10 +309,12 @@ def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
                 raise FileNotFoundError(f"{str(directory)!r} is not a femphase run directory: it has no {name} "
                                         "(expected the output directory of `femphase run SCENE -o DIR`)")
     scene_path, info_path = directory / "scene.toml", directory / "run.json"
-    scene = tomlio.loads(scene_path.read_text()) if scene_path.is_file() else {}
-    info = json.loads(info_path.read_text()) if info_path.is_file() else {}
-    tables = {name: read_csv(directory / name) if (directory / name).is_file() else {}
-              for name in ("particles.csv", "global.csv")}
+    scene = _read_damaged(scene_path, "TOML scene", lambda path: tomlio.loads(path.read_text())) \
+        if scene_path.is_file() else {}
+    info = _read_damaged(info_path, "JSON file", lambda path: json.loads(path.read_text())) \
+        if info_path.is_file() else {}
+    tables = {name: _read_damaged(directory / name, "CSV table of numbers", read_csv)
+              if (directory / name).is_file() else {} for name in ("particles.csv", "global.csv")}
     rows, frame_rows = tables["particles.csv"], tables["global.csv"]
     time = merge_times(rows.get("time", np.empty(0)), frame_rows.get("time", np.empty(0)))
     globals_ = {}

@@ -51,7 +51,8 @@ import numpy as np
 
 from femphase import tomlio
 from femphase.errors import SceneError
-from femphase.io.files import FileLock, atomic_write, failpoint, jsonable, output_directory, partial_path
+from femphase.io.files import (FileLock, atomic_write, failpoint, jsonable, output_directory, partial_path,
+                               writable_directory)
 from femphase.io.provenance import now
 
 __all__ = ["CHECKPOINT", "COMPARISON", "DERIVED", "FIELDS_DIR", "FIGURES", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
@@ -126,13 +127,7 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
     if (directory / "sweep.json").is_file():  # a run's files among a sweep's would be read as neither
         raise SceneError("-o", str(directory), "a directory that is not a sweep's: it holds sweep.json; a sweep's "
                          "runs are in its runs/<id>/, run by femphase sweep")
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        probe = directory / f".femphase-write-test-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise SceneError("-o", str(directory), f"a directory femphase can write to ({exc.strerror or exc})") from None
+    writable_directory(directory)
     lock = FileLock(directory / LOCK)
     try:
         taken = lock.acquire(blocking=False)
