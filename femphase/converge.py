@@ -523,7 +523,7 @@ def _study_error(exc: SceneError, refined: str, levels: list) -> ConvergenceErro
             valid = re.sub(r"the axes (\[[^]]*\]), in that order",
                            lambda match: f"levels of {_options_of(ast.literal_eval(match[1]))}, the option refined", valid)
     elif key == "sweep.scene":
-        key = "scene"  # the study's SCENE argument, as femphase run names its own
+        key = "SCENE"  # the study's argument, as femphase run names its own
     valid = (valid.replace("as in the sweep of", "as in the study of")
              .replace("added values only", "added levels only").replace("another sweep", "another study"))
     return ConvergenceError(key, value, valid)

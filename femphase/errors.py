@@ -13,11 +13,11 @@ class FemphaseError(Exception):
 class SceneError(FemphaseError, ValueError):
     """A scene key or value is invalid. The message names the key, the value and what is
     valid; a key that starts with "-" (``--rate``, ``-o``) is a command-line option and is
-    named as one."""
+    named as one, and an upper-case key (``SCENE``, ``SWEEP``) a command's file argument."""
 
     def __init__(self, key: str, value: object, valid: str) -> None:
         self.key, self.value, self.valid = key, value, valid
-        kind = "option" if key.startswith("-") else "scene key"
+        kind = "option" if key.startswith("-") else "argument" if key.isupper() else "scene key"
         super().__init__(f"{kind} '{key}' = {value!r} is invalid: {valid}")
 
 

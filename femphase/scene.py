@@ -715,17 +715,18 @@ def read_scene_data(path: str | Path, assignments: list[str] | str | None = None
     ``assignments`` is a list of ``"key=value"`` strings, or one such string."""
     path = Path(path)
     if not path.is_file():
-        raise SceneError("scene", str(path), "a TOML scene file that exists")
+        raise SceneError("SCENE", str(path), "a TOML scene file" + (" (this path is a directory)" if path.is_dir()
+                                                                     else " that exists"))
     try:
         text = path.read_bytes().decode("utf-8")
     except OSError as exc:
-        raise SceneError("scene", str(path), f"a readable file ({exc.strerror or exc})") from None
+        raise SceneError("SCENE", str(path), f"a readable file ({exc.strerror or exc})") from None
     except UnicodeDecodeError as exc:
-        raise SceneError("scene", str(path), f"a UTF-8 text file (TOML); byte {exc.start} is not UTF-8") from None
+        raise SceneError("SCENE", str(path), f"a UTF-8 text file (TOML); byte {exc.start} is not UTF-8") from None
     try:
         data = tomlio.loads(text)
     except (tomlio.TOMLDecodeError, RecursionError, ValueError) as exc:
-        raise SceneError("scene", str(path), f"valid TOML ({exc})") from None
+        raise SceneError("SCENE", str(path), f"valid TOML ({exc})") from None
     for assignment in [assignments] if isinstance(assignments, str) else assignments or []:
         set_value(data, assignment)
     return data

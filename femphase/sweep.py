@@ -120,11 +120,11 @@ EXIT_INCOMPLETE = 4
 
 class SweepError(SceneError):
     """A sweep file key or value, or a sweep directory, is invalid (exit 2); an option
-    (``-o``, ``--workers``) is named as one."""
+    (``-o``, ``--workers``) and the sweep file argument (``SWEEP``) are named as such."""
 
     def __init__(self, key: str, value: object, valid: str) -> None:
         super().__init__(key, value, valid)
-        if not key.startswith("-"):
+        if not key.startswith("-") and not key.isupper():
             self.args = (f"sweep key '{key}' = {value!r} is invalid: {valid}",)
 
 
@@ -192,12 +192,13 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
     and the scene of every run (nothing is run)."""
     path = Path(path)
     if not path.is_file():
-        raise SweepError("sweep", str(path), "a TOML sweep file that exists")
+        raise SweepError("SWEEP", str(path), "a TOML sweep file" + (" (this path is a directory)" if path.is_dir()
+                                                                     else " that exists"))
     try:
         text = path.read_text(encoding="utf-8")
         document = tomlio.loads(text)
     except (OSError, UnicodeDecodeError, tomlio.TOMLDecodeError) as exc:
-        raise SweepError("sweep", str(path), f"a readable UTF-8 TOML file ({exc})") from None
+        raise SweepError("SWEEP", str(path), f"a readable UTF-8 TOML file ({exc})") from None
     for name, value in document.items():
         if name not in TABLES:
             scene = "phases" in document or "domain" in document  # a scene given where its sweep belongs
@@ -214,7 +215,8 @@ def load_sweep(path: str | Path, assignments: list[str] | tuple[str, ...] = ()) 
         raise SweepError("sweep.scene", head.get("scene"), "the base scene file, a path relative to the sweep file")
     scene = (path.parent / head["scene"]).resolve()
     if not scene.is_file():
-        raise SweepError("sweep.scene", head["scene"], f"a scene file that exists ({scene} does not)")
+        raise SweepError("sweep.scene", head["scene"], f"a scene file that exists ({scene} "
+                         + ("is a directory)" if scene.is_dir() else "does not)"))
     mode = head.get("mode", "product")
     if mode not in MODES:
         raise SweepError("sweep.mode", mode, f"one of {MODES}")
@@ -383,6 +385,12 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     recorded = {entry["id"]: entry for entry in index.get("runs", [])}
     for run_id, entry in recorded.items():
         if run_id not in runs or json.loads(json.dumps(runs[run_id].values, default=jsonable)) != entry["values"]:
+            respelled = next((run.id for run in sweep.runs
+                              if json.loads(json.dumps(run.values, default=jsonable)) == entry["values"]), None)
+            if respelled is not None:  # 1 written as 1.0: one value, but the run's id is its spelling
+                raise SweepError("axes", sweep.axes, f"the values spelled as before: run {run_id!r} "
+                                 f"({entry['values']}) would now be named {respelled!r}, and a run's id is its "
+                                 f"values as written; write them as the sweep of {directory} has them")
             raise SweepError("axes", sweep.axes, f"values that include those of run {run_id!r} "
                              f"({entry['values']}) {hint}")
     return recorded

@@ -325,6 +325,17 @@ def test_plot_on_a_sweep_writes_the_figures_and_aggregates_first(sweep, tmp_path
     assert not is_current(read_sweep(sweep))
 
 
+def test_plot_names_every_sweep_figure_it_leaves_out(sweep, tmp_path, capsys, monkeypatch):
+    # a single particle's sweep (Ψ6, Ψ2^L NaN) lost sweep_order without a word
+    from femphase.plot import sweep as sweep_plots
+
+    monkeypatch.setattr(sweep_plots, "plot_sweep", lambda *args, **kwargs: {"sweep_dynamics": tmp_path / "d.png"})
+    assert main(["plot", str(sweep), "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "no sweep_order figure: no run that is done has a finite Ψ6, Ψ2^L" in out
+    assert "no sweep_period figure: no run that is done has a finite period" in out
+
+
 def test_an_input_that_changes_while_the_aggregate_reads_leaves_it_stale(sweep, tmp_path, monkeypatch):
     # the outputs were newer than every input although they held what sweep.json said before
     # a run finished during the aggregate: `plot` then drew "3 of 4 runs done" from them

@@ -228,6 +228,11 @@ def test_branched_runs_equal_serial_runs_and_a_rerun_skips_done_runs(tmp_path, c
     # a changed sweep is refused unless it only adds values
     with pytest.raises(SweepError, match="added values only"):
         run_sweep(write(tmp_path, SWEEP.replace("[1, 2]", "[1]")), out, client)
+    # 1.0 written as 1: one value, another run id ("values that include those of" run
+    # rate=1.0_seed=1, as if the value were gone)
+    with pytest.raises(SweepError, match=r"the values spelled as before: run 'rate=1\.0_seed=1' .* would now be "
+                                         r"named 'rate=1_seed=1'"):
+        run_sweep(write(tmp_path, SWEEP.replace("[0.3, 1.0]", "[0.3, 1]")), out, client)
     with pytest.raises(SweepError, match="'set.phases.1.duration' = 100 is invalid: unset as in the sweep"):
         run_sweep(path, out, client, assignments=["phases.1.duration=100"])  # said "None as in the sweep"
     lines.clear()
@@ -386,3 +391,16 @@ def test_a_run_finished_while_the_sweep_stopped_is_recorded_done(tmp_path, monke
         run_sweep(path, tmp_path / "out", client=object(), log=lambda line: None)
     index = json.loads((tmp_path / "out" / "sweep.json").read_text())
     assert [run["status"] for run in index["runs"]] == ["done"]
+
+
+def test_a_directory_given_as_a_file_is_named_as_the_argument(tmp_path, capsys):
+    # "sweep key 'sweep' = 'DIR' is invalid: a TOML sweep file that exists": it exists
+    assert main(["sweep", str(tmp_path), "-o", str(tmp_path / "out")]) == 2
+    assert f"argument 'SWEEP' = '{tmp_path}' is invalid: a TOML sweep file (this path is a directory)" in \
+        capsys.readouterr().err
+    assert main(["run", str(tmp_path), "-o", str(tmp_path / "out")]) == 2
+    assert f"argument 'SCENE' = '{tmp_path}' is invalid: a TOML scene file (this path is a directory)" in \
+        capsys.readouterr().err
+    sweep = write(tmp_path / "a", SWEEP.replace('scene = "tiny.toml"', 'scene = ".."'))
+    assert main(["sweep", str(sweep), "-o", str(tmp_path / "out")]) == 2
+    assert f"({tmp_path} is a directory)" in capsys.readouterr().err

@@ -65,6 +65,10 @@ def _plot_sweep(args: argparse.Namespace) -> int:
         raise InputError(str(exc)) from None
     for path in paths.values():
         print(path)
-    if "sweep_period" not in paths:
-        print("femphase: no run that is done has a detectable period: no sweep_period figure")
+    from femphase.plot.sweep import FIGURE_PANELS
+
+    for figure, panels in FIGURE_PANELS.items():  # a figure without a finite value is not drawn: say which
+        if figure not in paths:
+            measured = ", ".join(name for _, entries in panels for _, name in entries)
+            print(f"femphase: no {figure} figure: no run that is done has a finite {measured}")
     return 0
