@@ -544,11 +544,31 @@ def _client(client, scheduler: str | None, workers: int | None, log: Callable[[s
         with dask.config.set({f"distributed.nanny.pre-spawn-environ.{SLOW_MALLOC}": None}), \
                 LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
                              env=WORKER_ENV) as cluster, Client(cluster) as local:
+            local.register_plugin(_interrupts_to_the_driver())
             log(f"femphase sweep: a local Dask cluster of {n} worker process{'es' if n > 1 else ''}")
             yield local
     finally:
         if inherited is not None:
             os.environ[SLOW_MALLOC] = inherited
+
+
+def _interrupts_to_the_driver():
+    """A worker plugin that makes a local worker ignore SIGINT. Ctrl-C in a terminal reaches
+    the whole process group: the driver stops the sweep and closes the cluster, which ends
+    the workers, and each worker's own KeyboardInterrupt printed some 30 lines of traceback
+    from Dask's event loop. Their runs keep their checkpoints either way (a run in a worker's
+    thread never saw the signal)."""
+    import signal
+
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class InterruptsToTheDriver(WorkerPlugin):
+        name = "femphase-interrupts-to-the-driver"
+
+        def setup(self, worker) -> None:  # in the worker's event loop: its process's main thread
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return InterruptsToTheDriver()
 
 
 def _malloc_setting() -> str | None:

@@ -4,6 +4,8 @@ mid-run, resuming, and shared relaxations, each against serial runs of the same 
 import json
 import os
 import signal
+import subprocess
+import sys
 import threading
 import time
 from pathlib import Path
@@ -404,3 +406,23 @@ def test_a_directory_given_as_a_file_is_named_as_the_argument(tmp_path, capsys):
     sweep = write(tmp_path / "a", SWEEP.replace('scene = "tiny.toml"', 'scene = ".."'))
     assert main(["sweep", str(sweep), "-o", str(tmp_path / "out")]) == 2
     assert f"({tmp_path} is a directory)" in capsys.readouterr().err
+
+
+def test_ctrl_c_in_a_terminal_stops_the_sweep_without_worker_tracebacks(tmp_path):
+    # SIGINT reaches the whole process group: each local worker printed ~30 lines of
+    # traceback from Dask's event loop before the sweep's own message
+    path = write(tmp_path)
+    process = subprocess.Popen([sys.executable, "-m", "femphase.cli", "sweep", str(path), "-o", str(tmp_path / "out"),
+                                "--workers", "1"], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    lines = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline:  # until the first run is done: the worker is busy with the next
+        line = process.stdout.readline()
+        lines.append(line)
+        if "[1/4]" in line:
+            break
+    os.killpg(process.pid, signal.SIGINT)
+    output = "".join(lines) + process.communicate(timeout=120)[0]
+    assert process.returncode == 130, output
+    assert "femphase sweep: interrupted" in output and "Traceback" not in output, output
