@@ -78,22 +78,23 @@ def measured(record: np.ndarray) -> tuple[float, float, int] | None:
     return estimate.period, estimate.uncertainty / estimate.period, estimate.n_cycles
 
 
+def noise_rows(rng: np.random.Generator, make, name: str, parameters: tuple, records: int) -> list[dict]:
+    """Per noise parameter (``name``) and length: ``records`` records of ``make(rng, n,
+    parameter)`` and the periods found in them."""
+    rows = []
+    for parameter in parameters:
+        for n in LENGTHS:
+            found = [measured(make(rng, n, parameter)) for _ in range(records)]
+            rows.append({name: parameter, "n": n, "records": records, "found": [list(f) for f in found if f is not None]})
+    return rows
+
+
 def run(quick: bool = False, output: Path | None = None) -> dict:
     start = time.perf_counter()
     rng = np.random.default_rng(SEED)
     red_records, periodic_records = (8, 2) if quick else (40, 10)
-    red = []
-    for rho in CORRELATIONS:
-        for n in LENGTHS:
-            found = [measured(ar1(rng, n, rho)) for _ in range(red_records)]
-            red.append({"rho": rho, "n": n, "records": red_records,
-                        "found": [list(f) for f in found if f is not None]})
-    smooth = []
-    for width in SMOOTHING:
-        for n in LENGTHS:
-            found = [measured(smoothed(rng, n, width)) for _ in range(red_records)]
-            smooth.append({"width": width, "n": n, "records": red_records,
-                           "found": [list(f) for f in found if f is not None]})
+    red = noise_rows(rng, ar1, "rho", CORRELATIONS, red_records)
+    smooth = noise_rows(rng, smoothed, "width", SMOOTHING, red_records)
     periodic = []
     for period in PERIODS:
         for level in NOISE_LEVELS:

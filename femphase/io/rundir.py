@@ -51,8 +51,15 @@ import numpy as np
 
 from femphase import tomlio
 from femphase.errors import SceneError
-from femphase.io.files import (FileLock, atomic_write, failpoint, jsonable, output_directory, partial_path,
-                               writable_directory)
+from femphase.io.files import (
+    FileLock,
+    atomic_write,
+    failpoint,
+    jsonable,
+    output_directory,
+    partial_path,
+    writable_directory,
+)
 from femphase.io.provenance import now
 
 __all__ = ["CHECKPOINT", "COMPARISON", "DERIVED", "FIELDS_DIR", "FIGURES", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
