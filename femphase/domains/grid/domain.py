@@ -316,13 +316,15 @@ class GridDomain(Domain):
     def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Area, centroid and shape tensor with the nodal quadrature; the shape tensor
         R_i = −Σ_k m_k ∇_h φ_ik ∇_h φ_ikᵀ with central differences ∇_h, the field mirrored at
-        the walls (∂yφ = 0) and zero beyond a window's edge."""
+        the walls (∂yφ = 0) and zero beyond a window's edge; in double whatever φ's precision."""
         h = self.grid.h
         n = len(layout.windows)
         area, tensors = np.empty(n), np.empty((n, 2, 2))
         for group, (_, members, start, stop, _) in enumerate(layout.groups):
             w = layout.representative(group)
-            block = layout.group_block(phi, group)  # (k, ny, nx)
+            # a single-precision step's fields differenced in float32 round each gradient to
+            # 1e-7 (relative): the shapes of the same values in double
+            block = layout.group_block(phi, group).astype(np.float64, copy=False)  # (k, ny, nx)
             mass = layout.mass[start:stop].reshape(block.shape)[0]
             area[members] = np.einsum("kij,ij,kij->k", block, mass, block)
             padded = pad_window(block, w, self.lattice, 1)
