@@ -20,7 +20,8 @@ fields only when both are on the same domain (for grids the same nx, ny, h; else
 :meth:`~femphase.domains.base.Domain.describe`: kind, dofs, period, mesh checksum), else a clear
 error. Grid data holds fields only, so it is compared only with grid runs on its grid.
 
-What is compared, at the frame times both inputs have (matched to 1e-6 time units):
+What is compared, at the frame times both inputs have (matched to 1e-6 time units plus 1e-9
+of the time; the summary says how many frames each input has and how many matched):
 
 * observables, per frame: the largest ``|difference|`` over the particles (particles matched by
   id) of the centroid x (minimum image over the period) and y, the area ∫φ², the elongation
@@ -40,8 +41,13 @@ What is compared, at the frame times both inputs have (matched to 1e-6 time unit
   data, or runs with ``output.per_particle_fields = true``); always for the total
   Σ_i φ_i (``phi_sum_l2``, ``phi_sum_linf``).
 
+Warnings: two runs whose particles start more than 1 apart, a run compared with itself,
+and two runs whose ``[model]`` or ``[particles]`` tables or channel widths differ (their
+differences are then not the methods'). The table marks a ``final`` value taken at an
+earlier common frame than the last (one input lacks the last rows).
+
 Output in OUT (default DIR_B/compare, or B's file name with the suffix ``_compare`` next to
-it): compare.csv (one row per common frame), compare.json (the same plus a summary and the
+it; checked writable before the comparison): compare.csv (one row per common frame), compare.json (the same plus a summary and the
 per-particle field differences) and compare.png; a summary table is printed.
 """
 
@@ -99,6 +105,9 @@ class GridData:
                 f"grid data: 'phi' has shape {self.phi.shape}; expected (F, N, ny, nx) = "
                 f"({shape[0]}, N, {shape[1]}, {shape[2]}) from the sizes of time, y and x"
             )
+        if self.phi.shape[1] == 0:
+            raise ValueError(f"grid data: 'phi' has shape {self.phi.shape}, the fields of N = 0 particles; "
+                             "expected at least one particle")
         if not (np.all(np.isfinite(self.time)) and np.all(np.diff(self.time) > 0)):
             raise ValueError(f"grid data: 'time' must be finite and strictly increasing (got {self.time.tolist()[:6]}"
                              f"{' …' if self.time.size > 6 else ''})")
@@ -146,13 +155,17 @@ def load_grid_data(path: str | Path) -> GridData:
         raise ValueError(f"'{path}' is neither a run directory nor a grid data file")
     try:
         if path.suffix == ".npz":
+            import zipfile
+
+            if not zipfile.is_zipfile(path):  # np.load would blame pickled data in a damaged file
+                raise ValueError("it is not a NumPy .npz archive (a zip file of arrays, numpy.savez)")
             with np.load(path) as handle:
                 arrays = {name: handle[name] for name in handle.files}
         elif path.suffix in (".h5", ".hdf5"):
             import h5py
 
-            with h5py.File(path, "r") as handle:
-                arrays = {name: handle[name][()] for name in handle}
+            with h5py.File(path, "r") as handle:  # the arrays at the top level; groups are not read
+                arrays = {name: handle[name][()] for name in handle if isinstance(handle[name], h5py.Dataset)}
         else:
             raise ValueError(f"grid data file '{path}': the suffix must be one of {GRID_SUFFIXES}")
     except (OSError, ValueError) as exc:
@@ -163,6 +176,7 @@ def load_grid_data(path: str | Path) -> GridData:
     if missing:
         raise ValueError(
             f"grid data file '{path}' lacks {missing}; it must hold time (F,), x (nx,), y (ny,) and phi (F, N, ny, nx)"
+            " (in an HDF5 file as datasets at its top level, not in a group)"
         )
     return GridData(arrays["time"], arrays["x"], arrays["y"], np.asarray(arrays["phi"], dtype=float))
 
@@ -178,6 +192,7 @@ class Source:
     particle_times: np.ndarray = field(default_factory=lambda: np.empty(0))
     observables: dict = field(default_factory=dict)  # name → (F, N)
     energy_times: np.ndarray = field(default_factory=lambda: np.empty(0))
+    settings: dict = field(default_factory=dict)  # a run's resolved scene
     energies: dict = field(default_factory=dict)  # name → (F,)
     field_times: np.ndarray = field(default_factory=lambda: np.empty(0))
     per_particle: bool = False
@@ -246,7 +261,10 @@ def _open_run(path: Path, need_fields: bool) -> Source:
     domain = scene.domain
     source = Source(str(path), domain, True)
     frames = run.complete()
+    if frames.time.size == 0:
+        raise ValueError(f"run '{path}' has no frame in particles.csv (it holds its header only): nothing to compare")
     source.particle_times = frames.time
+    source.settings = run.scene
     source.observables = {name: frames.particles[name] for name in OBSERVABLES}
     written = np.isfinite(run.globals["free_energy"])
     source.energy_times = run.time[written]
@@ -315,7 +333,8 @@ def grid_data_from_run(directory: str | Path) -> GridData:
 
 
 def _span(times: np.ndarray) -> str:
-    return f"{times.size} frames, t = {times.min():g} … {times.max():g}" if times.size else "no frames"
+    # 9 digits: times 2e-6 apart printed alike at %g
+    return f"{times.size} frames, t = {times.min():.9g} … {times.max():.9g}" if times.size else "no frames"
 
 
 def _on_frames(times: np.ndarray, table_times: np.ndarray, values: np.ndarray) -> np.ndarray:
@@ -387,12 +406,35 @@ def _check_domains(a: Source, b: Source, with_fields: bool) -> None:
     if with_fields:
         da, db = a.domain.describe(), b.domain.describe()
         if da != db:
-            differing = sorted(k for k in set(da) | set(db) if da.get(k) != db.get(k))
+            # keys of both (a grid states no period, a mesh no nx): "period" differed for 70 and 70
+            differing = sorted(k for k in set(da) & set(db) if da[k] != db[k])
             raise ValueError(
                 f"the fields of '{a.label}' ({a.describe()}) and '{b.label}' ({b.describe()}) lie on "
                 f"different domains (they differ in {', '.join(differing)}); fields are compared only "
                 "between runs on the same domain: compare these without --fields (observables and energies)"
             )
+
+
+def _warn_other_physics(a: Source, b: Source) -> None:
+    """Warn where two runs are one (a directory compared with itself), or differ in their
+    model or their channel, not only in the method: the differences are then not the
+    methods' (compare checks the period alone, and runs on other discretisations are what
+    it is for)."""
+    if not (a.is_run and b.is_run):
+        return
+    if Path(a.label).resolve() == Path(b.label).resolve():
+        warnings.warn(f"'{a.label}' is compared with itself: every difference is 0", stacklevel=4)
+        return
+    differing = []
+    for table in ("model", "particles"):
+        one, other = a.settings.get(table, {}), b.settings.get(table, {})
+        differing += [f"{table}.{key}: {one.get(key)!r} against {other.get(key)!r}" for key in sorted(set(one) | set(other))
+                      if one.get(key) != other.get(key)]
+    if not np.isclose(a.domain.width, b.domain.width, rtol=1e-9):
+        differing.append(f"the channel's width: {a.domain.width:g} against {b.domain.width:g}")
+    if differing:
+        warnings.warn(f"'{a.label}' and '{b.label}' differ in more than the method: {'; '.join(differing)}; their "
+                      "differences are not the discretisations' alone", stacklevel=4)
 
 
 #: Lattice units two inputs' particles may be apart at t = 0 before :func:`compare_runs`
@@ -412,6 +454,7 @@ def _compare(a: Source, b: Source, with_fields: bool) -> dict:
     if n_a != n_b:
         raise ValueError(f"'{a.label}' has {n_a} particles, '{b.label}' has {n_b}; they must match")
     times = a.particle_times[ia]
+    _warn_other_physics(a, b)
     series: dict[str, np.ndarray] = {}
     # an orientation is defined only for particles that are elongated in both inputs
     elongated = np.minimum(a.observables["elongation"][ia], b.observables["elongation"][ib]) >= ORIENTATION_MIN_ELONGATION
@@ -474,13 +517,14 @@ def _compare(a: Source, b: Source, with_fields: bool) -> dict:
             continue
         k = int(np.nanargmax(values))
         summary[name] = {"max": float(values[k]), "at_time": float(times[k]),
-                         "final": float(values[finite][-1])}
+                         "final": float(values[finite][-1]), "final_time": float(times[finite][-1])}
     return {
         "a": a.label,
         "b": b.label,
         "grid": {"nx": a.grid.nx, "ny": a.grid.ny, "h": a.grid.h} if a.grid is not None else None,
         "domain": a.domain.describe(),
         "n_particles": int(n_a),
+        "frames": {"a": int(a.particle_times.size), "b": int(b.particle_times.size)},
         "time": times,
         "series": series,
         "summary": summary,
@@ -496,13 +540,18 @@ def format_table(result: dict) -> str:
     lines = [
         f"A: {result['a']}",
         f"B: {result['b']}",
-        f"{t.size} common frames, t = {t[0]:g} … {t[-1]:g}; {result['n_particles']} particles; "
-        f"fields compared: {result['field_mode']}",
+        f"{t.size} common frames (of {result['frames']['a']} in A and {result['frames']['b']} in B), "
+        f"t = {t[0]:g} … {t[-1]:g}; {result['n_particles']} particles; fields compared: {result['field_mode']}",
         "",
         f"{'quantity':<18}{'max |A − B|':>14}{'at t':>12}{'final':>14}",
     ]
+    early = []
     for name, row in result["summary"].items():
-        lines.append(f"{name:<18}{row['max']:>14.4g}{row['at_time']:>12.6g}{row['final']:>14.4g}")
+        mark = "" if row["final_time"] == t[-1] else "*"
+        early += [f"{name} at t = {row['final_time']:g}"] if mark else []
+        lines.append(f"{name:<18}{row['max']:>14.4g}{row['at_time']:>12.6g}{row['final']:>14.4g}{mark}")
+    if early:  # one input lacks the last rows of these: their final value is an earlier frame's
+        lines.append(f"* final value of an earlier common frame: {', '.join(early)}")
     return "\n".join(lines)
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from femphase.cli.compare import register
-from femphase.compare import GridData, compare_runs, grid_data_from_run, load_grid_data, save_grid_data
+from femphase.compare import GridData, compare_runs, format_table, grid_data_from_run, load_grid_data, save_grid_data
 from femphase.run.runner import run_scene
 from femphase.scene import scene_from_dict
 
@@ -112,6 +112,14 @@ def test_cli_prints_a_table_and_writes_csv_json_and_plot(runs, tmp_path, capsys)
     assert header[0] == "time" and "phi_l2" in header and "energy_repulsion" in header
 
 
+def test_an_output_path_through_a_file_is_refused_before_comparing(runs, capsys):
+    # NotADirectoryError after the whole comparison: "internal error", exit 1
+    from femphase.cli import main
+
+    assert main(["compare", str(runs["fem"]), str(runs["fd"]), "-o", str(runs["fem"] / "run.json" / "sub")]) == 2
+    assert "run.json is a file" in capsys.readouterr().err
+
+
 def test_default_output_is_inside_dir_b(runs):
     parser = argparse.ArgumentParser()
     register(parser.add_subparsers())
@@ -146,6 +154,15 @@ def test_bad_inputs_give_clear_errors(runs, tmp_path):
     save_grid_data(shifted, GridData(data.time + 0.5, data.x, data.y, data.phi))
     with pytest.raises(ValueError, match="no common frame times"):
         compare_runs(runs["fem"], shifted)
+    # a run with its tables' headers only: an internal error (KeyError 'x')
+    import shutil
+
+    shutil.copytree(runs["fem"], tmp_path / "headers")
+    for name in ("particles.csv", "global.csv"):
+        path = tmp_path / "headers" / name
+        path.write_text(path.read_text().splitlines(keepends=True)[0])
+    with pytest.raises(ValueError, match="has no frame in particles.csv"):
+        compare_runs(tmp_path / "headers", runs["fem"])
     # frames at 0 and 3 are shared with a run written every 1.5 time units
     np.testing.assert_allclose(compare_runs(runs["fem"], runs["other_frames"])["time"], [0.0, 3.0])
 
@@ -165,9 +182,18 @@ def test_malformed_grid_data_is_rejected(runs, tmp_path):
     broken[2, 0, 3, 4] = np.nan
     with pytest.raises(ValueError, match=f"1 NaN or infinite values, the first in frame 2 \\(t = {data.time[2]:g}\\)"):
         GridData(data.time, data.x, data.y, broken)
-    (tmp_path / "junk.npz").write_text("not a zip file")
-    with pytest.raises(ValueError, match="cannot be read"):
+    (tmp_path / "junk.npz").write_text("not a zip file")  # np.load said it held pickled data
+    with pytest.raises(ValueError, match="cannot be read: it is not a NumPy .npz archive"):
         compare_runs(runs["fem"], tmp_path / "junk.npz")
+    import h5py
+
+    with h5py.File(tmp_path / "grouped.h5", "w") as handle:  # an internal error (TypeError)
+        for name in ("time", "x", "y", "phi"):
+            handle[f"fields/{name}"] = getattr(data, name)
+    with pytest.raises(ValueError, match=r"lacks \['time', 'x', 'y', 'phi'\].*not in a group"):
+        compare_runs(runs["fem"], tmp_path / "grouped.h5")
+    with pytest.raises(ValueError, match=r"the fields of N = 0 particles"):  # "need at least one array"
+        GridData(data.time, data.x, data.y, data.phi[:, :0])
     with pytest.raises(ValueError, match="suffix"):
         save_grid_data(tmp_path / "data.txt", data)
 
@@ -247,8 +273,9 @@ def test_runs_on_different_domains_compare_observables_but_not_fields(runs, mesh
     assert largest["energy_total"] < 1e-9 and largest["elongation"] < 0.05
     with pytest.raises(ValueError, match="different domains .* compare these without --fields"):
         compare_runs(mesh_runs["mesh"], mesh_runs["square"], fields=True)
-    with pytest.raises(ValueError, match="different domains .*kind"):
+    with pytest.raises(ValueError, match="different domains .*kind") as refused:
         compare_runs(runs["fem"], mesh_runs["square"], fields=True)
+    assert "(they differ in kind)" in str(refused.value)  # and "period": the grid states none, 24 and 24
     assert main(["compare", str(mesh_runs["mesh"]), str(mesh_runs["square"]), "--fields"]) == 2
     err = capsys.readouterr().err
     assert "different domains" in err and "Traceback" not in err
@@ -286,9 +313,39 @@ def test_runs_that_start_apart_are_warned_about(tmp_path):
                   tmp_path / name, progress=False)
     with pytest.warns(UserWarning, match=r"start from different states: at t = 0 .* up to 20 apart"):
         compare_runs(tmp_path / "a", tmp_path / "b")
+    import shutil
+
+    shutil.copytree(tmp_path / "a", tmp_path / "a_again")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
-        compare_runs(tmp_path / "a", tmp_path / "a")  # the same start: nothing to say
+        compare_runs(tmp_path / "a", tmp_path / "a_again")  # the same start: nothing to say
+
+
+def test_a_run_compared_with_itself_or_with_other_physics_is_warned_about(runs, tmp_path):
+    # all zeros, or a radius of 8 against 10 read as the methods' difference, without a word
+    with pytest.warns(UserWarning, match="is compared with itself: every difference is 0"):
+        compare_runs(runs["fem"], runs["fem"])
+    scene = tiny_scene()
+    run_scene(scene_from_dict({**scene.to_dict(), "model": {**scene.to_dict()["model"], "radius": 9.0}}),
+              tmp_path / "wider", progress=False)
+    with pytest.warns(UserWarning, match=r"differ in more than the method: model\.radius: 8\.0 against 9\.0"):
+        compare_runs(runs["fem"], tmp_path / "wider")
+    with warnings.catch_warnings():  # FEM against FD of one scene: the method alone
+        warnings.simplefilter("error")
+        compare_runs(runs["fem"], runs["fd"])
+
+
+def test_the_table_says_how_many_frames_matched_and_which_finals_are_earlier(runs, tmp_path):
+    # 8 of 21 frames matched (float32 times) without a word, and a final value from an earlier
+    # frame than the span's end was printed as the final one
+    import shutil
+
+    shutil.copytree(runs["fem_again"], tmp_path / "cut")
+    lines = (tmp_path / "cut" / "global.csv").read_text().splitlines(keepends=True)
+    (tmp_path / "cut" / "global.csv").write_text("".join(lines[:-1]))
+    table = format_table(compare_runs(runs["fem"], tmp_path / "cut"))
+    assert "4 common frames (of 4 in A and 4 in B)" in table
+    assert "* final value of an earlier common frame: energy_total at t = 2" in table
 
 
 def test_frame_times_a_long_clock_has_drifted_from_still_pair_up():

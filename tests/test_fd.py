@@ -135,12 +135,26 @@ def test_paper_dt_is_accepted_and_too_large_dt_raises_a_clear_error():
     assert Stepper(domain, PARAMS, Numerics(scheme="fd-heun"), 0.1).scheme.name == "fd-heun"
     with pytest.raises(SceneError, match=r"phases\.dt.*≤ 0\.3"):
         fd_stepper(domain, 1.0)
-    # a fast flow: the Courant condition dt (|u| + |v|)/h ≤ 0.4 binds
-    with pytest.raises(SceneError, match="advection"):
+    # a fast flow: the Courant condition dt (|u| + |v|)/h ≤ 0.4 binds, and the advice is its
+    # limit, not the paper's dt = 0.1 it has just refused
+    with pytest.raises(SceneError, match="advection") as refused:
         fd_stepper(domain, 0.1, linear_shear(8.0, grid.width))
+    assert "set dt ≤ 0.05 here" in str(refused.value) and "use the paper's dt = 0.1" not in str(refused.value)
     fine = GridDomain(channel_grid(16.0, 16.0, 0.25))
     with pytest.raises(SceneError, match="h = 0.25"):
         fd_stepper(fine, 0.1)
+
+
+def test_a_scene_whose_scheme_is_the_fd_reference_records_the_fd_method():
+    # numerics.scheme = "fd-heun" without --method fd ran FD and recorded method "fem"
+    from femphase.run.simulation import Simulation
+    from femphase.scene import scene_from_dict
+
+    scene = scene_from_dict({"domain": {"Lx": 20.0, "Ly": 20.0}, "particles": {"layout": "single"},
+                             "numerics": {"scheme": "fd-heun"},
+                             "phases": [{"duration": 0.2, "dt": 0.1, "frame_interval": 0.1}]})
+    assert Simulation(scene).method == "fd"
+    assert Simulation(scene_from_dict({**scene.to_dict(), "numerics": {}})).method == "fem"
 
 
 def test_the_limit_a_refusal_names_is_accepted():

@@ -160,7 +160,7 @@ def test_an_output_path_through_a_file_is_bad_input(tmp_path, capsys):
     # NotADirectoryError making locks/: "internal error …; this is a bug" (exit 1)
     (tmp_path / "afile").write_text("")
     assert main(["sweep", str(write(tmp_path)), "-o", str(tmp_path / "afile" / "sub")]) == 2
-    assert "'-o' = " in (err := capsys.readouterr().err) and "a directory femphase can write to (Not a directory)" in err
+    assert "'-o' = " in (err := capsys.readouterr().err) and "afile is a file)" in err
 
 
 def test_run_ids_labels_zip_and_sharing(tmp_path):

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from femphase.errors import InputError
-from femphase.io.files import output_directory
+from femphase.io.files import output_directory, writable_directory
 
 __all__ = ["register", "run"]
 
@@ -18,9 +18,13 @@ def run(args: argparse.Namespace) -> int:
 
     # checked before anything is compared; an empty -o is refused, not taken for the default
     out = output_directory(default_output(args.b) if args.output is None else args.output)
+    created = not out.exists()
+    writable_directory(out)  # a path through a file, or not writable: refused before the work
     try:
         result = compare_runs(args.a, args.b, fields=args.fields)
     except (ValueError, OSError) as exc:  # this module's input errors; the CLI prints them as such
+        if created and not any(out.iterdir()):
+            out.rmdir()
         raise InputError(str(exc)) from None
     out = write_comparison(result, out)
     print(format_table(result))

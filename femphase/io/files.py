@@ -104,6 +104,13 @@ def output_directory(path: str | Path) -> Path:
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise SceneError("-o", str(path), "a directory (this path is a file)")
+    # the nearest part of it that exists must be a directory one can write in: said before
+    # any work, not as an OSError from the first file written after it
+    existing = next(parent for parent in (path, *path.absolute().parents) if parent.exists())
+    if not existing.is_dir():
+        raise SceneError("-o", str(path), f"a directory path ({existing} is a file)")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise SceneError("-o", str(path), f"a directory femphase can write to ({existing} is not writable)")
     return path
 
 

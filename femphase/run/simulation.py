@@ -87,6 +87,8 @@ class Simulation:
     def __init__(self, scene: Scene, method: str = "fem", energy: FreeEnergy | None = None) -> None:
         if method not in METHODS:
             raise SceneError("--method", method, f"one of {tuple(METHODS)}")
+        if method == "fem" and scene.numerics.scheme == METHODS["fd"]:
+            method = "fd"  # the scene's scheme is the FD reference: recorded as what ran
         self.scene, self.method = scene, method
         self.domain = scene.domain
         self.energy = energy or FreeEnergy.paper(scene.model)

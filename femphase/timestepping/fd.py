@@ -205,7 +205,9 @@ class FiniteDifferenceHeun(TimeScheme):
                 f"a time step ≤ {rounded_down(self.dt_max)} for the explicit finite-difference scheme at "
                 f"h = {domain.grid.h:g} (diffusion+reaction: dt·J0·(8·D/h² + L) ≤ {DIFFUSION_NUMBER:g}; "
                 f"advection: dt·(max|u| + max|v|)/h ≤ {COURANT_NUMBER:g} with max|u| + max|v| = "
-                f"{speed:.4g}{' at its fastest' if stepper.flow.speed_bound else ''}); use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids",
+                f"{speed:.4g}{' at its fastest' if stepper.flow.speed_bound else ''}); "
+                + (f"set dt ≤ {rounded_down(self.dt_max)} here (the paper's dt = 0.1 h² is above it)" if self.dt_max < 0.1 * domain.grid.h**2
+                   else "use the paper's dt = 0.1 at h = 1, or dt ≈ 0.1 h² on finer grids"),
             )
         self._steady = None if not stepper.flow.steady else (u, v)
         #: a changing flow's nodal velocity at the last two times asked (a step's two stages)
@@ -247,7 +249,7 @@ class FiniteDifferenceHeun(TimeScheme):
             if dt * speed / h > COURANT_NUMBER * (1 + 1e-12):
                 raise UnstableStepError(state.step + 1, state.time, (
                     f"the flow's max|u| + max|v| = {speed:.4g} at t = {time:g} makes the explicit scheme's advective "
-                    f"Courant number dt·speed/h = {dt * speed / h:.3g} exceed {COURANT_NUMBER:g}, past which it goes "
+                    f"Courant number dt·speed/h = {dt * speed / h:.6g} exceed {COURANT_NUMBER:g}, past which it goes "
                     f"unstable; set the phase's dt ≤ {rounded_down(COURANT_NUMBER * h / speed)}"))
 
     def advance(self, phi: np.ndarray, layout: Layout, state: State) -> tuple[np.ndarray, Layout]:
