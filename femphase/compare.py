@@ -222,7 +222,7 @@ class Source:
             phi = self._grid_data.phi[k].reshape(self._grid_data.phi.shape[1], -1)
             return phi.sum(axis=0), phi
         _, data = self._frames.read(k)
-        names = sorted(n for n in data if n.startswith("phi_") and n[4:].isdigit())
+        names = particle_field_names(data)
 
         def on_dofs(values):  # mesh nodes → dofs (the seam's copy lands on its partner)
             out = np.empty(self.domain.n_dofs)
@@ -237,6 +237,12 @@ class Source:
             self._frames.close()
 
 
+
+
+def particle_field_names(names) -> list[str]:
+    """A frame's per-particle field names (``phi_000``, …) in particle order: by number, as
+    text put ``phi_1000`` between ``phi_100`` and ``phi_101``."""
+    return sorted((n for n in names if n.startswith("phi_") and n[4:].isdigit()), key=lambda n: int(n[4:]))
 
 
 def open_source(path: str | Path, need_fields: bool) -> Source:

@@ -361,3 +361,12 @@ def test_frame_times_a_long_clock_has_drifted_from_still_pair_up():
     # frames one dt apart stay apart, however late
     late = np.array([1e6, 1e6 + 0.1])
     assert match_times(late[1:], late[:1])[0].size == 0 and merge_times(late).size == 2
+
+
+def test_per_particle_fields_are_read_in_particle_order_beyond_1000():
+    # a text sort put phi_1000 between phi_100 and phi_101: with N > 1000, grid data and the
+    # per-particle differences paired the wrong particles
+    from femphase.compare import particle_field_names
+
+    names = [f"phi_{i:03d}" for i in range(1002)] + ["phi_sum", "phi_max", "label"]
+    assert particle_field_names(sorted(names)) == [f"phi_{i:03d}" for i in range(1002)]

@@ -157,6 +157,27 @@ def test_a_scene_whose_scheme_is_the_fd_reference_records_the_fd_method():
     assert Simulation(scene_from_dict({**scene.to_dict(), "numerics": {}})).method == "fem"
 
 
+def test_a_run_of_an_fd_scene_resumes_with_the_command_that_started_it(tmp_path):
+    # recorded as "fd", it was refused on resume without --method fd: "'fd', the method the run
+    # was started with"
+    from femphase.run.runner import run_scene
+    from femphase.scene import scene_from_dict
+
+    data = {"domain": {"Lx": 20.0, "Ly": 20.0}, "particles": {"layout": "single"},
+            "numerics": {"scheme": "fd-heun"}, "phases": [{"duration": 0.2, "dt": 0.1, "frame_interval": 0.1}]}
+    run_scene(scene_from_dict(data), tmp_path / "run", progress=False)
+    data["phases"][0]["duration"] = 0.4
+    run_scene(scene_from_dict(data), tmp_path / "run", resume=True, progress=False)
+    assert '"method": "fd"' in (tmp_path / "run" / "run.json").read_text()
+
+
+def test_a_round_limit_is_named_as_it_is():
+    # 0.4 · 1/40 = 0.01 was printed "0.00999" (a floor of 999.9999999999998)
+    from femphase.timestepping.fd import rounded_down
+
+    assert [rounded_down(v) for v in (0.4 / 40, 0.04, 0.3, 0.3197856)] == ["0.01", "0.04", "0.3", "0.3197"]
+
+
 def test_the_limit_a_refusal_names_is_accepted():
     # the message gave the limit 0.3197856 as "0.3198", and dt = 0.3198 was refused
     import re

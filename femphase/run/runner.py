@@ -78,7 +78,7 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
             metadata = read_checkpoint_metadata(checkpoint)
             if not {"scene", "outputs", "time"} <= set(metadata):
                 raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
-            if metadata.get("method", "fem") != method:
+            if metadata.get("method", "fem") != simulation.method:  # a scene's "fd-heun" is the fd method
                 raise SceneError("--method", method,
                                  f"{metadata.get('method')!r}, the method the run was started with")
             # the scene first: its message names the key that changed. A layout that places its

@@ -106,7 +106,8 @@ def rounded_down(value: float, digits: int = 4) -> str:
     """``value`` > 0 to ``digits`` significant digits, rounded down: a limit that a value
     copied from the message keeps (0.3197856 is "0.3197", not "0.3198")."""
     unit = 10.0 ** (math.floor(math.log10(value)) - digits + 1)
-    return f"{math.floor(value / unit) * unit:.{digits}g}"
+    # a limit of 0.01 is 0.009999999999999998 / 1e-5 in doubles: floored, "0.00999"
+    return f"{math.floor(value / unit * (1 + 1e-12)) * unit:.{digits}g}"
 
 
 def padded_index(layout: Layout, lattice: tuple[int, int], width: int = _PAD) -> list[np.ndarray]:
