@@ -44,7 +44,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     parser.add_argument("a", metavar="DIR_A", help="run directory or grid data file")
     parser.add_argument("b", metavar="DIR_B", help="run directory or grid data file")
     parser.add_argument("-o", "--output", default=None,
-                        help="output directory (default: DIR_B/compare)")
+                        help="output directory (default: DIR_B/compare; for a grid data file B, its name with "
+                             "the suffix _compare beside it)")
     parser.add_argument("--fields", action="store_true",
                         help="also compare the fields (L2 with the lumped mass, L∞), per frame")
     parser.set_defaults(func=run)
