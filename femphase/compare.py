@@ -221,16 +221,19 @@ class Source:
         if self._grid_data is not None:
             phi = self._grid_data.phi[k].reshape(self._grid_data.phi.shape[1], -1)
             return phi.sum(axis=0), phi
-        _, data = self._frames.read(k)
-        names = particle_field_names(data)
-
         def on_dofs(values):  # mesh nodes → dofs (the seam's copy lands on its partner)
             out = np.empty(self.domain.n_dofs)
             out[self._dof_map] = values
             return out
 
-        phi = np.stack([on_dofs(data[n]) for n in names]) if names else None
-        return on_dofs(data["phi_sum"]), phi
+        try:  # a damaged frame file: named by run and frame, not by h5py's or numpy's message alone
+            _, data = self._frames.read(k)
+            names = particle_field_names(data)
+            phi = np.stack([on_dofs(data[n]) for n in names]) if names else None
+            return on_dofs(data["phi_sum"]), phi
+        except (OSError, ValueError, KeyError) as exc:
+            raise ValueError(f"run '{self.label}': its field frame {k} (t = {self.field_times[k]:g}) cannot be read "
+                             f"({type(exc).__name__}: {exc}); the frame file is damaged or missing") from None
 
     def close(self) -> None:
         if self._frames is not None:
@@ -396,7 +399,8 @@ def _check_domains(a: Source, b: Source, with_fields: bool) -> None:
                 f"the grids differ: '{a.label}' has {a.grid.nx} × {a.grid.ny} nodes at h = {a.grid.h:g}, "
                 f"'{b.label}' has {b.grid.nx} × {b.grid.ny} at h = {b.grid.h:g}; fields are compared only on "
                 "the same grid" + (": compare the runs without --fields (observables and energies)"
-                                   if a.is_run and b.is_run else ", and grid data holds nothing else")
+                                   if a.is_run and b.is_run else ", and grid data holds nothing else (its x stops "
+                                   "one spacing short of Lx: the periodic copy x = Lx is no node)")
             )
     if not np.isclose(a.domain.period, b.domain.period, rtol=1e-9, atol=0.0):
         raise ValueError(

@@ -370,3 +370,28 @@ def test_per_particle_fields_are_read_in_particle_order_beyond_1000():
 
     names = [f"phi_{i:03d}" for i in range(1002)] + ["phi_sum", "phi_max", "label"]
     assert particle_field_names(sorted(names)) == [f"phi_{i:03d}" for i in range(1002)]
+
+
+def test_a_damaged_field_frame_is_named_by_run_and_frame(runs, tmp_path):
+    # "shape mismatch: value array of shape (100,) could not be broadcast …": which file?
+    import shutil
+
+    import h5py
+
+    shutil.copytree(runs["fem_again"], tmp_path / "damaged")
+    with h5py.File(tmp_path / "damaged" / "fields" / "frame_000002.h5", "r+") as frame:
+        short = frame["phi_sum"][:100]
+        del frame["phi_sum"]
+        frame["phi_sum"] = short
+    with pytest.raises(ValueError, match=r"damaged': its field frame 2 \(t = 2\) cannot be read .*damaged or missing"):
+        compare_runs(runs["fem"], tmp_path / "damaged", fields=True)
+
+
+def test_grid_data_with_the_periodic_copy_is_told_why_its_grid_differs(runs, tmp_path):
+    data = grid_data_from_run(runs["fem"])
+    h = data.x[1] - data.x[0]
+    with_copy = GridData(data.time, np.append(data.x, data.x[-1] + h), data.y,
+                         np.concatenate([data.phi, data.phi[..., :1]], axis=-1))
+    save_grid_data(tmp_path / "copy.npz", with_copy)
+    with pytest.raises(ValueError, match="grids differ.*the periodic copy x = Lx is no node"):
+        compare_runs(runs["fem"], tmp_path / "copy.npz")
