@@ -229,4 +229,8 @@ def plot(summary: dict, compared: dict) -> None:
 
 
 if __name__ == "__main__":
+    import argparse
+
+    # no options: an argument parser so that --help describes the run instead of starting it
+    argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter).parse_args()
     main()
