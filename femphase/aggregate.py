@@ -342,26 +342,27 @@ def aggregate(directory: str | Path) -> Aggregate:
     """Read a sweep directory into a dataset and its per-run summary (nothing is written)."""
     sweep = read_sweep(directory)
     tables = {run.id: open_run(run.directory, pending=True) for run in sweep.runs}
-    summary = []
+    summary, completes = [], []
     for run in sweep.runs:
         row = {"run_id": run.id, **run.values, "status": run.status, "run_status": _run_status(run.directory),
                "error": run.error or ""}
         complete = tables[run.id].complete()
         row.update(summarise_run(complete if complete.scene and len(complete.time) else None))
         summary.append(row)
-    _warn_short_runs(sweep, tables, summary)
+        completes.append(complete)
+    _warn_short_runs(sweep, completes, summary)
     return Aggregate(sweep, build_dataset(sweep, tables, summary), summary)
 
 
-def _warn_short_runs(sweep: Sweep, tables: dict[str, RunData], summary: list[dict]) -> None:
+def _warn_short_runs(sweep: Sweep, completes: list[RunData], summary: list[dict]) -> None:
     """Warn where sweep.json calls a run done but its directory does not hold a completed
     run's frames up to the scene's end: a run directory deleted, or its tables cut, after the
-    sweep ran. Its row is kept as read (status "done", ``run_status``, ``n_frames``)."""
+    sweep ran. Its row is kept as read (status "done", ``run_status``, ``n_frames``).
+    ``completes``: each run's complete frames (:meth:`RunData.complete`), which its row summarises."""
     short = []
-    for run, row in zip(sweep.runs, summary):
+    for run, row, table in zip(sweep.runs, summary, completes):
         if run.status != "done":
             continue
-        table = tables[run.id].complete()  # the frames its row summarises
         end = sum(float(phase["duration"]) for phase in table.scene.get("phases", [])) if table.scene else math.nan
         reached = float(table.time[-1]) if len(table.time) else math.nan
         if not run.directory.is_dir():

@@ -47,8 +47,9 @@ differences are then not the methods'). The table marks a ``final`` value taken 
 earlier common frame than the last (one input lacks the last rows).
 
 Output in OUT (default DIR_B/compare, or B's file name with the suffix ``_compare`` next to
-it; checked writable before the comparison): compare.csv (one row per common frame), compare.json (the same plus a summary and the
-per-particle field differences) and compare.png; a summary table is printed.
+it; checked writable before the comparison): compare.csv (one row per common frame),
+compare.json (the same plus a summary and the per-particle field differences) and
+compare.png; a summary table is printed.
 """
 
 from __future__ import annotations
@@ -221,6 +222,7 @@ class Source:
         if self._grid_data is not None:
             phi = self._grid_data.phi[k].reshape(self._grid_data.phi.shape[1], -1)
             return phi.sum(axis=0), phi
+
         def on_dofs(values):  # mesh nodes → dofs (the seam's copy lands on its partner)
             out = np.empty(self.domain.n_dofs)
             out[self._dof_map] = values
@@ -238,8 +240,6 @@ class Source:
     def close(self) -> None:
         if self._frames is not None:
             self._frames.close()
-
-
 
 
 def particle_field_names(names) -> list[str]:

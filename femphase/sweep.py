@@ -381,12 +381,12 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     if old_scene != sweep.scene.read_text(encoding="utf-8"):
         raise SweepError("sweep.scene", str(sweep.scene), f"the base scene as it was when the sweep of {directory} "
                          "started (base-scene.toml there): it was changed since; start a new directory")
-    runs = {run.id: run for run in sweep.runs}
+    # each run's values as sweep.json holds them (JSON numbers, lists for tuples)
+    values = {run.id: json.loads(json.dumps(run.values, default=jsonable)) for run in sweep.runs}
     recorded = {entry["id"]: entry for entry in index.get("runs", [])}
     for run_id, entry in recorded.items():
-        if run_id not in runs or json.loads(json.dumps(runs[run_id].values, default=jsonable)) != entry["values"]:
-            respelled = next((run.id for run in sweep.runs
-                              if json.loads(json.dumps(run.values, default=jsonable)) == entry["values"]), None)
+        if values.get(run_id) != entry["values"]:
+            respelled = next((other for other, written in values.items() if written == entry["values"]), None)
             if respelled is not None:  # 1 written as 1.0: one value, but the run's id is its spelling
                 raise SweepError("axes", sweep.axes, f"the values spelled as before: run {run_id!r} "
                                  f"({entry['values']}) would now be named {respelled!r}, and a run's id is its "

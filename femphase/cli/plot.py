@@ -57,7 +57,7 @@ def _plot_sweep(args: argparse.Namespace) -> int:
     if args.ode_rate is not None:
         raise InputError(f"--ode-rate = {args.ode_rate!r} applies to a run directory, not to the sweep "
                          f"{str(args.directory)!r}; plot one of its runs/<id> for the ODE comparison")
-    from femphase.plot.sweep import plot_sweep
+    from femphase.plot.sweep import FIGURE_PANELS, plot_sweep
 
     try:
         paths = plot_sweep(args.directory, args.output, fmt=args.format)
@@ -65,8 +65,6 @@ def _plot_sweep(args: argparse.Namespace) -> int:
         raise InputError(str(exc)) from None
     for path in paths.values():
         print(path)
-    from femphase.plot.sweep import FIGURE_PANELS
-
     for figure, panels in FIGURE_PANELS.items():  # a figure without a finite value is not drawn: say which
         if figure not in paths:
             measured = ", ".join(name for _, entries in panels for _, name in entries)
