@@ -232,9 +232,11 @@ def _check_string(key: str, value, meaning: str = "") -> None:
         raise SceneError(key, value, f"a non-empty string{meaning}")
 
 
-def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
+def scene_from_dict(data: dict, base_dir: str | Path = ".", scheme: str | None = None) -> Scene:
     """Validate a scene given as nested dicts (the parsed TOML). The modules of extensions
-    named in ``FEMPHASE_IMPORT`` are imported first (:func:`femphase.registry.import_extensions`)."""
+    named in ``FEMPHASE_IMPORT`` are imported first (:func:`femphase.registry.import_extensions`).
+    ``scheme``: the time scheme the run uses, if not the scene's ``numerics.scheme``
+    (``femphase run --method fd``: "fd-heun"); the scheme's own checks are made for it."""
     import_extensions()
     if not isinstance(data, dict):
         raise SceneError("scene", data, "a TOML document of tables")
@@ -264,8 +266,8 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
     stabilisation = numerics_table.get("stabilisation", "auto")
     if stabilisation != "auto" and not (_is_number(stabilisation) and stabilisation >= 0):
         raise SceneError("numerics.stabilisation", stabilisation, '"auto" or a finite number ≥ 0')
-    scheme = SCHEMES.get(numerics_table.get("scheme", Numerics.scheme), "numerics.scheme")
-    if stabilisation != "auto" and not getattr(scheme, "stabilised", False):
+    scene_scheme = SCHEMES.get(numerics_table.get("scheme", Numerics.scheme), "numerics.scheme")
+    if stabilisation != "auto" and not getattr(scene_scheme, "stabilised", False):
         warnings.warn(f"numerics.stabilisation = {stabilisation!r} is not used: only the euler scheme stabilises its "
                       f"step, numerics.scheme = {numerics_table.get('scheme', Numerics.scheme)!r} does not",
                       ModelWarning, stacklevel=2)
@@ -301,8 +303,8 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
             raise SceneError("numerics.mesh_advection", "semi-lagrangian",
                              f'"auto" or "galerkin": phases.{i}.flow changes with time, and the semi-Lagrangian '
                              "step on meshes is one matrix per steady flow and dt")
-    check_numerics(scene)
-    _check_area_ceiling(scene)
+    check_numerics(scene, scheme)
+    _check_area_ceiling(scene, scheme)
     return scene
 
 
@@ -311,7 +313,7 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".") -> Scene:
 CEILING_SUBSTEPS = 64
 
 
-def _check_area_ceiling(scene: Scene) -> None:
+def _check_area_ceiling(scene: Scene, scheme: str | None = None) -> None:
     """Warn when the adaptive scheme's area-mode ceiling (:attr:`AdaptiveSAV2.RANK_ONE_STEP`
     over the area constraint's rate c = J0·8μ/(πR²), the smallest R, areas at their target)
     holds a phase's substeps below dt/:data:`CEILING_SUBSTEPS`, and when sav2, the same step
@@ -319,13 +321,14 @@ def _check_area_ceiling(scene: Scene) -> None:
     from femphase.timestepping.adaptive import AdaptiveSAV2
 
     numerics, model = scene.numerics, scene.model
-    if numerics.scheme not in ("adaptive", "sav2") or numerics.area_implicit or model.area_stiffness <= 0:
+    scheme = numerics.scheme if scheme is None else scheme
+    if scheme not in ("adaptive", "sav2") or numerics.area_implicit or model.area_stiffness <= 0:
         return
     radius = float(np.min(scene.radii))
     rate = model.area_rate(radius)
     ceiling = AdaptiveSAV2.RANK_ONE_STEP / rate
     k, phase = max(enumerate(scene.phases), key=lambda item: item[1].dt)
-    if numerics.scheme == "sav2" and phase.dt > ceiling:  # the same explicit step, without the ceiling
+    if scheme == "sav2" and phase.dt > ceiling:  # the same explicit step, without the ceiling
         warnings.warn(
             f'numerics.scheme = "sav2" at phases.{k}.dt = {phase.dt:g} steps past {AdaptiveSAV2.RANK_ONE_STEP:g}/c = '
             f"{ceiling:.3g} time units (c = J0·8μ/(πR²) = {rate:.3g} at R = {radius:g}), where its explicit step "
@@ -333,7 +336,7 @@ def _check_area_ceiling(scene: Scene) -> None:
             f"dt = 10. Set the phases' dt ≤ {ceiling:.3g}, numerics.area_implicit = true, or the adaptive scheme",
             StiffnessWarning, stacklevel=3,
         )
-    elif numerics.scheme == "adaptive" and phase.dt / ceiling > CEILING_SUBSTEPS:
+    elif scheme == "adaptive" and phase.dt / ceiling > CEILING_SUBSTEPS:
         warnings.warn(
             f"model.area_stiffness = {model.area_stiffness:g} makes the area constraint stiff (rate "
             f"c = J0·8μ/(πR²) = {rate:.3g} per time unit at R = {radius:g}): the adaptive substep stays below "
@@ -361,6 +364,11 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     from femphase.timestepping.fd import fem_schemes
 
     given, instead = ("fd", '"fem"') if key == "--method" else (scheme, fem_schemes())
+    if key == "--method" and numerics.mass not in SCHEMES.get(scheme).masses:
+        # the scene's own scheme is not run, so advice to change it would not help
+        raise SceneError("numerics.mass", numerics.mass, " or ".join(f'"{m}"' for m in SCHEMES.get(scheme).masses)
+                         + f" with --method {given} (the finite-difference reference is the structured channel's "
+                         'lumped-mass scheme)')
     SCHEMES.get(scheme).check_mass(numerics.mass)
     if domain.kind == "mesh" and numerics.diagonals != Numerics.diagonals:
         raise SceneError("numerics.diagonals", numerics.diagonals, f'"{Numerics.diagonals}" (the default) on a mesh: '

@@ -619,6 +619,17 @@ def test_the_fd_method_is_recorded_as_the_scheme_it_runs_and_says_so(tmp_path, c
     assert load_scene(tmp_path / "euler" / "scene.toml").numerics.scheme == "fd-heun"
 
 
+def test_the_fd_method_judges_the_time_mass_as_its_own(tmp_path, capsys):
+    # the scene's scheme was checked instead: the consistent mass was refused with advice to
+    # set numerics.scheme = "euler", which --method fd overrides
+    phases = [{"name": "relax", "duration": 1.0, "dt": 0.1, "frame_interval": 0.5}]
+    scene = write_scene(tmp_path / "fd.toml", {**SMALL, "numerics": {"mass": "consistent"}, "phases": phases})
+    assert main(["run", str(scene), "-o", str(tmp_path / "fd"), "-q", "--method", "fd"]) == 2
+    message = capsys.readouterr().err
+    assert "'numerics.mass' = 'consistent'" in message and '"lumped" with --method fd' in message
+    assert "euler" not in message and not (tmp_path / "fd").exists()
+
+
 def test_a_stabilisation_the_scheme_does_not_read_is_warned_about(tmp_path):
     # sav2 ran the same with and without it, and the blow-up advice recommended it
     from femphase.errors import ModelWarning

@@ -25,7 +25,7 @@ def run(args: argparse.Namespace) -> int:
     if forced is not None and given not in (None, forced):  # the same scene, cross-checked by the method
         warnings.warn(f"numerics.scheme = {given!r} is not used: --method {args.method} runs the scheme "
                       f"{forced!r} (the run's scene.toml records it)", stacklevel=2)
-    scene = scene_from_dict(data, Path(args.scene).parent)
+    scene = scene_from_dict(data, Path(args.scene).parent, forced)
     progress = False if args.quiet else None
     state = run_scene(scene, args.output, resume=args.resume, overwrite=args.overwrite, method=args.method,
                       progress=progress, argv=sys.argv[1:] if args.argv is None else args.argv, sets=args.set,
