@@ -630,6 +630,18 @@ def test_the_fd_method_judges_the_time_mass_as_its_own(tmp_path, capsys):
     assert "euler" not in message and not (tmp_path / "fd").exists()
 
 
+def test_a_resume_with_another_method_names_the_method_first(tmp_path, capsys):
+    # the FD reference's dt limit was named first, and the changed method only after the
+    # user had lowered dt for it
+    phases = [{"name": "relax", "duration": 2.0, "dt": 1.0, "frame_interval": 1.0}]
+    scene = write_scene(tmp_path / "fem.toml", {**SMALL, "phases": phases})
+    assert main(["run", str(scene), "-o", str(tmp_path / "run"), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["run", str(scene), "-o", str(tmp_path / "run"), "-q", "--resume", "--method", "fd",
+                 "--set", "phases.0.duration=3.0"]) == 2
+    assert "option '--method' = 'fd' is invalid: 'fem', the method the run was started with" in capsys.readouterr().err
+
+
 def test_a_stabilisation_the_scheme_does_not_read_is_warned_about(tmp_path):
     # sav2 ran the same with and without it, and the blow-up advice recommended it
     from femphase.errors import ModelWarning

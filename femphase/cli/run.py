@@ -14,7 +14,7 @@ __all__ = ["register", "run"]
 def run(args: argparse.Namespace) -> int:
     """`femphase run`: run a scene into a run directory."""
     # the command's implementation loads when it runs: the parser and the other commands start without it
-    from femphase.run.runner import run_scene
+    from femphase.run.runner import check_resumed_method, run_scene
     from femphase.scene import read_scene_data, scene_from_dict
 
     from femphase.run.simulation import METHODS
@@ -25,6 +25,8 @@ def run(args: argparse.Namespace) -> int:
     if forced is not None and given not in (None, forced):  # the same scene, cross-checked by the method
         warnings.warn(f"numerics.scheme = {given!r} is not used: --method {args.method} runs the scheme "
                       f"{forced!r} (the run's scene.toml records it)", stacklevel=2)
+    if args.resume and forced is not None:  # a changed method first: the scene's checks below are its scheme's
+        check_resumed_method(args.output, args.method)
     scene = scene_from_dict(data, Path(args.scene).parent, forced)
     progress = False if args.quiet else None
     state = run_scene(scene, args.output, resume=args.resume, overwrite=args.overwrite, method=args.method,

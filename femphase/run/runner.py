@@ -21,7 +21,18 @@ from femphase.run.trackers import ProgressBar, StatusLog
 from femphase.scene import Scene, check_numerics, placed_count
 from femphase.state import State
 
-__all__ = ["run_scene", "stop_on_signals"]
+__all__ = ["check_resumed_method", "run_scene", "stop_on_signals"]
+
+
+def check_resumed_method(directory: str | Path, method: str) -> None:
+    """SceneError (key ``--method``) when the run in ``directory`` was started with another
+    method ("fem" or "fd"; a scene whose scheme is "fd-heun" runs "fd"). Nothing when the
+    directory holds no checkpoint: what that means is :func:`prepare_directory`'s to say."""
+    checkpoint = Path(directory) / CHECKPOINT
+    if checkpoint.is_file():
+        recorded = read_checkpoint_metadata(checkpoint).get("method", "fem")
+        if recorded != method:
+            raise SceneError("--method", method, f"{recorded!r}, the method the run was started with")
 
 
 @contextmanager
@@ -69,7 +80,14 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
     a resumed run needs the same terms, whose columns global.csv holds)."""
     directory = output_directory(directory)  # "" is refused here, before Path makes it "."
     simulation = Simulation(scene, method, energy)
+    # a method given here is named before the scene's checks made for it; a scene's own scheme
+    # ("fd-heun") after them, which name its key
+    forced = METHODS[method] is not None
+    if resume and forced:
+        check_resumed_method(directory, simulation.method)
     check_numerics(scene, METHODS[method])  # what the first step would refuse, refused before any write
+    if resume and not forced:
+        check_resumed_method(directory, simulation.method)
     lock = prepare_directory(directory, resume=resume, overwrite=overwrite)
     try:
         record, changes = None, []
@@ -78,9 +96,6 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
             metadata = read_checkpoint_metadata(checkpoint)
             if not {"scene", "outputs", "time"} <= set(metadata):
                 raise SceneError("--resume", str(checkpoint), "a checkpoint written by this version of femphase")
-            if metadata.get("method", "fem") != simulation.method:  # a scene's "fd-heun" is the fd method
-                raise SceneError("--method", method,
-                                 f"{metadata.get('method')!r}, the method the run was started with")
             # the scene first: its message names the key that changed. A layout that places its
             # particles without N is compared by its centres (checkpoints recorded the default N)
             saved, current = metadata["scene"], simulation.settings()
