@@ -20,7 +20,7 @@ from femphase import tomlio
 from femphase.analysis.observables import OBSERVABLES
 from femphase.config import Numerics
 from femphase.domains import DOMAINS, Domain, domain_from_table
-from femphase.domains.mesh.stokes import stokes_drive
+from femphase.domains.mesh.stokes import check_open_channel, stokes_drive
 from femphase.errors import FlowError, FlowWarning, ModelWarning, ResolutionWarning, SceneError, StiffnessWarning
 from femphase.flows import FLOWS, Flow, flow_defects, flow_from_spec
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
@@ -490,6 +490,7 @@ def check_flow(spec: dict, domain: Domain) -> Flow | None:
         if domain.kind != "mesh":
             raise SceneError("flow.type", "stokes", 'a type other than "stokes" on the structured channel: a stokes '
                              'flow is solved on a meshed domain ([domain] kind = "mesh")')
+        check_open_channel(domain)
         return None
     return flow_from_spec(spec, domain)
 

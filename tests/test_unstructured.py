@@ -202,6 +202,27 @@ def test_a_stokes_flow_through_a_closed_channel_is_refused():
     assert domain_stokes_flow(straight(20.0, 6.0), {"type": "stokes", "max_velocity": 0.1}).flux > 0
 
 
+def test_a_closed_channel_is_refused_with_the_scene_before_any_run(tmp_path, monkeypatch):
+    # it was found by the solve when the Stokes phase started, after a whole relaxation, as
+    # 'flow.type' without its phase; and the refused solution was cached
+    from femphase.scene import scene_from_dict
+
+    monkeypatch.setenv("FEMPHASE_CACHE", str(tmp_path / "cache"))
+    points, triangles = blocks_side_by_side(2.0)
+    write_triangles(tmp_path / "closed.vtu", points, [("triangle", triangles)])
+    relax = {"name": "relax", "duration": 10.0, "dt": 1.0, "frame_interval": 5.0}
+    flow = {**relax, "name": "flow", "flow": {"type": "stokes", "max_velocity": 0.1}}
+    scene = {"domain": {"kind": "mesh", "mesh": "closed.vtu"}, "model": {"radius": 2.0, "interface_width": 1.0},
+             "particles": {"layout": "list", "centres": [[5.0, 3.0]], "initial_radius": 2.0},
+             "phases": [relax, flow]}
+    with pytest.raises(SceneError) as refused:
+        scene_from_dict(scene, tmp_path)
+    assert refused.value.key == "phases.1.flow.type" and "reaches from its side 'left' to its side 'right'" in str(
+        refused.value)
+    assert not (tmp_path / "cache").exists()
+    scene_from_dict({**scene, "phases": [relax]}, tmp_path)  # the mesh itself is valid
+
+
 def test_points_are_located_in_stretched_triangles():
     # cells of 4 × 0.125 (a boundary layer's): a fifth of the points lay in none of the
     # triangles with the 12 nearest centroids, and a centre placed there was "outside"

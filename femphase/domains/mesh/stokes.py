@@ -69,6 +69,7 @@ from pathlib import Path
 
 import numpy as np
 import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
 from scipy.sparse.linalg import spsolve
 from skfem import (
     Basis,
@@ -90,7 +91,7 @@ from femphase.fem.periodic import fold_matrix, periodic_dof_map
 from femphase.flows import FLOWS, Flow
 
 __all__ = ["STOKES_DRIVES", "StokesCacheWarning", "StokesFlow", "cache_dir", "cache_key", "cache_path",
-           "build_stokes_flow", "channel_mesh", "domain_stokes_flow", "poiseuille_profile", "solve_stokes", "stokes_drive",
+           "build_stokes_flow", "channel_mesh", "check_open_channel", "domain_stokes_flow", "poiseuille_profile", "solve_stokes", "stokes_drive",
            "stokes_flow", "unit_stokes_flow"]
 
 
@@ -490,7 +491,7 @@ def _read_cache(path: Path, domain: MeshDomain, viscosity: float, key: str) -> S
             problem = "its arrays do not fit the mesh"
         elif not (np.isfinite(stored["velocity"]).all() and np.isfinite(stored["pressure"]).all()
                   and np.isfinite(stored["flux"]) and float(stored["flux"]) > 0):
-            problem = "it holds values that are not finite"
+            problem = "it holds values that are not finite, or a flux that is not positive"
         else:
             problem = None
     except Exception as exc:  # truncated or corrupt: zipfile, pickle, KeyError, … all mean "unusable"
@@ -555,9 +556,29 @@ def domain_stokes_flow(domain: MeshDomain, spec: dict) -> StokesFlow:
     _, _, viscosity = stokes_drive(spec)
     units = _UNIT_FLOWS.setdefault(domain, {})
     if viscosity not in units:
+        check_open_channel(domain)  # before the solve, whose refused result would be cached
         cache = cache_path(domain, viscosity) if domain.source else None
         units[viscosity] = _open_channel(domain, unit_stokes_flow(domain, viscosity, cache))
     return stokes_flow(domain, spec, units[viscosity])
+
+
+def check_open_channel(domain: MeshDomain) -> None:
+    """SceneError (key ``flow.type``) when walls or obstacles close the channel from wall to
+    wall, found from the mesh alone, before any solve: the channel is open when one piece of
+    the mesh, its triangles joined across shared edges (not across the periodic seam),
+    reaches both sides of the periodic pair. Otherwise every piece's net flux through its
+    part of a side is zero, and so is the channel's: a pressure drop drives no flow."""
+    mesh = domain.mesh
+    pairs = mesh.f2t[:, (mesh.f2t >= 0).all(axis=0)]
+    n = mesh.t.shape[1]
+    graph = sp.coo_matrix((np.ones(pairs.shape[1]), (pairs[0], pairs[1])), shape=(n, n))
+    _, piece = connected_components(graph, directed=False)
+    low, high = (piece[mesh.f2t[0, domain.boundaries[name]]] for name in domain.periodic)
+    if not np.intersect1d(low, high).size:
+        raise SceneError("flow.type", "stokes", f"a flow through a channel open from side to side: walls or "
+                         f"obstacles close it from wall to wall (no piece of {domain.source or 'the mesh'} reaches "
+                         f"from its side {domain.periodic[0]!r} to its side {domain.periodic[1]!r}), so a pressure "
+                         "drop drives no flow; a flow of another type, or none")
 
 
 def _open_channel(domain: MeshDomain, unit: StokesFlow) -> StokesFlow:
