@@ -512,6 +512,15 @@ def _warn_flow_defects(flow: Flow | None, domain: Domain, key: str) -> None:
                       f"{consequence}", FlowWarning, stacklevel=3)
 
 
+#: A mesh's local spacing √(area per node) above this many λ does not resolve an interface.
+#: A uniform Delaunay mesh made for h = λ has at most 0.25 % of its area so coarse
+#: (meshes/*.vtu, *.msh at h = 1: its coarsest node 1.33).
+COARSE_SPACING = 1.25
+#: The largest fraction of a mesh's area that may be coarser than :data:`COARSE_SPACING` λ
+#: without a warning.
+COARSE_AREA = 0.01
+
+
 def _check_resolution(scene: Scene) -> None:
     domain, lam = scene.domain, scene.model.interface_width
     h = domain.resolution
@@ -522,6 +531,13 @@ def _check_resolution(scene: Scene) -> None:
             "domain.mesh" if measured else "domain.h", domain.source if measured else h,
             f"the interface (width ~2λ, λ = {lam:g}) needs h ≤ λ ({name} is {h:g}); use h ≤ {lam:g}",
         )
+    coarse = domain.coarse_area(COARSE_SPACING * lam)
+    if coarse > COARSE_AREA:
+        warnings.warn(f"{coarse:.1%} of the mesh's area has a local spacing √(area per node) above "
+                      f"{COARSE_SPACING:g}λ = {COARSE_SPACING * lam:g} (its effective spacing {h:.3g} averages its fine "
+                      "and coarse parts): a particle there is not resolved (on a mesh with 47 % of its area so coarse, "
+                      f"a lone disc relaxed to elongation 0.3, not 0); refine it to h ≤ {lam:g} where particles go",
+                      ResolutionWarning, stacklevel=3)
     if lam / h < 2.0:
         warnings.warn(
             f"{name} = {h:g} puts only λ/h = {lam / h:g} nodes across the interface width λ = {lam:g}: "

@@ -223,6 +223,30 @@ def test_a_closed_channel_is_refused_with_the_scene_before_any_run(tmp_path, mon
     scene_from_dict({**scene, "phases": [relax]}, tmp_path)  # the mesh itself is valid
 
 
+def test_a_mesh_coarse_where_particles_go_is_warned_about(tmp_path):
+    # its effective spacing averages the fine and the coarse half: a mesh coarse over 47 % of
+    # its area passed with the mild λ/h warning, and a lone disc relaxed there to r = 0.3
+    from femphase.errors import ResolutionWarning
+
+    x = np.concatenate([np.linspace(0.0, 20.0, 81), np.linspace(23.0, 41.0, 7)])  # 0.25, then 3 apart
+    graded = MeshTri.init_tensor(x, np.linspace(0.0, 24.0, 25))
+    write_triangles(tmp_path / "graded.vtu", graded.p, [("triangle", graded.t)])
+    uniform = MeshTri.init_tensor(np.linspace(0.0, 41.0, 42), np.linspace(0.0, 24.0, 25))
+    write_triangles(tmp_path / "uniform.vtu", uniform.p, [("triangle", uniform.t)])
+    scene = {"model": {"radius": 2.0, "interface_width": 1.0},
+             "particles": {"layout": "list", "centres": [[10.0, 12.0]], "initial_radius": 2.0},
+             "phases": [{"name": "relax", "duration": 2.0, "dt": 1.0, "frame_interval": 1.0}]}
+    with pytest.warns(ResolutionWarning) as caught:
+        scene_from_dict({**scene, "domain": {"kind": "mesh", "mesh": "graded.vtu"}}, tmp_path)
+    coarse = [str(w.message) for w in caught if "of the mesh's area has a local spacing" in str(w.message)]
+    # nodes of area 3 (x = 23 … 38) and 1.625 (x = 20 and the seam) on the 23 inner rows; the
+    # wall rows' nodes have half that: (6 · 3 + 2 · 1.625) · 23 / (41 · 24) = 0.4967
+    assert len(coarse) == 1 and coarse[0].startswith("49.7% of the mesh's area"), coarse
+    with pytest.warns(ResolutionWarning) as caught:  # at h = λ: only the λ/h warning
+        scene_from_dict({**scene, "domain": {"kind": "mesh", "mesh": "uniform.vtu"}}, tmp_path)
+    assert not [w for w in caught if "local spacing" in str(w.message)]
+
+
 def test_points_are_located_in_stretched_triangles():
     # cells of 4 × 0.125 (a boundary layer's): a fifth of the points lay in none of the
     # triangles with the 12 nearest centroids, and a centre placed there was "outside"

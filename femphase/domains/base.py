@@ -77,6 +77,11 @@ class Domain(ABC):
         h ≤ λ and the adaptive scheme's fine-grid tolerance): here :attr:`spacing`."""
         return self.spacing
 
+    def coarse_area(self, length: float) -> float:
+        """The fraction of the area whose local spacing exceeds ``length`` (a graded mesh's
+        check of its coarse parts); here the spacing is one everywhere: 0 or 1."""
+        return float(self.resolution > length)
+
     @property
     @abstractmethod
     def coordinates(self) -> np.ndarray:

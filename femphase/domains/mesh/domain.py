@@ -267,6 +267,15 @@ class MeshDomain(Domain):
         nominal = self.nominal_spacing
         return self.effective_spacing if nominal is None or nominal < self.effective_spacing else nominal
 
+    def coarse_area(self, length: float) -> float:
+        """The fraction of the area whose local spacing √(m_k) exceeds ``length`` (m_k a
+        dof's lumped mass, its share of the area; on a uniform mesh √(m_k) is its effective
+        spacing within a few per cent: a Delaunay mesh made for h = 1 has 90 % of its area
+        at ≤ 1.053, 0.25 % above 1.25). The effective spacing averages a graded mesh's fine
+        and coarse parts."""
+        mass = self.operators.lumped_mass
+        return float(mass[mass > length**2].sum() / mass.sum())
+
     @cached_property
     def median_edge(self) -> float:
         """The median edge length (the window policy's spacing)."""
