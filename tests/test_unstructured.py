@@ -247,6 +247,19 @@ def test_a_mesh_coarse_where_particles_go_is_warned_about(tmp_path):
     assert not [w for w in caught if "local spacing" in str(w.message)]
 
 
+def test_boundary_names_name_each_tag_once_and_only_tags_the_file_has(tmp_path):
+    # both ran: a name for an absent tag without a word, two names for one tag with one of
+    # them dropped (and on the periodic pair refused as "line tags [2] have no name")
+    mesh, boundaries = structured_channel(20.0, 6.0, 1.0)
+    write_domain(tmp_path / "tagged.vtu", mesh, boundaries)
+    tags = {"left": 1, "right": 2, "bottom": 3, "top": 4}
+    read_domain(tmp_path / "tagged.vtu", names=tags)
+    with pytest.raises(SceneError, match=r"'domain.boundaries'.*one name per tag \(tag 3 is named bottom, top\)"):
+        read_domain(tmp_path / "tagged.vtu", names={**tags, "top": 3})
+    with pytest.raises(SceneError, match=r"'domain.boundaries'.*line tags \(1, 2, 3, 4\); obstacle = 5 names a tag"):
+        read_domain(tmp_path / "tagged.vtu", names={**tags, "obstacle": 5})
+
+
 def test_points_are_located_in_stretched_triangles():
     # cells of 4 × 0.125 (a boundary layer's): a fifth of the points lay in none of the
     # triangles with the 12 nearest centroids, and a centre placed there was "outside"

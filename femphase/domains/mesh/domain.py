@@ -568,6 +568,8 @@ def read_domain(
         mesh, lines, tags = _mesh_and_lines(data)
         _check_mesh(mesh)  # before the boundaries: a broken mesh breaks them, and would be blamed on them
         boundaries = None
+        if names:
+            _check_names(names, tags)
         if lines.shape[1]:
             table = names or _file_names(data) or BOUNDARY_TAGS
             boundaries = _named_facets(mesh, lines, tags, table)
@@ -635,6 +637,23 @@ def _check_one_surface(data: meshio.Mesh, key: str | None) -> None:
                          "triangle is taken as fluid, so a solid meshed as a surface would be flowed through: "
                          "write the fluid as one physical surface (gmsh: Physical Surface(\"fluid\") = {…}) and "
                          "leave solids unmeshed")
+
+
+def _check_names(names: dict[str, int], tags: np.ndarray) -> None:
+    """SceneError (key ``domain.boundaries``) when the scene's names give one tag two names,
+    or name a tag the file's line cells do not have."""
+    named: dict[int, list[str]] = {}
+    for name, tag in names.items():
+        named.setdefault(tag, []).append(name)
+    shared = {tag: group for tag, group in named.items() if len(group) > 1}
+    if shared:
+        tag, group = next(iter(shared.items()))
+        raise SceneError("domain.boundaries", names, f"one name per tag (tag {tag} is named {', '.join(group)})")
+    absent = sorted(set(named) - {int(t) for t in np.unique(tags)})
+    if absent:
+        have = ", ".join(str(int(t)) for t in np.unique(tags)) or "none"
+        raise SceneError("domain.boundaries", names, f"names of the file's line tags ({have}); "
+                         f"{', '.join(f'{named[t][0]} = {t}' for t in absent)} names a tag it does not have")
 
 
 def _file_names(data: meshio.Mesh) -> dict[str, int]:
