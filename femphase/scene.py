@@ -595,7 +595,9 @@ def _check_particles(scene: Scene) -> None:
     mean_square = float(np.mean(np.square(p.radii))) if p.radii is not None else scene.model.radius**2
     fraction = n * np.pi * mean_square / domain.area
     if fraction > MAX_AREA_FRACTION:
-        valid = f"the particles' total area is {fraction:.3g} × the domain's; at most {MAX_AREA_FRACTION} fits"
+        # the domain's size too: a mesh drawn in other units shows here first
+        valid = (f"the particles' total area is {fraction:.3g} × the domain's ({domain.period:.4g} × "
+                 f"{domain.width:.4g} lattice units, area {domain.area:.4g}); at most {MAX_AREA_FRACTION} fits")
         # the key the user can change: the count where the layout takes one, else the radii
         if p.layout in ("random", "hexagonal"):
             most = int(MAX_AREA_FRACTION * domain.area / (np.pi * mean_square))

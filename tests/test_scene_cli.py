@@ -93,6 +93,8 @@ def test_too_large_particles_of_fixed_count_name_their_radius_not_n(particles, k
     with pytest.raises(SceneError, match=r"at most 1\.5 fits \(a root-mean-square radius ≤ ") as info:
         scene_from_dict(data)
     assert info.value.key == key
+    # and the domain's size, which a mesh drawn in other units gets wrong
+    assert "× the domain's (30 × 30 lattice units, area 900)" in str(info.value)
     # the largest radius the message gives is accepted
     largest = float(str(info.value).split("radius ≤ ")[1].split()[0])
     fits = {**data, "model": {"R": largest}, "particles": {**particles, "radii": None}}

@@ -260,6 +260,23 @@ def test_boundary_names_name_each_tag_once_and_only_tags_the_file_has(tmp_path):
         read_domain(tmp_path / "tagged.vtu", names={**tags, "obstacle": 5})
 
 
+def test_misplaced_line_cells_are_refused_with_a_place(tmp_path):
+    # both refusals named no place in the file, as every other mesh refusal does
+    mesh, _ = structured_channel(10.0, 6.0, 1.0)
+    points = np.hstack([mesh.p, [[20.0], [3.0]]])  # a point no triangle uses
+    inside = np.array([[12], [13]])  # nodes (1, 1) and (2, 1): an edge off the boundary
+    write_triangles(tmp_path / "loose.vtu", points, [("triangle", mesh.t), ("line", np.array([[0], [77]]))],
+                    cell_data={"boundary": [np.zeros(mesh.t.shape[1], int), np.array([1])]})
+    with pytest.raises(SceneError, match=r"1 line cells use points that belong to no triangle, e\.g\. the point "
+                                         r"\(20, 3\)"):
+        read_domain(tmp_path / "loose.vtu")
+    write_triangles(tmp_path / "inside.vtu", mesh.p, [("triangle", mesh.t), ("line", inside)],
+                    cell_data={"boundary": [np.zeros(mesh.t.shape[1], int), np.array([6])]})
+    with pytest.raises(SceneError, match=r"1 tagged line cells lie inside the domain, not on its boundary, e\.g\. "
+                                         r"the line from \(1, 1\) to \(2, 1\)"):
+        read_domain(tmp_path / "inside.vtu")
+
+
 def test_points_are_located_in_stretched_triangles():
     # cells of 4 × 0.125 (a boundary layer's): a fifth of the points lay in none of the
     # triangles with the 12 nearest centroids, and a centre placed there was "outside"

@@ -616,9 +616,12 @@ def _mesh_and_lines(data: meshio.Mesh) -> tuple[MeshTri, np.ndarray, np.ndarray]
         )
     lines = np.vstack([data.cells[i].data for i in line_blocks])
     tags = np.concatenate([np.asarray(data.cell_data[key][i]).ravel() for i in line_blocks])
+    unused = np.flatnonzero((new_index[lines] < 0).any(axis=1))
+    if unused.size:
+        x, y = data.points[lines[unused[0]][new_index[lines[unused[0]]] < 0][0], :2]
+        raise ValueError(f"{unused.size} line cells use points that belong to no triangle, e.g. the point "
+                         f"({x:.6g}, {y:.6g}): lines drawn where no triangle is (a hole, or a solid left unmeshed)")
     lines = new_index[lines.T]
-    if (lines < 0).any():
-        raise ValueError("line cells use points that belong to no triangle")
     return mesh, lines, tags.astype(int)
 
 
@@ -673,7 +676,9 @@ def _named_facets(mesh: MeshTri, lines: np.ndarray, tags: np.ndarray,
     boundaries = {by_tag[t]: np.unique(facets[tags == t]) for t in np.unique(tags)}
     interior = np.setdiff1d(facets, mesh.boundary_facets())
     if interior.size:
-        raise ValueError(f"{interior.size} tagged line cells lie inside the domain, not on its boundary")
+        (xa, xb), (ya, yb) = mesh.p[:, mesh.facets[:, interior[0]]]
+        raise ValueError(f"{interior.size} tagged line cells lie inside the domain, not on its boundary, e.g. the "
+                         f"line from ({xa:.6g}, {ya:.6g}) to ({xb:.6g}, {yb:.6g})")
     untagged = np.setdiff1d(mesh.boundary_facets(), facets)
     if untagged.size:  # documented: untagged boundary is wall
         boundaries["wall"] = np.union1d(boundaries.get("wall", np.zeros(0, int)), untagged)

@@ -33,8 +33,8 @@ stabilisation is needed, assembled on the non-periodic mesh and folded with
 Cache of unit solutions
 -----------------------
 A scene's Stokes flow is the solution for a unit pressure drop, rescaled
-(Stokes flow is linear in the driving); that solution takes about a minute
-of SuperLU on a 17k-node mesh, so :func:`domain_stokes_flow`
+(Stokes flow is linear in the driving); that solution takes 10–14 CPU s of
+SuperLU and about 1.5 GB on a 17k-node mesh (docs/scenes.md), so :func:`domain_stokes_flow`
 keeps it in a user cache folder, :func:`cache_dir`:
 
 * ``$FEMPHASE_CACHE`` if set (and not empty), else ``$XDG_CACHE_HOME/femphase``,
