@@ -231,3 +231,18 @@ def test_a_particle_without_a_centroid_has_no_neighbours_and_the_others_keep_the
     assert np.isfinite(order["Psi6"]) and order["Psi2"] == pytest.approx(1.0)
     counter = lattice.T1Counter(centroids, LX)
     assert counter.update(gone) == 0  # losing its bonds is no neighbour exchange
+
+
+def test_order_parameters_leave_out_sliver_sides_along_a_wall():
+    # the hull's edge from particle 1 to 3 over particle 2, set 0.3 inward, was a neighbour
+    # bond: ψ2 of particle 1 counted particle 3's crossed axis. In a row level to 1e-7 such
+    # an edge came and went with the order of the points given to the triangulation
+    centroids = np.array([(14.0 * j + 7.0 * (k % 2) + 3.5, 6.0 + 12.0 * k) for k in range(4) for j in range(5)])
+    centroids[2, 1] += 0.3
+    every = {tuple(p) for p in lattice.periodic_delaunay_pairs(centroids, LX)}
+    order = {tuple(p) for p in lattice.periodic_delaunay_pairs(centroids, LX, sliver_sides=False)}
+    assert every - order == {(1, 3)} and order < every
+    orientation = np.zeros(len(centroids))
+    orientation[3] = np.pi / 2
+    psi2 = lattice.frame_order(centroids, orientation, LX)["psi2_abs"]
+    assert psi2[1] == 1.0  # its neighbours 0, 2 and two above, all aligned; with 3 it was 3/5

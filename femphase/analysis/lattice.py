@@ -24,14 +24,16 @@ Conventions:
 * bond vectors are minimum images in x, which is exact because
   :func:`periodic_delaunay_pairs` only keeps bonds shorter than Lx/2 along x.
 
-Walls: the particles of the rows next to a wall have neighbours on one side only, and the
-edges of the triangulation along a wall (its convex hull) join wall particles, skipping one
-that sits slightly inward.  They are kept: interior particles need the wall rows to complete
-their neighbour shells, and for a lattice with rows along the walls the in-row and inclined
-bonds of a wall particle are lattice directions, so a perfect lattice has ψ6 = 1 at the walls
-too.  In a disordered or noisy configuration the hull edges can lower ψ6 of the wall
-particles; exclude them with the ``where`` mask of :func:`global_order` (e.g.
-``margin < y < Ly - margin``).
+Walls: the particles of the rows next to a wall have neighbours on one side only. They are
+kept: interior particles need the wall rows to complete their neighbour shells, and for a
+lattice with rows along the walls the in-row and inclined bonds of a wall particle are
+lattice directions, so a perfect lattice has ψ6 = 1 at the walls too. The edges of the
+triangulation along a wall (its convex hull) also join wall particles skipping one that sits
+slightly inward, the longest side of a sliver triangle; whether such an edge exists in a
+nearly straight row is round-off, and the order parameters leave it out
+(``periodic_delaunay_pairs(…, sliver_sides=False)``). In a disordered or noisy configuration
+the wall rows can still lower ψ6; exclude them with the ``where`` mask of
+:func:`global_order` (e.g. ``margin < y < Ly - margin``).
 """
 
 from __future__ import annotations
@@ -69,7 +71,7 @@ SLIVER_AREA = 0.05
 _Pair = tuple[int, int]
 
 
-def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray:
+def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float, *, sliver_sides: bool = True) -> np.ndarray:
     """Neighbour pairs from the Delaunay triangulation, periodic in x only.
 
     The centroids are triangulated together with their images at x − Lx and x + Lx; the edges
@@ -86,6 +88,13 @@ def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray
         ``(N, 2)`` particle centroids (x, y), x in [0, Lx), same length unit as `period_x`.
     period_x
         The period Lx of the channel along x.
+    sliver_sides
+        False: without the longest side of every sliver triangle (area below
+        :data:`SLIVER_AREA` times that side squared), whose ends have the third particle
+        between them: the neighbours of the order parameters (:func:`frame_order`). Along a
+        wall row such a side exists or not by round-off (rows level to 1e-7 gave one or none
+        with the images in another order); the T1 counter, whose flips of slivers
+        :func:`_is_sliver` tells apart, takes the triangulation's every edge.
 
     Returns
     -------
@@ -96,26 +105,51 @@ def periodic_delaunay_pairs(centroids: ArrayLike, period_x: float) -> np.ndarray
     finite = np.isfinite(centroids).all(axis=1)
     if not finite.all():
         kept = np.flatnonzero(finite)
-        pairs = periodic_delaunay_pairs(centroids[kept], period_x) if kept.size > 1 else np.zeros((0, 2), dtype=int)
+        pairs = (periodic_delaunay_pairs(centroids[kept], period_x, sliver_sides=sliver_sides) if kept.size > 1
+                 else np.zeros((0, 2), dtype=int))
         return kept[pairs].reshape(-1, 2)
     n_particles = len(centroids)
     images = np.concatenate(
         [centroids + (shift, 0.0) for shift in (0.0, -period_x, period_x)]
     )
+    sliver = np.zeros((0, 2), dtype=int)
     try:
-        edges = Delaunay(images).simplices[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
+        simplices = Delaunay(images).simplices
+        edges = simplices[:, [[0, 1], [1, 2], [2, 0]]].reshape(-1, 2)
+        if not sliver_sides:
+            sliver = _sliver_sides(images, simplices)
     except QhullError:
         # every centroid on one line (e.g. a single lane): the triangulation is flat, and
         # the neighbours are the consecutive points along the line
         edges = _collinear_edges(images)
+    codes = _pair_codes(edges, images, period_x, n_particles)
+    if sliver.size:
+        codes = np.setdiff1d(codes, _pair_codes(sliver, images, period_x, n_particles))
+    return np.stack(np.divmod(codes, n_particles), axis=1)
+
+
+def _pair_codes(edges: np.ndarray, images: np.ndarray, period_x: float, n_particles: int) -> np.ndarray:
+    """The particle pairs (i, j), i < j, of edges between ``images`` with at least one
+    original endpoint and at most Lx/2 long along x, as sorted unique codes i·N + j."""
     extent_x = np.abs(images[edges[:, 1], 0] - images[edges[:, 0], 0])
     edges = edges[(edges < n_particles).any(axis=1) & (extent_x <= period_x / 2)]
     pairs = np.sort(edges % n_particles, axis=1)
     pairs = pairs[pairs[:, 0] != pairs[:, 1]]
     # unique rows through one integer per pair, i·N + j (sorted as the rows are): np.unique
     # with axis=0 took 6× as long, and the T1 counter triangulates every output.t1_interval
-    codes = np.unique(pairs[:, 0] * n_particles + pairs[:, 1])
-    return np.stack(np.divmod(codes, n_particles), axis=1)
+    return np.unique(pairs[:, 0] * n_particles + pairs[:, 1])
+
+
+def _sliver_sides(points: np.ndarray, simplices: np.ndarray) -> np.ndarray:
+    """(k, 2): the longest side of every triangle of less than :data:`SLIVER_AREA` times
+    that side squared."""
+    corners = points[simplices]
+    sides = corners[:, [1, 2, 0]] - corners  # side k runs from corner k to corner k + 1
+    squares = np.sum(sides**2, axis=2)
+    area = 0.5 * np.abs(sides[:, 0, 0] * sides[:, 1, 1] - sides[:, 0, 1] * sides[:, 1, 0])
+    thin = np.flatnonzero(area < SLIVER_AREA * squares.max(axis=1))
+    longest = squares[thin].argmax(axis=1)
+    return np.stack([simplices[thin, longest], simplices[thin, (longest + 1) % 3]], axis=1)
 
 
 def _collinear_edges(points: np.ndarray) -> np.ndarray:
@@ -340,7 +374,7 @@ def frame_order(centroids: ArrayLike, orientation: ArrayLike, period_x: float) -
     if n < 3:
         nan = np.full(n, np.nan)
         return {"psi6_abs": nan, "psi2_abs": nan, "Psi6": np.nan, "Psi2": np.nan, "lattice_angle": np.nan}
-    pairs = periodic_delaunay_pairs(centroids, period_x)
+    pairs = periodic_delaunay_pairs(centroids, period_x, sliver_sides=False)
     psi6 = bond_order(centroids, period_x, pairs)
     psi2 = nematic_order(orientation, pairs, n)
     angles = particle_lattice_angles(centroids, period_x, pairs)
