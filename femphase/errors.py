@@ -91,3 +91,8 @@ class StiffnessWarning(UserWarning):
 class LockWarning(UserWarning):
     """A directory's lock could not be taken because its filesystem has no locks (some
     network filesystems): the command goes on, and nothing keeps a second process out."""
+
+
+class OutputWarning(UserWarning):
+    """A file a run directory holds from earlier is missing or damaged: the run goes on
+    without it (the message names it and what is left out)."""

@@ -440,3 +440,20 @@ def test_a_run_with_an_energy_term_of_its_own_resumes_with_it(scene, tmp_path):
     run_scene(longer, tmp_path / "run", resume=True, progress=False, energy=energy)
     times = np.loadtxt(tmp_path / "run" / "global.csv", delimiter=",", skiprows=1)[:, 0]
     assert times[-1] == 50.0
+
+
+def test_a_resume_goes_on_without_a_lost_field_frame(scene, tmp_path, capsys):
+    # a deleted or cut frame file stopped the resume with "internal error (FileNotFoundError
+    # …)", exit 1, when fields.xdmf was rewritten from the frames' files
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    (run / "fields" / "frame_000002.h5").unlink()
+    cut = run / "fields" / "frame_000003.h5"
+    cut.write_bytes(cut.read_bytes()[:500])
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=30.0") == 0
+    err = capsys.readouterr().err
+    assert "frame_000002.h5 (t = 10) is missing; the run goes on, and fields.xdmf leaves that frame out" in err
+    assert "frame_000003.h5 (t = 15) cannot be read as HDF5" in err
+    xdmf = (run / "fields.xdmf").read_text()
+    assert "frame_000002.h5" not in xdmf and "frame_000003.h5" not in xdmf and "frame_000010.h5" in xdmf

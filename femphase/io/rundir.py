@@ -43,6 +43,7 @@ import json
 import logging
 import os
 import time as wallclock
+import warnings
 from pathlib import Path
 from typing import Iterable
 from xml.sax.saxutils import escape
@@ -50,7 +51,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from femphase import tomlio
-from femphase.errors import SceneError
+from femphase.errors import OutputWarning, SceneError
 from femphase.io.files import (
     FileLock,
     atomic_write,
@@ -186,7 +187,7 @@ class Outputs:
                         "global.csv": ["time", "step"] + list(global_columns)}
         self.field_times: list[float] = []
         self._handles: dict[str, object] = {}
-        self._frame_datasets: dict[int, list[str]] = {}  # of frames written by earlier segments
+        self._frame_datasets: dict[int, list[str] | None] = {}  # of frames written by earlier segments
 
     # -- opening ------------------------------------------------------------------------
     def start_new(self, mesh) -> None:
@@ -284,11 +285,14 @@ class Outputs:
         grids = []
         for index, time in enumerate(self.field_times):
             frame = f"{FIELDS_DIR}/{frame_file(index)}"
+            datasets = self._frame_names(index, names)
+            if datasets is None:  # lost: left out, the other frames still open
+                continue
             attributes = "".join(
                 f'<Attribute Name="{escape(name)}" AttributeType="Scalar" Center="Node">'
                 f'<DataItem DataType="Float" Dimensions="{n_points}" Format="HDF" Precision="8">'
                 f"{frame}:/{escape(name)}</DataItem></Attribute>"
-                for name in self._frame_names(index, names))
+                for name in datasets)
             grids.append(
                 '<Grid><xi:include xpointer="xpointer(//Grid[@Name=&quot;mesh&quot;]/*[self::Topology or '
                 f'self::Geometry])" /><Time Value="{time!r}" />{attributes}</Grid>')
@@ -304,15 +308,24 @@ class Outputs:
             f"{FIELDS_DIR}/{MESH_FILE}:/triangles</DataItem></Topology></Grid></Domain></Xdmf>\n")
         atomic_write(self.directory / "fields.xdmf", xdmf)
 
-    def _frame_names(self, index: int, names: list[str] | None) -> list[str]:
-        """The datasets of frame ``index`` (read from its file for frames of earlier segments)."""
+    def _frame_names(self, index: int, names: list[str] | None) -> list[str] | None:
+        """The datasets of frame ``index`` (read from its file for frames of earlier segments);
+        None, with a warning once, for a frame file that is missing or damaged: a resumed run
+        goes on, and fields.xdmf leaves that frame out."""
         if names is not None and index == len(self.field_times) - 1:
             return names
         if index not in self._frame_datasets:
             import h5py
 
-            with h5py.File(self.directory / FIELDS_DIR / frame_file(index), "r") as handle:
-                self._frame_datasets[index] = list(handle)
+            path = self.directory / FIELDS_DIR / frame_file(index)
+            try:
+                with h5py.File(path, "r") as handle:
+                    self._frame_datasets[index] = list(handle)
+            except OSError:
+                self._frame_datasets[index] = None
+                state = "is missing" if not path.exists() else "cannot be read as HDF5 (truncated or overwritten)"
+                warnings.warn(f"the field frame {path} (t = {self.field_times[index]:g}) {state}; the run goes on, "
+                              "and fields.xdmf leaves that frame out", OutputWarning, stacklevel=2)
         return self._frame_datasets[index]
 
 
