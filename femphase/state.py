@@ -99,8 +99,9 @@ def discs_state(domain: Domain, centres: np.ndarray, radii: np.ndarray, initial_
                          f"(y from {low:g} to {high:g})")
     windows, fields = [], []
     for centre, r0 in zip(centres, np.broadcast_to(initial_radii, len(centres))):
-        # where the profile crosses the policy's threshold
-        reach = r0 + interface_width * np.arctanh(1.0 - 2.0 * policy.threshold)
+        # where the profile crosses the policy's threshold t: arctanh(1 − 2t) = ½ ln((1 − t)/t),
+        # finite for every t > 0 (1 − 2t is 1, and its arctanh infinite, for t below 1.1e-16)
+        reach = r0 + interface_width * 0.5 * np.log((1.0 - policy.threshold) / policy.threshold)
         window = domain.disc_window(tuple(centre), reach, policy)
         windows.append(window)
         fields.append(domain.disc_field(window, tuple(centre), r0, interface_width))

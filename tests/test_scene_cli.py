@@ -722,3 +722,12 @@ def test_extensions_reach_the_command_line_and_its_workers(tmp_path, monkeypatch
         OBSERVABLES.unregister("test_top")
         FLOWS.unregister("test_plug")
         sys.modules.pop(module, None)
+
+
+def test_a_threshold_near_zero_places_its_discs(tmp_path):
+    # below 1.1e-16, 1 − 2·threshold rounds to 1 and the initial window's reach came out as
+    # arctanh(1) = inf: "internal error (OverflowError …)" for a value in the valid range
+    for threshold in (1e-17, 1e-300):
+        scene = scene_from_dict({**SMALL, "numerics": {"threshold": threshold}})
+        state = scene.initial_state()
+        assert all(np.isfinite(field).all() for field in state.fields)
