@@ -276,6 +276,8 @@ def test_a_run_with_more_half_periods_than_samples_solves_and_a_far_longer_one_i
 @pytest.mark.parametrize("rate, t_end, options, reason", [
     (1e-10, None, {}, r"on t ∈ \[3\.14159e\+12, .*LSODA"),  # t far beyond the relaxation time's resolution
     (1.0, 400.0, {"parameters": MinimalModelParameters(A=1e300)}, r"A = 1e\+300.*r reached nan"),
+    # within the first half period (1571 at γ̇ = 0.1): NaN samples were written, exit 0
+    (0.1, 1000.0, {"parameters": MinimalModelParameters(A=1e300)}, r"on t ∈ \[0, 1000\].*r reached nan"),
     (1.0, None, {"parameters": MinimalModelParameters(epsilon=1e12)}, r"ε = 1e\+12.*more than 2000 evaluations"),
     (1e8, 1e-3, {}, r"γ̇ = 1e\+08.*below the resolution of t"),
 ])
