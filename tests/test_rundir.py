@@ -398,9 +398,44 @@ def test_a_run_without_checkpoints_does_not_claim_one_when_it_stops(scene, tmp_p
     assert _run(scene, tmp_path / "kept", "--set", "numerics.blowup_margin=1e-9") == 3
     assert "The last good checkpoint is kept." in capsys.readouterr().err
     interrupt = KeyboardInterrupt()
-    interrupt.checkpoints = False
+    interrupt.kept = "frames"
     assert _report(interrupt) == (130, "interrupted; its frames so far are kept; it writes no checkpoint "
                                        "(output.checkpoint = false) and cannot be continued")
+
+
+def test_a_stop_claims_a_checkpoint_only_where_one_was_written(capsys):
+    # Ctrl-C before the run directory existed (and in plot, compare, ode) printed "the last
+    # checkpoint is kept (continue with --resume)"; so did a run stopped before its first
+    from femphase.cli import _report
+    from femphase.errors import BlowUpError
+
+    assert _report(KeyboardInterrupt()) == (130, "interrupted")
+    interrupt = KeyboardInterrupt()
+    interrupt.kept = "nothing"
+    assert _report(interrupt) == (130, "interrupted; it stopped before its first checkpoint and cannot be "
+                                       "continued: rerun it with --overwrite")
+    interrupt.kept = "checkpoint"
+    assert _report(interrupt) == (130, "interrupted; the last checkpoint is kept (continue with --resume)")
+    blowup = BlowUpError(3, 30.0, "φ is not finite")
+    blowup.kept = "nothing"
+    assert _report(blowup)[1] == ("error: the run blew up at step 3 (t = 30): φ is not finite. It stopped before its "
+                                  "first checkpoint and cannot be continued: rerun it with --overwrite.")
+
+
+def test_a_directory_stopped_before_its_first_checkpoint_is_told_to_be_replaced(scene, tmp_path, capsys):
+    # "continue it with --resume", which then refused; and a checkpoint.h5 that is a folder
+    # was "a run directory that holds checkpoint.h5 (it has …, checkpoint.h5, …)"
+    run = tmp_path / "run"
+    assert _run(scene, run) == 0
+    (run / "checkpoint.h5").unlink()
+    capsys.readouterr()
+    assert _run(scene, run) == 2
+    assert "replace it with --overwrite (it has no checkpoint.h5 to continue from" in capsys.readouterr().err
+    assert _run(scene, run, "--resume") == 2
+    assert "a run stopped before its first checkpoint is replaced with --overwrite" in capsys.readouterr().err
+    (run / "checkpoint.h5").mkdir()
+    assert _run(scene, run, "--resume") == 2
+    assert "(checkpoint.h5 there is not a file)" in capsys.readouterr().err
 
 
 def test_a_run_with_an_energy_term_of_its_own_resumes_with_it(scene, tmp_path):

@@ -127,18 +127,25 @@ def _report(exc: BaseException) -> tuple[int | None, str]:
     """(exit code, message) for an error; code None: let it propagate (SystemExit)."""
     if isinstance(exc, SystemExit):
         return None, ""
-    # a run stopped without checkpoints (output.checkpoint = false) kept its frames only
-    unresumable = "its frames so far are kept; it writes no checkpoint (output.checkpoint = false) and cannot be continued"
-    checkpoints = getattr(exc, "checkpoints", True)
+    # what a stopped run kept (femphase.run.runner.run_scene says; other commands keep nothing to continue)
+    kept = getattr(exc, "kept", None)
+    lost = {
+        # a run stopped without checkpoints (output.checkpoint = false) kept its frames only
+        "frames": "its frames so far are kept; it writes no checkpoint (output.checkpoint = false) and cannot be "
+                  "continued",
+        "nothing": "it stopped before its first checkpoint and cannot be continued: rerun it with --overwrite",
+    }.get(kept)
+
+    def said(checkpoint: str) -> str:
+        return checkpoint if kept == "checkpoint" else lost or ""
+
     if isinstance(exc, Interrupted):
-        return exc.exit_code, f"{exc}; " + ("the checkpoint of that step is kept (continue with --resume)"
-                                            if checkpoints else unresumable)
+        return exc.exit_code, f"{exc}; " + said("the checkpoint of that step is kept (continue with --resume)")
     if isinstance(exc, KeyboardInterrupt):
-        return 130, "interrupted; " + ("the last checkpoint is kept (continue with --resume)" if checkpoints
-                                       else unresumable)
+        return 130, "interrupted" + (f"; {said('the last checkpoint is kept (continue with --resume)')}" if kept else "")
     if isinstance(exc, (BlowUpError, FlowError)):
-        return 3, f"error: {exc}. " + ("The last good checkpoint is kept." if checkpoints
-                                       else unresumable[0].upper() + unresumable[1:] + ".")
+        what = said("the last good checkpoint is kept")
+        return 3, f"error: {exc}." + (f" {what[0].upper()}{what[1:]}." if what else "")
     if isinstance(exc, FemphaseError):
         return 2, f"error: {exc}"
     return 1, (f"internal error ({type(exc).__name__}: {exc}); this is a bug: rerun with --traceback and "

@@ -127,11 +127,16 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
             why = ("; this run was written with output.checkpoint = false, so it cannot be continued: rerun it "
                    "with --overwrite" if _written_without_checkpoints(directory) else
                    " (it does not exist: start the run without --resume)" if not directory.exists() else
-                   f" (it has {', '.join(existing) or 'no femphase output'})")
+                   f" ({CHECKPOINT} there is not a file)" if (directory / CHECKPOINT).exists() else
+                   f" (it has {', '.join(existing) or 'no femphase output'}"
+                   + ("; a run stopped before its first checkpoint is replaced with --overwrite)" if existing else ")"))
             raise SceneError("--resume", str(directory), f"a run directory that holds {CHECKPOINT}{why}")
     elif existing and not overwrite:
-        raise SceneError("-o", str(directory), "a directory without a run: it holds one "
-                         f"({', '.join(existing)}); continue it with --resume or replace it with --overwrite")
+        advice = ("continue it with --resume or replace it with --overwrite" if (directory / CHECKPOINT).is_file()
+                  else f"replace it with --overwrite (it has no {CHECKPOINT} to continue from: it stopped before "
+                  "its first)")
+        raise SceneError("-o", str(directory), f"a directory without a run (it holds one: {', '.join(existing)}); "
+                         + advice)
     if (directory / "sweep.json").is_file():  # a run's files among a sweep's would be read as neither
         raise SceneError("-o", str(directory), "a directory that is not a sweep's: it holds sweep.json; a sweep's "
                          "runs are in its runs/<id>/, run by femphase sweep")

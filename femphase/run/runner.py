@@ -123,7 +123,10 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
         with stop_on_signals() as stop:
             return simulation.run(state, trackers, initial_frame=not resume, stop=stop)
     except BaseException as exc:
-        exc.checkpoints = scene.output.checkpoint  # what a stopped run can say it kept (femphase.cli)
+        # what a stopped run can say it kept (femphase.cli): its checkpoint, its frames only, or
+        # no checkpoint yet (stopped before its first)
+        exc.kept = ("frames" if not scene.output.checkpoint else
+                    "checkpoint" if (directory / CHECKPOINT).is_file() else "nothing")
         raise
     finally:
         lock.release()
