@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 __all__ = ["BlowUpError", "FemphaseError", "FlowError", "FlowWarning", "InputError", "Interrupted", "ModelWarning",
-           "ResolutionWarning", "SceneError", "StiffnessWarning"]
+           "OutputWarning", "ResolutionWarning", "RunStopped", "SceneError", "StiffnessWarning"]
 
 
 class FemphaseError(Exception):
@@ -25,7 +25,13 @@ class InputError(FemphaseError, ValueError):
     """Bad input that is not a scene key (a file given to ``femphase compare`` or ``plot``)."""
 
 
-class BlowUpError(FemphaseError, RuntimeError):
+class RunStopped(FemphaseError, RuntimeError):
+    """A run that had started stopped at a step, for a reason of its own (its fields blew up,
+    or it left the accuracy envelope with ``numerics.strict``): ``femphase run`` exits 3 and
+    says what it kept, where bad input, refused before anything runs, exits 2."""
+
+
+class BlowUpError(RunStopped):
     """The time stepping produced NaN or φ far outside [0, 1]."""
 
     def __init__(self, step: int, time: float, reason: str) -> None:

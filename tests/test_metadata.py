@@ -192,8 +192,9 @@ def test_run_log_has_a_header_status_lines_and_the_end_of_each_segment_and_resum
 @pytest.mark.parametrize("sets, code, reason", [
     # an unstabilised area term 250× the paper's blows up at its first step
     (SHORT + ["model.mu=5000", "numerics.stabilisation=0"], 3, "the run blew up at step 1 (t = 1)"),
-    # bad input found while running: dt = 10 is outside the accuracy envelope, strict stops before phase 1
-    (SHORT + ["phases.1.dt=10", "phases.1.frame_interval=10", "numerics.strict=true"], 2, "the run left the accuracy envelope at step 20 (t = 20)"),
+    # dt = 10 is outside the accuracy envelope, strict stops before phase 1: a run that had
+    # written frames, so exit 3 as for a blow-up, not 2 as for input refused before any
+    (SHORT + ["phases.1.dt=10", "phases.1.frame_interval=10", "numerics.strict=true"], 3, "the run left the accuracy envelope at step 20 (t = 20)"),
 ])
 def test_a_failed_run_logs_its_error_with_step_and_time(tmp_path, capsys, sets, code, reason):
     run = tmp_path / "run"

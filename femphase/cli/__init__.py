@@ -42,7 +42,7 @@ import warnings
 
 from femphase import __version__
 from femphase.cli import aggregate, compare, converge, ode, plot, run, sweep
-from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted
+from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted, RunStopped
 from femphase.io.console import console_handler, log_warning
 from femphase.registry import EXTENSIONS_VARIABLE, import_extensions
 
@@ -143,8 +143,9 @@ def _report(exc: BaseException) -> tuple[int | None, str]:
         return exc.exit_code, f"{exc}; " + said("the checkpoint of that step is kept (continue with --resume)")
     if isinstance(exc, KeyboardInterrupt):
         return 130, "interrupted" + (f"; {said('the last checkpoint is kept (continue with --resume)')}" if kept else "")
-    if isinstance(exc, (BlowUpError, FlowError)):
-        what = said("the last good checkpoint is kept")
+    if isinstance(exc, (RunStopped, FlowError)):
+        what = said("the last good checkpoint is kept" if isinstance(exc, (BlowUpError, FlowError)) else
+                    "the last checkpoint is kept")
         return 3, f"error: {exc}." + (f" {what[0].upper()}{what[1:]}." if what else "")
     if isinstance(exc, FemphaseError):
         return 2, f"error: {exc}"

@@ -89,7 +89,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from femphase.domains.advection import nodal_velocity
-from femphase.errors import FemphaseError
+from femphase.errors import RunStopped
 from femphase.flows import Flow
 from femphase.model.energy import AREA_RATIO_MAX as CURVATURE_AREA_MAX
 from femphase.model.energy import FreeEnergy
@@ -137,7 +137,7 @@ class AccuracyWarning(UserWarning):
     scene key to change and the value that brings it back."""
 
 
-class AccuracyError(FemphaseError, RuntimeError):
+class AccuracyError(RunStopped):
     """``numerics.strict``: a run left the accuracy envelope (the step and time are named)."""
 
     def __init__(self, step: int, time: float, reason: str) -> None:
