@@ -256,3 +256,17 @@ def test_figures_of_a_run_that_failed_after_one_frame_say_so_and_show_it(tmp_pat
     elongation = next(fig.axes[0] for fig in figures if fig.axes[0].get_ylabel().startswith("elongation"))
     assert "failed" in elongation.get_title()
     assert all(line.get_marker() == "o" for line in elongation.lines if len(line.get_xdata()) == 1)
+
+
+def test_a_table_cut_since_the_run_is_said_and_its_axes_not_drawn_on_the_last_fields(tiny_run, tmp_path):
+    # a particles.csv cut mid-row gave no word, and the snapshot of the checkpoint's t = 80
+    # carried the elongation axes of the table's last complete frame
+    copy = _copy_run(tiny_run, tmp_path / "copy")
+    table = copy / "particles.csv"
+    text = table.read_text()
+    table.write_text(text[:text.index("\n40.0,")] + "\n40.0,0,12.")  # up to t = 35, and half a row
+    with pytest.warns(UserWarning) as caught:
+        _written(plot_run(copy))
+    said = [str(w.message) for w in caught]
+    assert any("complete frames end at t = 35, before the run's end at t = 80" in m for m in said), said
+    assert any("no complete frame at the fields' t = 80 (its frames end at t = 35)" in m for m in said), said

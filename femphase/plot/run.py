@@ -44,7 +44,7 @@ import numpy as np
 from femphase.analysis.periods import limit_cycle
 from femphase.io.checkpoints import load_checkpoint
 from femphase.io.fields import point_data
-from femphase.io.reader import RunData, open_run
+from femphase.io.reader import RunData, match_times, open_run
 from femphase.io.rundir import CHECKPOINT, FIGURES
 from femphase.model.minimal import MAX_HALF_PERIODS, ParameterError
 from femphase.oscillations import K_PAPER, ode_alignment, ode_fits, ode_solution, order_series
@@ -161,17 +161,23 @@ def draw_snapshot(ax, run: RunData) -> None:
     ax.imshow(np.ma.masked_where(np.ma.getdata(label) < 0, label % 20), origin="lower", extent=extent,
               cmap="tab20", alpha=0.45, vmin=0, vmax=19)
     time = snap.time
-    frame = int(np.argmin(np.abs(run.time - time)))
-    half = 0.5 * run.radii * run.elongation[frame]
-    dx, dy = half * np.cos(run.orientation[frame]), half * np.sin(run.orientation[frame])
-    cx, cy = run.x[frame], run.y[frame]
-    ax.plot(np.stack([cx - dx, cx + dx]), np.stack([cy - dy, cy + dy]), color="red", lw=1.2)
+    _, match = match_times(np.array([time]), run.time)
+    if match.size:  # the axes of that frame; a table cut since has none, and another frame's would mislead
+        frame = int(match[0])
+        half = 0.5 * run.radii * run.elongation[frame]
+        dx, dy = half * np.cos(run.orientation[frame]), half * np.sin(run.orientation[frame])
+        cx, cy = run.x[frame], run.y[frame]
+        ax.plot(np.stack([cx - dx, cx + dx]), np.stack([cy - dy, cy + dy]), color="red", lw=1.2)
+    else:
+        warnings.warn(f"{str(run.directory)!r}: particles.csv has no complete frame at the fields' t = {time:g} "
+                      f"(its frames end at t = {run.time[-1]:g}): the snapshot is drawn without elongation axes",
+                      stacklevel=3)
     ax.set_xlim(x0, x1)
     ax.set_ylim(y0, y1)
     ax.set_aspect("equal")
     ax.set_xlabel("x")
     ax.set_ylabel("y")
-    ax.set_title(f"t = {time:g}", fontsize=8)
+    ax.set_title(f"t = {time:g}" + ("" if match.size else " (no axes: no table frame)"), fontsize=8)
 
 
 def plot_snapshot(run: RunData, path: Path) -> Path:
@@ -344,11 +350,15 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
 
 
 def _unfinished(run: RunData) -> str | None:
-    """What to say of a run that did not complete (run.json's status), else None."""
-    status = run.info.get("status")
-    if status in (None, "completed"):
-        return None
-    return f"run status {status!r}: its frames end at t = {run.time[-1]:g}"
+    """What to say of a run that did not complete (run.json's status), or whose tables end
+    before the run did (cut or damaged since), else None."""
+    status, end = run.info.get("status"), run.info.get("time")
+    if status not in (None, "completed"):
+        return f"run status {status!r}: its frames end at t = {run.time[-1]:g}"
+    if status == "completed" and end is not None and not match_times(np.array([float(end)]), run.time[-1:])[0].size:
+        return (f"particles.csv's complete frames end at t = {run.time[-1]:g}, before the run's end at t = "
+                f"{float(end):g} (the table was cut or damaged since)")
+    return None
 
 
 def run_has_fields(run: RunData) -> bool:
