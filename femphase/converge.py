@@ -99,9 +99,9 @@ def formal_order(parameter: str, settings: dict, method: str = "fem") -> float:
     Heun step is 2), else :data:`FORMAL_ORDER`."""
     if parameter != "dt" or method == "fd":
         return FORMAL_ORDER[parameter]
-    from femphase.timestepping import SCHEMES
+    from femphase.timestepping.base import scheme_class
 
-    return float(SCHEMES.get(settings["numerics"]["scheme"], "numerics.scheme").order)
+    return float(scheme_class(settings["numerics"]["scheme"]).order)
 
 
 class ConvergenceError(SceneError):

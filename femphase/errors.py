@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-__all__ = ["BlowUpError", "FemphaseError", "FlowError", "FlowWarning", "InputError", "Interrupted", "ModelWarning",
-           "OutputWarning", "ResolutionWarning", "RunStopped", "SceneError", "StiffnessWarning"]
+__all__ = ["BlowUpError", "ExtensionError", "FemphaseError", "FlowError", "FlowWarning", "InputError", "Interrupted",
+           "ModelWarning", "OutputWarning", "ResolutionWarning", "RunStopped", "SceneError", "StiffnessWarning"]
 
 
 class FemphaseError(Exception):
@@ -29,6 +29,15 @@ class RunStopped(FemphaseError, RuntimeError):
     """A run that had started stopped at a step, for a reason of its own (its fields blew up,
     or it left the accuracy envelope with ``numerics.strict``): ``femphase run`` exits 3 and
     says what it kept, where bad input, refused before anything runs, exits 2."""
+
+
+class ExtensionError(RunStopped):
+    """An entry of the user's own module (an observable or a time scheme registered outside
+    femphase) failed during a run: it raised, or returned what femphase cannot use."""
+
+    def __init__(self, what: str, step: int, time: float, reason: str) -> None:
+        self.step, self.time = step, time
+        super().__init__(f"{what} failed at step {step} (t = {time:g}): {reason}")
 
 
 class BlowUpError(RunStopped):

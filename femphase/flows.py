@@ -15,7 +15,7 @@ so a new flow is one registered function (``docs/architecture.md``).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Protocol
 
 import numpy as np
@@ -118,21 +118,32 @@ def python_flow(function: Callable, row: bool = False, steady: bool = True, name
     the run with a :class:`~femphase.errors.FlowError` naming ``name`` (default: the
     callable's qualified name) and the time."""
     name = name or getattr(function, "__qualname__", repr(function))
-
-    def checked(*arguments):  # the last argument is the time t, whether the function takes it or not
-        time = arguments[-1]
-        try:
-            with np.errstate(all="ignore"):
-                values = function(*arguments) if not steady else function(*arguments[:-1])
-        except Exception as exc:  # the user's code may raise anything
-            raise FlowError(name, time, f"it raised {type(exc).__name__}: {exc}") from exc
-        if not all(np.isfinite(np.asarray(w, dtype=float)).all() for w in ((values,) if row else values)):
-            raise FlowError(name, time, "it returned NaN or inf")
-        return values
-
+    checked = _checked(function if not steady else lambda *arguments: function(*arguments[:-1]), name, row)
     if row:
         return row_flow("python", checked, steady)
     return Flow("python", checked, steady=steady)
+
+
+def _checked(function: Callable, name: str, row: bool) -> Callable:
+    """``function`` (of the time t last), stopping the run with a FlowError naming ``name``
+    and the time where it raises or gives NaN or inf: the user's code, whose faults are
+    not femphase's. ``row``: it returns u alone, else (u, v)."""
+    def checked(*arguments):
+        time = arguments[-1]
+        try:
+            with np.errstate(all="ignore"):
+                values = function(*arguments)
+        except Exception as exc:  # the user's code may raise anything
+            raise FlowError(name, time, f"it raised {type(exc).__name__}: {exc}") from exc
+        try:
+            finite = all(np.isfinite(np.asarray(w, dtype=float)).all() for w in ((values,) if row else values))
+        except (TypeError, ValueError) as exc:
+            raise FlowError(name, time, f"it returned {type(values).__name__}, not "
+                            + ("u" if row else "(u, v)") + f" as arrays of numbers ({exc})") from exc
+        if not finite:
+            raise FlowError(name, time, "it returned NaN or inf")
+        return values
+    return checked
 
 
 def check_keys(spec: dict, allowed: set[str]) -> None:
@@ -281,4 +292,20 @@ def flow_from_spec(spec: dict, domain: FlowDomain) -> Flow:
     """The flow a scene's ``flow`` table describes, e.g. {type = "shear", rate = 0.1487}."""
     if not isinstance(spec, dict):
         raise SceneError("flow", spec, 'a table such as {type = "shear", rate = 0.1}')
-    return FLOWS.get(spec.get("type", "none"))(spec, domain)
+    name = spec.get("type", "none")
+    builder, origin = FLOWS.get(name), FLOWS.origin(name) if name in FLOWS else None
+    if origin is None:  # femphase's own: a fault is a bug
+        return builder(spec, domain)
+    try:
+        flow = builder(spec, domain)
+    except SceneError:
+        raise
+    except Exception as exc:  # the user's builder may raise anything
+        raise SceneError("flow.type", name, f"a flow type whose builder builds its flow: {origin} raised "
+                         f"{type(exc).__name__}: {exc}") from None
+    if not isinstance(flow, Flow):
+        raise SceneError("flow.type", name, f"a flow type whose builder returns a femphase.flows.Flow: {origin} "
+                         f"returned {type(flow).__name__}")
+    # its velocities are the user's code too: a NaN or a raise is named, not taken for a blow-up of φ
+    return replace(flow, velocity=None if flow.velocity is None else _checked(flow.velocity, origin, False),
+                   row_velocity=None if flow.row_velocity is None else _checked(flow.row_velocity, origin, True))

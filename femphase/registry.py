@@ -65,6 +65,16 @@ class Registry(Generic[T]):
     def names(self) -> tuple[str, ...]:
         return tuple(self._entries)
 
+    def origin(self, name: str) -> str | None:
+        """``module.qualname`` of an entry defined outside femphase (the user's own module),
+        else None: a fault of the user's entry is reported naming it, one of femphase's own
+        is a bug."""
+        entry = self._entries[name]
+        module = getattr(entry, "__module__", None) or ""
+        if module == "femphase" or module.startswith("femphase."):
+            return None
+        return f"{module}.{getattr(entry, '__qualname__', repr(entry))}"
+
     def __contains__(self, name: object) -> bool:
         return name in self._entries
 

@@ -28,6 +28,7 @@ from femphase.placement import hexagonal_centres
 from femphase.registry import Registry, import_extensions
 from femphase.state import State, discs_state
 from femphase.timestepping import SCHEMES, Stepper
+from femphase.timestepping.base import scheme_class
 
 __all__ = ["LAYOUTS", "MAX_AREA_FRACTION", "MAX_PARTICLES", "MAX_PHASE_STEPS", "check_flow", "check_numerics",
            "initial_centres", "load_scene", "Output", "parse_assignment", "Particles", "Phase", "placed_count",
@@ -364,6 +365,7 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     from femphase.timestepping.fd import fem_schemes
 
     given, instead = ("fd", '"fem"') if key == "--method" else (scheme, fem_schemes())
+    scheme_class(scheme, "numerics.scheme")
     if key == "--method" and numerics.mass not in SCHEMES.get(scheme).masses:
         # the scene's own scheme is not run, so advice to change it would not help
         raise SceneError("numerics.mass", numerics.mass, " or ".join(f'"{m}"' for m in SCHEMES.get(scheme).masses)

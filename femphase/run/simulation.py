@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import signal
 from collections import ChainMap
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -18,7 +19,7 @@ import numpy as np
 from femphase.analysis.observables import OBSERVABLES, Observable, resolve
 from femphase.analysis.shape import ShapeObservables
 from femphase.config import Numerics
-from femphase.errors import FlowError, Interrupted, SceneError, StopRun
+from femphase.errors import ExtensionError, FemphaseError, FlowError, Interrupted, SceneError, StopRun
 from femphase.model.energy import FreeEnergy
 from femphase.scene import Phase, Scene
 from femphase.state import State
@@ -121,7 +122,14 @@ class Simulation:
 
     def observable(self, name: str) -> Observable:
         if name not in self.observables:
-            self.observables[name] = OBSERVABLES.get(name)(self)
+            entry, origin = OBSERVABLES.get(name, "output.observables"), OBSERVABLES.origin(name)
+            try:
+                self.observables[name] = entry(self)
+            except Exception as exc:
+                if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
+                    raise
+                raise SceneError("output.observables", name, f"an observable built as {origin}(simulation): it "
+                                 f"raised {type(exc).__name__}: {exc}") from None
         return self.observables[name]
 
     def columns(self) -> tuple[list[str], list[str]]:
@@ -281,10 +289,27 @@ class Simulation:
         for name in resolve([name for name in self.scene.output.observables if name in needs]):
             observable = self.observable(name)
             # the values so far, per particle first where a name is both ("area")
-            values = observable(state, ChainMap(frame.particle, frame.globals))
+            values = _observed(observable, name, state, ChainMap(frame.particle, frame.globals))
             frame.particle.update(_frame_values(observable, values, observable.particle_columns, state.n_particles))
             frame.globals.update(_frame_values(observable, values, observable.global_columns, None))
         return _stop_requests(lambda tracker: tracker.frame(frame), trackers)
+
+
+def _observed(observable: Observable, name: str, state: State, so_far: ChainMap) -> dict:
+    """What ``observable`` returns for ``state``: a user's observable that raises stops the
+    run naming it (ExtensionError), one that returns other than a mapping is refused."""
+    try:
+        values = observable(state, so_far)
+    except Exception as exc:
+        origin = OBSERVABLES.origin(name)
+        if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
+            raise
+        raise ExtensionError(f"the observable {name!r} ({origin})", state.step, state.time,
+                             f"it raised {type(exc).__name__}: {exc}") from exc
+    if not isinstance(values, Mapping):
+        raise SceneError("output.observables", name, f"an observable that returns a mapping of its columns; it "
+                         f"returned {type(values).__name__}")
+    return values
 
 
 def _frame_values(observable: Observable, values: dict, columns: tuple[str, ...], n_particles: int | None) -> dict:

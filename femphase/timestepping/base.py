@@ -54,7 +54,7 @@ from femphase.registry import Registry
 from femphase.state import State
 
 __all__ = ["MASS_BOUND", "SCHEMES", "StepperProtocol", "TimeScheme", "auto_stabilisation", "check_fields",
-           "stability_step"]
+           "scheme_class", "stability_step"]
 
 #: Time schemes by name (``numerics.scheme``). Each scheme module registers itself;
 #: importing :mod:`femphase.timestepping` registers them all.
@@ -169,6 +169,23 @@ class TimeScheme(ABC):
     def start_phase(self, state: State) -> None:
         """Called before the first step of a phase (not on a resume inside one): drop from
         ``state.memory`` what describes the dynamics of the phase before. Nothing here."""
+
+def scheme_class(name: object, key: str = "numerics.scheme") -> type[TimeScheme]:
+    """The time scheme registered as ``name``, checked as a scheme: a :class:`TimeScheme`
+    subclass with its order of accuracy in dt (``order``, which ``femphase converge --dt``
+    extrapolates with). SceneError naming ``key`` otherwise: an entry of the user's own
+    module is named by its definition."""
+    entry = SCHEMES.get(name, key)
+    where = SCHEMES.origin(name) or f"{getattr(entry, '__module__', '')}.{getattr(entry, '__qualname__', entry)}"
+    if not (isinstance(entry, type) and issubclass(entry, TimeScheme)):
+        raise SceneError(key, name, f"a registered subclass of femphase.timestepping.base.TimeScheme; {where} is "
+                         f"a {type(entry).__name__}")
+    order = getattr(entry, "order", None)
+    if not (isinstance(order, (int, float)) and not isinstance(order, bool) and order > 0):
+        raise SceneError(key, name, f"a scheme that states its order of accuracy in dt: {where} has no class "
+                         f"attribute order > 0 (it has {order!r})")
+    return entry
+
 
 def check_fields(phi: np.ndarray, margin: float, step: int, time: float) -> None:
     """Raise BlowUpError when phi is not finite or leaves [−margin, 1 + margin]."""

@@ -31,13 +31,13 @@ from femphase.config import Numerics
 from femphase.domains.advection import nodal_velocity
 from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
-from femphase.errors import SceneError
+from femphase.errors import ExtensionError, FemphaseError, SceneError
 from femphase.fem.blocks import conjugate_gradient
 from femphase.flows import Flow, no_flow
 from femphase.model.energy import FreeEnergy, WindowedFields
 from femphase.model.parameters import ModelParameters
 from femphase.state import State
-from femphase.timestepping.base import SCHEMES, check_fields
+from femphase.timestepping.base import SCHEMES, check_fields, scheme_class
 
 __all__ = ["Stepper"]
 
@@ -83,7 +83,7 @@ class Stepper:
         self._last_solve: tuple[np.ndarray, np.ndarray] | None = None
         #: a steady flow's largest nodal speed (:meth:`_largest_speed`)
         self._speed: float | None = None
-        self.scheme = SCHEMES.get(scheme or numerics.scheme)(self)
+        self.scheme = _built_scheme(scheme or numerics.scheme, self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
                                  and domain.single_precision_steps(numerics) and self.scheme.mixed_precision)
@@ -230,14 +230,38 @@ class Stepper:
             if self.single_precision:  # the call's working copy; the state stays double
                 phi = phi.astype(np.float32)
             layout, phi = self.refit(layout, phi, state.time)
-            phi, layout = (self.scheme.advance(phi, layout, state, per_call) if self.scheme.merges_steps
-                           else self.scheme.advance(phi, layout, state))
+            phi, layout = self._advance(phi, layout, state, per_call)
             end = state.time
             for _ in range(per_call):  # the same clock as step by step, to the last bit
                 end += self.dt
             check_fields(phi, self.numerics.blowup_margin, state.step + per_call, end)
             state.windows, state.fields = list(layout.windows), layout.scatter(phi.astype(np.float64, copy=False))
             state.time, state.step = end, state.step + per_call
+
+    def _advance(self, phi: np.ndarray, layout: Layout, state: State, steps: int) -> tuple[np.ndarray, Layout]:
+        """The scheme's advance; a scheme of the user's own module that raises or returns other
+        than (φ, layout) stops the run naming it (ExtensionError)."""
+        scheme = self.scheme
+        origin = SCHEMES.origin(scheme.name) if scheme.name in SCHEMES else None
+        try:
+            result = scheme.advance(phi, layout, state, steps) if scheme.merges_steps else scheme.advance(phi, layout,
+                                                                                                         state)
+        except Exception as exc:
+            if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
+                raise
+            raise ExtensionError(f"the time scheme {scheme.name!r} ({origin})", state.step, state.time,
+                                 f"its advance raised {type(exc).__name__}: {exc}") from exc
+        if origin is not None:
+            new_phi, new_layout = result if isinstance(result, tuple) and len(result) == 2 else (None, None)
+            if not (isinstance(new_phi, np.ndarray) and isinstance(new_layout, Layout)
+                    and new_phi.shape == (int(new_layout.offsets[-1]),)):
+                got = (f"φ of shape {new_phi.shape} for a layout of {int(new_layout.offsets[-1])} positions"
+                       if isinstance(new_phi, np.ndarray) and isinstance(new_layout, Layout)
+                       else type(result).__name__)
+                raise ExtensionError(f"the time scheme {scheme.name!r} ({origin})", state.step, state.time,
+                                     f"its advance must return (φ, layout), φ one value per position of the layout; "
+                                     f"it returned {got}")
+        return result
 
     @property
     def roomless(self) -> bool:
@@ -309,3 +333,16 @@ class Stepper:
         for axis in range(2):
             out[layout.order, axis] = span * layout.reduce(np.add, weight * velocity[axis]) / total
         return out
+
+
+def _built_scheme(name: str, stepper: "Stepper"):
+    """The scheme ``name`` for ``stepper``: a scheme of the user's own module that cannot be
+    built is refused naming it (SceneError, ``numerics.scheme``)."""
+    cls, origin = scheme_class(name), SCHEMES.origin(name)
+    try:
+        return cls(stepper)
+    except Exception as exc:
+        if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
+            raise
+        raise SceneError("numerics.scheme", name, f"a scheme built as {origin}(stepper): it raised "
+                         f"{type(exc).__name__}: {exc}") from None
