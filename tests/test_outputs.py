@@ -466,8 +466,23 @@ def test_a_trackers_frame_without_its_observable_says_why():
             frame.particle["elongation"]
 
     scene = small_scene(observables=["shape"])
-    with pytest.raises(KeyError, match=r"this frame holds no columns; .*needs = frozenset\(\{'shape'\}\)"):
+    with pytest.raises(KeyError, match=r"the frame's particle columns are none; .*needs = frozenset\(\{'shape'\}\)"):
         Simulation(scene).run(scene.initial_state(), Reads())
+
+    class ReadsGlobals(Tracker):  # the particle table has columns, the global one none
+        needs = frozenset({"shape"})
+
+        def frame(self, frame):
+            frame.globals["free_energy"]
+
+    with pytest.raises(KeyError, match=r"'free_energy': the frame's global columns are none"):
+        Simulation(scene).run(scene.initial_state(), ReadsGlobals())
+
+    class Misspelt(Tracker):  # its frames were empty without a word
+        needs = frozenset({"shpae"})
+
+    with pytest.raises(ValueError, match=r"the tracker Misspelt needs \['shpae'\], which name no observable"):
+        Simulation(scene).run(scene.initial_state(), Misspelt())
 
 
 def test_a_tracker_ends_a_run_early_and_the_run_continues_from_there(tmp_path):
@@ -516,3 +531,16 @@ def test_a_stop_in_after_step_waits_for_the_steps_bookkeeping():
     state = Simulation(scene).run(scene.initial_state(), [AtTheEnd(), recorder])
     assert (state.phase, state.phase_step, state.step) == (1, 0, 2)
     assert [frame.state.time for frame in recorder.frames] == [0.0, 1.0, 2.0]  # the last step's frame too
+
+
+def test_recorded_frame_times_are_the_outputs_times():
+    # ten steps of 0.1 were 0.9999999999999999 in FrameRecorder.times, 1 in particles.csv
+    from femphase.run import FrameRecorder
+
+    scene = small_scene(observables=["shape"])
+    scene = scene_from_dict({**scene.to_dict(), "numerics": {"scheme": "euler"},
+                             "phases": [{"name": "relax", "duration": 0.3, "dt": 0.1, "frame_interval": 0.1}]})
+    recorder = FrameRecorder()
+    Simulation(scene).run(scene.initial_state(), recorder)
+    assert recorder.times.tolist() == [0.0, 0.1, 0.2, 0.3]
+    assert recorder.frames[3].state.time != 0.3  # the clock itself keeps its last bit

@@ -270,3 +270,16 @@ def test_a_table_cut_since_the_run_is_said_and_its_axes_not_drawn_on_the_last_fi
     said = [str(w.message) for w in caught]
     assert any("complete frames end at t = 35, before the run's end at t = 80" in m for m in said), said
     assert any("no complete frame at the fields' t = 80 (its frames end at t = 35)" in m for m in said), said
+
+
+def test_a_run_scene_that_no_longer_loads_is_named_by_its_file(tiny_run, tmp_path, capsys):
+    # a run written with an extension, plotted or compared without it: the message named the
+    # key but not which of compare's two runs
+    copy = _copy_run(tiny_run, tmp_path / "copy")
+    scene = copy / "scene.toml"
+    text = scene.read_text()
+    assert '"order"]' in text
+    scene.write_text(text.replace('"order"]', '"mine"]'))
+    assert main(["compare", str(tiny_run), str(copy), "-o", str(tmp_path / "compared")]) == 2
+    err = capsys.readouterr().err
+    assert "'mine' is invalid: one of" in err and f"(in {scene})" in err, err

@@ -25,7 +25,7 @@ import numpy as np
 from femphase import tomlio
 from femphase.analysis.lattice import t1_event_times
 from femphase.domains.base import Domain
-from femphase.errors import InputError, ResolutionWarning
+from femphase.errors import InputError, ResolutionWarning, SceneError
 from femphase.io.files import read_csv
 from femphase.scene import Scene, scene_from_dict
 
@@ -209,7 +209,10 @@ class RunData:
         file must still exist)."""
         with warnings.catch_warnings():  # the run itself warned about its resolution
             warnings.simplefilter("ignore", ResolutionWarning)
-            return scene_from_dict(self.scene, self.directory)
+            try:
+                return scene_from_dict(self.scene, self.directory)
+            except SceneError as exc:  # which run's scene: compare reads two
+                raise SceneError(exc.key, exc.value, f"{exc.valid} (in {self.directory / 'scene.toml'})") from None
 
     @property
     def domain(self) -> Domain:

@@ -32,12 +32,17 @@ METHODS = {"fem": None, "fd": "fd-heun"}
 
 
 class Columns(dict):
-    """A frame's values by column; a column it lacks names what the frame holds and why."""
+    """A frame's values by column, of one table (``table``: "particle" or "global"); a
+    column it lacks names what the table holds and why."""
+
+    def __init__(self, table: str = "frame") -> None:
+        super().__init__()
+        self.table = table
 
     def __missing__(self, column: str):
-        raise KeyError(f"{column!r}: this frame holds {sorted(self) or 'no columns'}; a tracker's frames carry the "
-                       "columns of the observables its needs name (e.g. needs = frozenset({'shape'})) that the "
-                       "scene's output.observables lists")
+        raise KeyError(f"{column!r}: the frame's {self.table} columns are {sorted(self) or 'none'}; a tracker's "
+                       "frames carry the columns of the observables its needs name (e.g. needs = "
+                       "frozenset({'shape'})) that the scene's output.observables lists")
 
 
 @dataclass
@@ -48,8 +53,8 @@ class Frame:
 
     state: State
     phase: Phase
-    particle: dict = field(default_factory=Columns)
-    globals: dict = field(default_factory=Columns)
+    particle: dict = field(default_factory=lambda: Columns("particle"))
+    globals: dict = field(default_factory=lambda: Columns("global"))
 
     @property
     def shape(self) -> ShapeObservables:
@@ -187,6 +192,11 @@ class Simulation:
         if not all(isinstance(tracker, Tracker) for tracker in trackers):
             raise TypeError(f"trackers must be Tracker instances (femphase.run), not "
                             f"{sorted({type(t).__name__ for t in trackers if not isinstance(t, Tracker)})}")
+        for tracker in trackers:  # a misspelt need left its frames empty without a word
+            unknown = sorted(set(tracker.needs) - set(OBSERVABLES.names()))
+            if unknown:
+                raise ValueError(f"the tracker {type(tracker).__name__} needs {unknown}, which name no observable; "
+                                 f"observables: {list(OBSERVABLES.names())}")
         needs = frozenset().union(*(t.needs for t in trackers)) if trackers else frozenset()
         t1_counter = self._t1_counter(needs)
         error = None

@@ -40,6 +40,7 @@ import time as wallclock
 import numpy as np
 
 from femphase.analysis.observables import OBSERVABLES
+from femphase.io.rundir import frame_time
 from femphase.run.simulation import Frame, Simulation, Tracker
 from femphase.state import State
 
@@ -211,4 +212,7 @@ class FrameRecorder(Tracker):
 
     @property
     def times(self) -> np.ndarray:
-        return np.array([f.state.time for f in self.frames])
+        """The frames' times as the outputs give them (:func:`~femphase.io.rundir.frame_time`:
+        12 significant digits, so ten steps of 0.1 are 1.0, as in particles.csv); each frame's
+        ``state.time`` keeps the clock to the last bit."""
+        return np.array([frame_time(f.state.time) for f in self.frames])
