@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 __all__ = ["BlowUpError", "ExtensionError", "FemphaseError", "FlowError", "FlowWarning", "InputError", "Interrupted",
-           "ModelWarning", "OutputWarning", "ResolutionWarning", "RunStopped", "SceneError", "StiffnessWarning"]
+           "ModelWarning", "NoRoomError", "OutputWarning", "ResolutionWarning", "RunStopped", "SceneError",
+           "StiffnessWarning"]
 
 
 class FemphaseError(Exception):
@@ -38,6 +39,12 @@ class ExtensionError(RunStopped):
     def __init__(self, what: str, step: int, time: float, reason: str) -> None:
         self.step, self.time = step, time
         super().__init__(f"{what} failed at step {step} (t = {time:g}): {reason}")
+
+
+class NoRoomError(RunStopped):
+    """The device holding a run directory has no room for the next frame or checkpoint: the
+    run stops before writing it (HDF5 files that fail mid-write leave the library in a state
+    that crashed the process at exit), and its last checkpoint is kept."""
 
 
 class BlowUpError(RunStopped):

@@ -492,3 +492,33 @@ def test_a_resume_goes_on_without_a_lost_field_frame(scene, tmp_path, capsys):
     assert "frame_000003.h5 (t = 15) cannot be read as HDF5" in err
     xdmf = (run / "fields.xdmf").read_text()
     assert "frame_000002.h5" not in xdmf and "frame_000003.h5" not in xdmf and "frame_000010.h5" in xdmf
+
+
+def test_a_full_device_stops_the_run_before_a_write_and_keeps_its_checkpoint(scene, tmp_path, capsys, monkeypatch):
+    # a field frame or checkpoint that failed mid-write was "internal error (OSError: [Errno 28]
+    # …)", exit 1, after h5py's tracebacks, and the process crashed at exit (139)
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    real = shutil.disk_usage
+    writes = []
+
+    def filling(path):  # room for the first frames only
+        writes.append(path)
+        return usage(1 << 40, 0, (1 << 30) if len(writes) < 6 else 1 << 20)
+
+    run = tmp_path / "run"
+    monkeypatch.setattr(shutil, "disk_usage", filling)
+    assert _run(scene, run) == 3
+    err = capsys.readouterr().err
+    assert "MiB free, and" in err and "free space there and continue with --resume. The last checkpoint is kept." in err
+    assert json.loads((run / "run.json").read_text())["status"] == "failed"
+    monkeypatch.setattr(shutil, "disk_usage", real)
+    assert _run(scene, run, "--resume") == 0
+    from femphase.cli import _report  # a write that fails all the same (a quota) is no bug either
+
+    full = OSError(errno.ENOSPC, "No space left on device", "particles.csv")
+    full.kept = "checkpoint"
+    assert _report(full) == (3, "error: cannot write particles.csv: No space left on device. The last checkpoint is "
+                                "kept (free space and continue with --resume).")

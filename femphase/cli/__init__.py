@@ -33,6 +33,7 @@ The run directory's run.log has the status lines, warnings and errors in every c
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import os
 import re
@@ -147,6 +148,10 @@ def _report(exc: BaseException) -> tuple[int | None, str]:
         what = said("the last good checkpoint is kept" if isinstance(exc, (BlowUpError, FlowError)) else
                     "the last checkpoint is kept")
         return 3, f"error: {exc}." + (f" {what[0].upper()}{what[1:]}." if what else "")
+    if isinstance(exc, OSError) and exc.errno in (errno.ENOSPC, errno.EDQUOT):  # a full disk is no bug
+        what = said("the last checkpoint is kept (free space and continue with --resume)")
+        return 3, (f"error: cannot write {exc.filename or 'an output'}: {exc.strerror}."
+                   + (f" {what[0].upper()}{what[1:]}." if what else ""))
     if isinstance(exc, FemphaseError):
         return 2, f"error: {exc}"
     return 1, (f"internal error ({type(exc).__name__}: {exc}); this is a bug: rerun with --traceback and "

@@ -18,7 +18,7 @@ import numpy as np
 
 from femphase.domains.base import Domain
 from femphase.errors import SceneError
-from femphase.io.files import failpoint, partial_path
+from femphase.io.files import ensure_room, failpoint, partial_path
 from femphase.state import State
 
 __all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "load_checkpoint", "read_checkpoint_metadata", "save_checkpoint"]
@@ -43,6 +43,8 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
     import h5py
 
     path = Path(path)
+    arrays = [*state.fields, *(observers or {}).values(), *state.memory.values()]
+    ensure_room(path, sum(int(np.asarray(values).nbytes) for values in arrays), state.time)
     tmp = partial_path(path)
     with h5py.File(tmp, "w") as handle:
         handle.attrs.update({

@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from femphase.errors import LockWarning, SceneError
+from femphase.errors import LockWarning, NoRoomError, SceneError
 
-__all__ = ["FileLock", "atomic_write", "failpoint", "jsonable", "locked", "output_directory", "read_csv",
-           "write_json"]
+__all__ = ["ROOM_RESERVE", "FileLock", "atomic_write", "ensure_room", "failpoint", "jsonable", "locked",
+           "output_directory", "read_csv", "write_json"]
 
 
 _FAILPOINT_PASSES: dict[str, int] = {}
@@ -50,6 +50,24 @@ def failpoint(name: str) -> None:
     _FAILPOINT_PASSES[name] = _FAILPOINT_PASSES.get(name, 0) + 1
     if _FAILPOINT_PASSES[name] == int(spec.partition(":")[2] or 1):
         os.kill(os.getpid(), signal.SIGKILL)
+
+
+#: Bytes an HDF5 file takes beyond its arrays' (its metadata and chunk index), and what the
+#: run's small files (CSV rows, run.json, fields.xdmf) need after it: kept free on top.
+ROOM_RESERVE = 4 * 2**20
+
+
+def ensure_room(path: Path, nbytes: int, time: float) -> None:
+    """NoRoomError when the device holding ``path`` (a file to write) has less than
+    ``nbytes`` + :data:`ROOM_RESERVE` free: the run stops before the write, at simulated
+    time ``time``. A quota (EDQUOT) is not seen here; the write then fails as it must."""
+    import shutil
+
+    free = shutil.disk_usage(Path(path).parent).free
+    if free < nbytes + ROOM_RESERVE:
+        raise NoRoomError(f"the run stopped at t = {time:g}: the device holding {Path(path).parent} has "
+                          f"{free / 2**20:.1f} MiB free, and {Path(path).name} needs about "
+                          f"{(nbytes + ROOM_RESERVE) / 2**20:.1f} MiB; free space there and continue with --resume")
 
 
 def partial_path(path: Path) -> Path:

@@ -55,6 +55,7 @@ from femphase.errors import OutputWarning, SceneError
 from femphase.io.files import (
     FileLock,
     atomic_write,
+    ensure_room,
     failpoint,
     jsonable,
     output_directory,
@@ -257,6 +258,7 @@ class Outputs:
 
         index = len(self.field_times)
         path = self.directory / FIELDS_DIR / frame_file(index)
+        ensure_room(path, sum(int(np.asarray(values).nbytes) for values in data.values()), time)
         tmp = partial_path(path)
         with h5py.File(tmp, "w") as handle:
             handle.attrs["time"] = time
