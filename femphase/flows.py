@@ -23,8 +23,8 @@ import numpy as np
 from femphase.errors import FlowError, SceneError
 from femphase.registry import Registry, import_module
 
-__all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "linear_shear", "no_flow",
-           "number", "poiseuille", "python_flow", "row_flow"]
+__all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "largest_speed", "linear_shear",
+           "no_flow", "number", "poiseuille", "python_flow", "row_flow"]
 
 
 SHEAR_SCALES = ("wall_velocity", "shear_rate")
@@ -275,7 +275,7 @@ def flow_defects(flow: Flow, domain: FlowDomain) -> dict[str, tuple[float, float
     points, normals = domain.wall_normals()
     x, y = np.asarray(domain.coordinates)
     defects = {}
-    for t in (0.0, 1.0) if not flow.steady else (0.0,):
+    for t in _sampled_times(flow):
         at_dofs = _velocity(flow, x, y, t)
         speed = float(np.max(np.hypot(*at_dofs)))
         found = {"walls": (np.abs(np.sum(_velocity(flow, *points, t) * normals, axis=0)), points),
@@ -286,6 +286,20 @@ def flow_defects(flow: Flow, domain: FlowDomain) -> dict[str, tuple[float, float
             if excess[k] > FLOW_DEFECT * speed and (name not in defects or excess[k] > defects[name][0]):
                 defects[name] = (float(excess[k]), speed, where[:, k])
     return defects
+
+
+def largest_speed(flow: Flow, domain: FlowDomain) -> float:
+    """max |v| over the dofs at t = 0 (and t = 1 for a time-dependent flow), lattice units
+    per time unit; 0 for no flow."""
+    if flow.is_still:
+        return 0.0
+    x, y = np.asarray(domain.coordinates)
+    return max(float(np.max(np.hypot(*_velocity(flow, x, y, t)))) for t in _sampled_times(flow))
+
+
+def _sampled_times(flow: Flow) -> tuple[float, ...]:
+    """Where a flow is sampled before a run: a time-dependent one may vanish at t = 0."""
+    return (0.0, 1.0) if not flow.steady else (0.0,)
 
 
 def flow_from_spec(spec: dict, domain: FlowDomain) -> Flow:

@@ -22,7 +22,7 @@ from femphase.config import Numerics
 from femphase.domains import DOMAINS, Domain, domain_from_table
 from femphase.domains.mesh.stokes import check_open_channel, stokes_drive
 from femphase.errors import FlowError, FlowWarning, ModelWarning, ResolutionWarning, SceneError, StiffnessWarning
-from femphase.flows import FLOWS, Flow, flow_defects, flow_from_spec
+from femphase.flows import FLOWS, Flow, flow_defects, flow_from_spec, largest_speed
 from femphase.model.parameters import PAPER_SYMBOLS, ModelParameters
 from femphase.placement import hexagonal_centres
 from femphase.registry import Registry, import_extensions
@@ -292,6 +292,7 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".", scheme: str | None =
     for i, phase in enumerate(phases):
         try:
             flow = check_flow(phase.flow, scene.domain)
+            _check_step_displacement(flow, phase.flow, scene.domain, phase.dt)
             _warn_flow_defects(flow, scene.domain, f"phases.{i}.flow")
         except SceneError as exc:
             raise SceneError(f"phases.{i}.{exc.key}", exc.value, exc.valid) from None
@@ -495,6 +496,22 @@ def check_flow(spec: dict, domain: Domain) -> Flow | None:
         check_open_channel(domain)
         return None
     return flow_from_spec(spec, domain)
+
+
+#: The most a flow may move the fields in one step of dt (lattice units): a particle's position
+#: keeps about 16 digits, so beyond ~1e6 a step's shift keeps no digit of its motion relative
+#: to its neighbours' (a shear rate of 1e200 ran to its end: overflowing squares, elongation 40).
+MAX_STEP_DISPLACEMENT = 1e6
+
+
+def _check_step_displacement(flow: Flow | None, spec: dict, domain: Domain, dt: float) -> None:
+    """SceneError (key ``flow``, the table ``spec``) when ``flow`` moves the fields by more
+    than :data:`MAX_STEP_DISPLACEMENT` in one step of ``dt``."""
+    speed = 0.0 if flow is None else largest_speed(flow, domain)
+    if not speed * dt <= MAX_STEP_DISPLACEMENT:
+        raise SceneError("flow", spec, f"a flow that moves the fields by at most {MAX_STEP_DISPLACEMENT:g} "
+                         f"lattice units in a step: at its largest speed, {speed:.3g}, one step of dt = {dt:g} "
+                         f"moves them {speed * dt:.3g}")
 
 
 def _warn_flow_defects(flow: Flow | None, domain: Domain, key: str) -> None:

@@ -731,3 +731,14 @@ def test_a_threshold_near_zero_places_its_discs(tmp_path):
         scene = scene_from_dict({**SMALL, "numerics": {"threshold": threshold}})
         state = scene.initial_state()
         assert all(np.isfinite(field).all() for field in state.fields)
+
+
+def test_a_flow_that_moves_the_fields_beyond_their_digits_is_refused():
+    # a shear rate of 1e200 ran to its end (exit 0) with overflowing squares, an elongation
+    # of 40 and the advice "set phases.1.dt ≤ 0"
+    flow = {"type": "shear", "rate": 1e200}
+    phases = [{**SMALL["phases"][0]}, {**SMALL["phases"][1], "flow": flow}]
+    with pytest.raises(SceneError) as refused:
+        scene_from_dict({**SMALL, "phases": phases})
+    assert refused.value.key == "phases.1.flow" and "one step of dt = 1 moves them 1e+200" in str(refused.value)
+    scene_from_dict({**SMALL, "phases": [phases[0], {**phases[1], "flow": {"type": "shear", "rate": 1e5}}]})
