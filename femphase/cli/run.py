@@ -15,9 +15,8 @@ def run(args: argparse.Namespace) -> int:
     """`femphase run`: run a scene into a run directory."""
     # the command's implementation loads when it runs: the parser and the other commands start without it
     from femphase.run.runner import check_resumed_method, run_scene
-    from femphase.scene import read_scene_data, scene_from_dict
-
     from femphase.run.simulation import METHODS
+    from femphase.scene import read_scene_data, scene_from_dict
 
     data = read_scene_data(args.scene, args.set)
     numerics, forced = data.get("numerics"), METHODS.get(args.method)

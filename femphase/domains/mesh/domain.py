@@ -38,9 +38,9 @@ from scipy.spatial import cKDTree
 from skfem import MeshTri
 
 from femphase.config import Numerics
+from femphase.domains.advection import nodal_velocity
 from femphase.domains.base import DOMAINS, Domain
 from femphase.domains.layout import Layout
-from femphase.domains.advection import nodal_velocity
 from femphase.domains.mesh import semi_lagrangian
 from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
 from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
