@@ -423,6 +423,11 @@ def test_ctrl_c_in_a_terminal_stops_the_sweep_without_worker_tracebacks(tmp_path
         if "[1/4]" in line:
             break
     os.killpg(process.pid, signal.SIGINT)
-    output = "".join(lines) + process.communicate(timeout=120)[0]
+    try:
+        output = "".join(lines) + process.communicate(timeout=120)[0]
+    except subprocess.TimeoutExpired:  # once in about 20 runs on a loaded machine: say where it stood
+        os.killpg(process.pid, signal.SIGKILL)
+        rest = process.communicate()[0]
+        pytest.fail("the sweep did not stop within 120 s of SIGINT; its output until then:\n" + "".join(lines) + rest)
     assert process.returncode == 130, output
     assert "femphase sweep: interrupted" in output and "Traceback" not in output, output
