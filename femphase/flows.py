@@ -289,8 +289,8 @@ def flow_defects(flow: Flow, domain: FlowDomain) -> dict[str, tuple[float, float
 
 
 def largest_speed(flow: Flow, domain: FlowDomain) -> float:
-    """max |v| over the dofs at t = 0 (and t = 1 for a time-dependent flow), lattice units
-    per time unit; 0 for no flow."""
+    """The largest speed over the dofs at t = 0 (and t = 1 for a time-dependent flow),
+    lattice units per time unit; 0 for no flow."""
     if flow.is_still:
         return 0.0
     x, y = np.asarray(domain.coordinates)
