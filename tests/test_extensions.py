@@ -155,3 +155,37 @@ def test_a_scheme_that_fails_is_named(tmp_path, capsys, scheme, code, reason):
     returned, err = run(tmp_path, scene(numerics={"scheme": scheme}), capsys)
     assert returned == code and reason in err, err
     assert "internal error" not in err
+
+
+def test_an_energy_term_that_returns_the_wrong_shape_is_named():
+    # a derivative of the wrong shape stopped the stepper with a bare numpy broadcast error,
+    # an energy that is an array with "only 0-dimensional arrays can be converted"
+    from dataclasses import dataclass
+    from typing import ClassVar
+
+    from femphase.model.energy import EnergyTerm, FreeEnergy
+    from femphase.run import Simulation
+
+    @dataclass(frozen=True)
+    class Lopsided(EnergyTerm):
+        name: ClassVar[str] = "lopsided"
+        short: bool = True
+
+        def energy(self, fields):
+            return 0.0 if self.short else fields.phi
+
+        def explicit_derivative(self, fields):
+            return fields.phi[:-1] if self.short else 0 * fields.phi
+
+        def curvature_bound(self, smallest_radius, pairs):
+            return 0.0
+
+    data = scene()
+    data["output"] = {"fields": False}
+    built = scene_from_dict(data)
+    for short, reason in ((True, r"explicit_derivative\(\) must return one finite value per position of the layout, "
+                                 r"shape \(784,\); it returned shape \(783,\)"),
+                          (False, r"energy\(\) must return one finite number; it returned ndarray of shape \(784,\)")):
+        energy = FreeEnergy(list(FreeEnergy.paper(built.model).terms) + [Lopsided(short)])
+        with pytest.raises(ValueError, match=r"the energy term 'lopsided' \(test_extensions\..*Lopsided\): " + reason):
+            Simulation(built, energy=energy).run(built.initial_state())

@@ -20,7 +20,7 @@ from femphase.analysis.observables import OBSERVABLES, Observable, resolve
 from femphase.analysis.shape import ShapeObservables
 from femphase.config import Numerics
 from femphase.errors import ExtensionError, FemphaseError, FlowError, Interrupted, SceneError, StopRun
-from femphase.model.energy import FreeEnergy
+from femphase.model.energy import FreeEnergy, WindowedFields
 from femphase.scene import Phase, Scene
 from femphase.state import State
 from femphase.timestepping import Stepper
@@ -187,6 +187,7 @@ class Simulation:
             raise TypeError(f"state must be a femphase State (scene.initial_state(), or a checkpoint's), "
                             f"not {type(state).__name__}")
         self._check_state(state)
+        self._check_energy_terms(state)
         self.columns()  # observables that clash are refused before any step
         trackers = [trackers] if isinstance(trackers, Tracker) else list(trackers)
         if not all(isinstance(tracker, Tracker) for tracker in trackers):
@@ -247,6 +248,28 @@ class Simulation:
             for tracker in trackers:
                 tracker.finish(state, error)
         return state
+
+    def _check_energy_terms(self, state: State) -> None:
+        """ValueError naming a free-energy term of the user's own (defined outside femphase)
+        whose energy is no finite number, or whose explicit derivative is not one finite
+        value per position, at ``state``: inside the stepper it was a numpy error naming
+        neither the term nor what it returned."""
+        layout, phi = state.flat()
+        fields = WindowedFields(phi, layout, state.radii)
+        for term in self.energy.terms:
+            module = type(term).__module__ or ""
+            if module == "femphase" or module.startswith("femphase."):
+                continue
+            name = f"the energy term {term.name!r} ({module}.{type(term).__qualname__})"
+            energy = term.energy(fields)
+            if not (np.ndim(energy) == 0 and np.isrealobj(energy) and np.isfinite(energy)):
+                raise ValueError(f"{name}: energy() must return one finite number; it returned "
+                                 f"{type(energy).__name__} of shape {np.shape(energy)}")
+            derivative = np.asarray(term.explicit_derivative(fields))
+            if derivative.shape != phi.shape or not np.isfinite(derivative).all():
+                raise ValueError(f"{name}: explicit_derivative() must return one finite value per position of the "
+                                 f"layout, shape {phi.shape}; it returned shape {derivative.shape}"
+                                 + ("" if derivative.shape != phi.shape else " with values that are not finite"))
 
     def _check_state(self, state: State) -> None:
         """ValueError for a state this scene cannot continue: one on another domain (its
