@@ -311,11 +311,11 @@ def test_zip_sweep_has_one_run_dimension(sweep, tmp_path):
 def test_plot_on_a_sweep_writes_the_figures_and_aggregates_first(sweep, tmp_path, capsys):
     (sweep / "summary.csv").unlink()  # stale: `plot` must aggregate again
     assert main(["plot", str(sweep), "-o", str(tmp_path), "--format", "svg"]) == 0
-    out = capsys.readouterr().out
+    err = capsys.readouterr().err
     assert (sweep / "summary.csv").is_file()
     for name in ("sweep_order", "sweep_dynamics"):
         assert (tmp_path / f"{name}.svg").stat().st_size > 1000
-    assert not (tmp_path / "sweep_period.svg").exists() and "no sweep_period figure" in out
+    assert not (tmp_path / "sweep_period.svg").exists() and "no sweep_period figure" in err
     written = (sweep / "sweep.nc").stat().st_mtime_ns
     assert main(["plot", str(sweep)]) == 0
     assert (sweep / "figures" / "sweep_order.png").is_file()
@@ -331,9 +331,13 @@ def test_plot_names_every_sweep_figure_it_leaves_out(sweep, tmp_path, capsys, mo
 
     monkeypatch.setattr(sweep_plots, "plot_sweep", lambda *args, **kwargs: {"sweep_dynamics": tmp_path / "d.png"})
     assert main(["plot", str(sweep), "-o", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
-    assert "no sweep_order figure: no run that is done has a finite Ψ6, Ψ2^L" in out
-    assert "no sweep_period figure: no run that is done has a finite period" in out
+    captured = capsys.readouterr()  # notes on stderr: stdout lists the figures, one path a line
+    assert "no sweep_order figure: no run that is done has a finite Ψ6, Ψ2^L" in captured.err
+    assert "no sweep_period figure: no run that is done has a finite period" in captured.err
+    assert captured.out.split() == [str(tmp_path / "d.png")]
+    # the ODE's options are a run's: ignored on a sweep, an invalid value too
+    assert main(["plot", str(sweep), "--ode-k", "-1"]) == 2
+    assert "--ode-k = -1.0 applies to a run directory, not to the sweep" in capsys.readouterr().err
 
 
 def test_an_input_that_changes_while_the_aggregate_reads_leaves_it_stale(sweep, tmp_path, monkeypatch):

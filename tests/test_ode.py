@@ -249,6 +249,14 @@ def test_cli_refuses_an_output_path_that_is_a_file(tmp_path):
         args.func(args)
 
 
+def test_cli_names_an_output_directory_it_cannot_make():
+    # "internal error (FileNotFoundError …)", exit 1, as the other commands named -o
+    args = parse(["ode", "--rate", "0.1", "-o", "/proc/femphase-nope"])
+    with pytest.raises(SceneError, match=r"option '-o' = '/proc/femphase-nope' is invalid: a directory femphase can "
+                                         r"write to"):
+        args.func(args)
+
+
 def test_cli_refuses_to_replace_a_solution_without_overwrite(tmp_path):
     run = parse(["ode", "--rate", "0.1", "-o", str(tmp_path)])
     assert run.func(run) == 0

@@ -283,3 +283,14 @@ def test_a_run_scene_that_no_longer_loads_is_named_by_its_file(tiny_run, tmp_pat
     assert main(["compare", str(tiny_run), str(copy), "-o", str(tmp_path / "compared")]) == 2
     err = capsys.readouterr().err
     assert "'mine' is invalid: one of" in err and f"(in {scene})" in err, err
+
+
+def test_a_table_without_its_key_columns_and_an_output_it_cannot_make_are_named(tiny_run, tmp_path, capsys):
+    # a particles.csv without an id column was "internal error (KeyError: 'id')"; a -o that
+    # cannot be made a bare "[Errno 2] No such file or directory"
+    copy = _copy_run(tiny_run, tmp_path / "copy")
+    (copy / "particles.csv").write_text("a,b,c\n")
+    assert main(["plot", str(copy)]) == 2
+    assert "particles.csv' has no column 'time' (its columns: a, b, c): the file is damaged" in capsys.readouterr().err
+    assert main(["plot", str(tiny_run), "-o", "/proc/femphase-nope"]) == 2
+    assert "option '-o' = '/proc/femphase-nope' is invalid: a directory femphase can write to" in capsys.readouterr().err

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from femphase.errors import SceneError
-from femphase.io.files import output_directory
+from femphase.io.files import output_directory, writable_directory
 from femphase.model.minimal import (
     DEFAULT_INITIAL_ELONGATION,
     DEFAULT_PERIODS,
@@ -38,6 +38,7 @@ def run(args: argparse.Namespace) -> int:
         )
     except ParameterError as exc:  # every parameter is an option of the same name
         raise exc.as_option() from None
+    writable_directory(args.output)  # a -o that cannot be made is named as the option
     write_solution(solution, args.output)
     print(f"wrote {args.output / 'ode.csv'} and {args.output / 'ode.json'}")
     return 0

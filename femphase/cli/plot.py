@@ -4,6 +4,7 @@ sweep directory (:mod:`femphase.plot.sweep`)."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 from femphase.errors import InputError
@@ -54,9 +55,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 def _plot_sweep(args: argparse.Namespace) -> int:
     """`femphase plot DIR` on a sweep directory."""
-    if args.ode_rate is not None:
-        raise InputError(f"--ode-rate = {args.ode_rate!r} applies to a run directory, not to the sweep "
-                         f"{str(args.directory)!r}; plot one of its runs/<id> for the ODE comparison")
+    for option, value, default in (("--ode-rate", args.ode_rate, None), ("--ode-k", args.ode_k, K_PAPER)):
+        if value != default:  # ignored without a word, an invalid value too
+            raise InputError(f"{option} = {value!r} applies to a run directory, not to the sweep "
+                             f"{str(args.directory)!r}; plot one of its runs/<id> for the ODE comparison")
     from femphase.plot.sweep import FIGURE_PANELS, plot_sweep
 
     try:
@@ -68,5 +70,5 @@ def _plot_sweep(args: argparse.Namespace) -> int:
     for figure, panels in FIGURE_PANELS.items():  # a figure without a finite value is not drawn: say which
         if figure not in paths:
             measured = ", ".join(name for _, entries in panels for _, name in entries)
-            print(f"femphase: no {figure} figure: no run that is done has a finite {measured}")
+            print(f"femphase: no {figure} figure: no run that is done has a finite {measured}", file=sys.stderr)
     return 0

@@ -291,8 +291,12 @@ def _read_damaged(path: Path, kind: str, read):
     try:
         return read(path)
     except (ValueError, StopIteration) as exc:  # StopIteration: a CSV without even a header
-        raise InputError(f"{str(path)!r} is not a readable {kind} ({exc or 'it is empty'}): the file is damaged; "
-                         "rerun its run (or restore the file)") from None
+        raise InputError(f"{str(path)!r} is not a readable {kind} ({str(exc) or 'it is empty'}): the file is "
+                         "damaged; rerun its run (or restore the file)") from None
+
+
+#: The columns every run's tables have, by file (a table without them is damaged).
+TABLE_KEYS = {"particles.csv": ("time", "id"), "global.csv": ("time",)}
 
 
 def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
@@ -318,6 +322,11 @@ def open_run(directory: str | Path, *, pending: bool = False) -> RunData:
         if info_path.is_file() else {}
     tables = {name: _read_damaged(directory / name, "CSV table of numbers", read_csv)
               if (directory / name).is_file() else {} for name in ("particles.csv", "global.csv")}
+    for name, table in tables.items():
+        missing = [key for key in TABLE_KEYS[name] if table and key not in table]
+        if missing:
+            raise InputError(f"{str(directory / name)!r} has no column {missing[0]!r} (its columns: "
+                             f"{', '.join(table)}): the file is damaged; rerun its run (or restore the file)")
     rows, frame_rows = tables["particles.csv"], tables["global.csv"]
     time = merge_times(rows.get("time", np.empty(0)), frame_rows.get("time", np.empty(0)))
     globals_ = {}

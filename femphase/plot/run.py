@@ -44,6 +44,7 @@ import numpy as np
 from femphase.analysis.periods import limit_cycle
 from femphase.io.checkpoints import load_checkpoint
 from femphase.io.fields import point_data
+from femphase.io.files import writable_directory
 from femphase.io.reader import RunData, match_times, open_run
 from femphase.io.rundir import CHECKPOINT, FIGURES
 from femphase.model.minimal import MAX_HALF_PERIODS, ParameterError
@@ -325,6 +326,7 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
         raise ParameterError("ode_rate", ode_rate, "the shear rate γ̇ of the ODE: a finite number > 0")
     if not (np.isfinite(ode_k) and ode_k > 0):
         raise ParameterError("ode_k", ode_k, "the ODE's k (ω = k γ̇): a finite number > 0")
+    writable_directory(out)  # one that cannot be made is named as -o, before any figure is drawn
     rate = ode_rate if ode_rate is not None else run.shear_rate
     if rate is not None and rate < 0:  # the run's own rate: a shear towards −x
         warnings.warn(f"no minimal-model curve: it is drawn for γ̇ > 0, and the run's shear is γ̇ = {rate:g} "
