@@ -153,7 +153,8 @@ def load_grid_data(path: str | Path) -> GridData:
     """Read grid data written in the layout of the module docstring."""
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"'{path}' is neither a run directory nor a grid data file")
+        raise ValueError(f"'{path}' is neither a run directory nor a grid data file"
+                         + ("" if path.exists() else " (it does not exist)"))
     try:
         if path.suffix == ".npz":
             import zipfile

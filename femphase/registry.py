@@ -117,7 +117,8 @@ def import_extensions(names: str | None = None) -> None:
             import_module(name)
         except (Exception, SystemExit) as exc:  # importing runs the user's module: it may raise anything
             raise SceneError("--import", name, f"an importable module of femphase extensions ({type(exc).__name__}: "
-                             f"{exc}; it is looked up on PYTHONPATH, then in the working directory)") from None
+                             f"{exc}; it is looked up on PYTHONPATH, then in the working directory; named by --import "
+                             f"or the environment variable {EXTENSIONS_VARIABLE} = {names!r})") from None
 
 
 def import_module(name: str):

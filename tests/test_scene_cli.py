@@ -742,3 +742,21 @@ def test_a_flow_that_moves_the_fields_beyond_their_digits_is_refused():
         scene_from_dict({**SMALL, "phases": phases})
     assert refused.value.key == "phases.1.flow" and "one step of dt = 1 moves them 1e+200" in str(refused.value)
     scene_from_dict({**SMALL, "phases": [phases[0], {**phases[1], "flow": {"type": "shear", "rate": 1e5}}]})
+
+
+def test_top_level_options_name_what_the_user_gave(tmp_path, capsys, monkeypatch):
+    # FEMPHASE_IMPORT's module was refused as the option --import, which was not given;
+    # --import "" was accepted without a word; --traceback, which internal errors ask for,
+    # was refused after the command ("unrecognized arguments")
+    monkeypatch.setenv("FEMPHASE_IMPORT", "femphase_no_such_module")
+    scene = write_scene(tmp_path / "s.toml")
+    assert main(["run", str(scene), "-o", str(tmp_path / "r"), "-q"]) == 2
+    assert "the environment variable FEMPHASE_IMPORT = 'femphase_no_such_module'" in capsys.readouterr().err
+    monkeypatch.delenv("FEMPHASE_IMPORT")
+    assert main(["--import", " ", "run", str(scene), "-o", str(tmp_path / "r"), "-q"]) == 2
+    assert "option '--import' = ' ' is invalid: the name of a module to import (it is empty)" in capsys.readouterr().err
+    assert main(["run", str(scene), "-o", str(tmp_path / "r"), "-q"]) == 0
+    capsys.readouterr()
+    assert main(["compare", str(tmp_path / "r"), str(tmp_path / "none.npz"), "--traceback"]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" in err and "none.npz' is neither a run directory nor a grid data file (it does not exist)" in err

@@ -43,7 +43,7 @@ import warnings
 
 from femphase import __version__
 from femphase.cli import aggregate, compare, converge, ode, plot, run, sweep
-from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted, RunStopped
+from femphase.errors import BlowUpError, FemphaseError, FlowError, Interrupted, RunStopped, SceneError
 from femphase.io.console import console_handler, log_warning
 from femphase.registry import EXTENSIONS_VARIABLE, import_extensions
 
@@ -57,7 +57,7 @@ COMMANDS = (run, ode, compare, plot, sweep, aggregate, converge)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="femphase", description=__doc__.split("\n\n")[0])
+    parser = argparse.ArgumentParser(prog="femphase", description=__doc__.split("\n\n")[0].replace("``", ""))
     parser.add_argument("--version", action="version", version=f"femphase {__version__}")
     parser.add_argument("--traceback", action="store_true", help="show the Python traceback of an error (for bug reports)")
     parser.add_argument("--import", dest="extensions", action="append", default=[], metavar="MODULE",
@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.register(commands)
+    for subparser in commands.choices.values():  # after the command too, where its error message sends users
+        subparser.add_argument("--traceback", action="store_true", default=argparse.SUPPRESS,
+                               help="show the Python traceback of an error (for bug reports)")
     return parser
 
 
@@ -85,6 +88,9 @@ def main(argv: list[str] | None = None) -> int:
     LOGGER.addHandler(console)
     LOGGER.setLevel(logging.INFO)
     try:
+        blank = [name for name in args.extensions if not name.strip()]
+        if blank:
+            raise SceneError("--import", blank[0], "the name of a module to import (it is empty)")
         if args.extensions:  # in the environment, so that sweeps' and studies' workers import them too
             os.environ[EXTENSIONS_VARIABLE] = ",".join(
                 part for part in [os.environ.get(EXTENSIONS_VARIABLE, ""), *args.extensions] if part)
