@@ -303,8 +303,10 @@ def _level_keys(parameter: str, phases: int) -> list[str]:
 def study_sweep(scene: Path, parameter: str, values: list[float], phases: int) -> str:
     """The sweep file (TOML text) of a study: ``scene`` and the axis of ``parameter``
     (every phase's dt, zipped, for "dt")."""
+    from femphase.sweep import STUDY_HEADER  # the sweep's module loads the run's: only where a study starts
+
     keys = _level_keys(parameter, phases)
-    lines = ["# femphase converge: the study's runs (a sweep file, docs/sweeps.md)", "[sweep]",
+    lines = [STUDY_HEADER, "[sweep]",
              f"scene = {toml_value(str(Path(scene).resolve()))}", f'mode = "{"zip" if len(keys) > 1 else "product"}"',
              "", "[axes]"]
     values = [str(Path(v).resolve()) for v in values] if parameter == "mesh" else [float(v) for v in values]
@@ -522,6 +524,11 @@ def _study_error(exc: SceneError, refined: str, levels: list) -> ConvergenceErro
             value = levels
             valid = re.sub(r"the axes (\[[^]]*\]), in that order",
                            lambda match: f"levels of {_options_of(ast.literal_eval(match[1]))}, the option refined", valid)
+    elif key == "sweep.mode":  # every phase's dt is refined zipped, one other key alone: another parameter
+        where = re.search(r"as in the sweep of (.*?), which", valid)
+        key, value = refined, levels
+        valid = (f"levels of the parameter the study of {where[1] if where else 'this directory'} refines, which is "
+                 "another; start a new directory for another study")
     elif key == "sweep.scene":
         key = "SCENE"  # the study's argument, as femphase run names its own
     valid = (valid.replace("as in the sweep of", "as in the study of")

@@ -346,6 +346,11 @@ def _write_index(directory: Path, index: dict) -> None:
     atomic_write(directory / "sweep.json", json.dumps(index, indent=2, default=jsonable) + "\n")
 
 
+#: The first line of a convergence study's sweep file (:func:`femphase.converge.study_sweep`):
+#: a study's directory and a sweep's are not each other's.
+STUDY_HEADER = "# femphase converge: the study's runs (a sweep file, docs/sweeps.md)"
+
+
 def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
     """The runs recorded in an existing sweep directory (id → entry of sweep.json); refuses
     a sweep file that changed other than by adding values, or a changed base scene."""
@@ -360,12 +365,18 @@ def _check_directory(sweep: Sweep, directory: Path) -> dict[str, dict]:
         return {}
     try:
         index = json.loads(stored.read_text())
-        old = tomlio.loads((directory / "sweep.toml").read_text(encoding="utf-8"))
+        old_text = (directory / "sweep.toml").read_text(encoding="utf-8")
+        old = tomlio.loads(old_text)
         old_set = _overrides(old, json.loads((directory / "sweep-set.json").read_text()))
         old_scene = (directory / "base-scene.toml").read_text(encoding="utf-8")
     except (OSError, ValueError) as exc:
         raise SweepError("-o", str(directory), f"a sweep directory with readable sweep.json, sweep.toml, "
                          f"sweep-set.json and base-scene.toml ({exc})") from None
+    kinds = {True: "a convergence study (femphase converge)", False: "a sweep (femphase sweep)"}
+    was_study, is_study = old_text.startswith(STUDY_HEADER), sweep.text.startswith(STUDY_HEADER)
+    if was_study != is_study:
+        raise SweepError("-o", str(directory), f"a new directory, or one of {kinds[is_study]}: it holds "
+                         f"{kinds[was_study]}")
     hint = (f"as in the sweep of {directory}, which accepts added values only (start a new directory for "
             "another sweep)")
     # the mode spelled out or left at its default is the same sweep
@@ -576,15 +587,15 @@ def _malloc_setting() -> str | None:
     return os.environ.get(SLOW_MALLOC)
 
 
-def _check_workers(client, log: Callable[[str], None]) -> None:
+def _check_workers(client) -> None:
     """Warn when workers run with :data:`SLOW_MALLOC` set."""
     settings = client.run(_malloc_setting)
     slow = sorted({value for value in settings.values() if value is not None})
-    if slow:
-        log(f"femphase sweep: warning: {sum(v is not None for v in settings.values())} of {len(settings)} workers "
-            f"run with {SLOW_MALLOC}={', '.join(slow)} (Dask's default), which makes their runs 2.5-3.5x slower; "
-            f"start them with the Dask config distributed.nanny.pre-spawn-environ.{SLOW_MALLOC}: null "
-            "(docs/sweeps.md, \"Workers\")")
+    if slow:  # a warning, on stderr with the others: the log is the sweep's progress
+        warnings.warn(f"{sum(v is not None for v in settings.values())} of {len(settings)} workers run with "
+                      f"{SLOW_MALLOC}={', '.join(slow)} (Dask's default), which makes their runs 2.5-3.5x slower; "
+                      f"start them with the Dask config distributed.nanny.pre-spawn-environ.{SLOW_MALLOC}: null "
+                      "(docs/sweeps.md, \"Workers\")", stacklevel=2)
 
 
 def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, assignments: list[str] = (),
@@ -622,7 +633,7 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
             log(f"femphase sweep: {len(sweep.runs)} runs, {len(sweep.runs) - len(todo)} done, {len(todo)} to run")
             if todo:
                 try:
-                    _check_workers(dask, log)
+                    _check_workers(dask)
                     _submit(sweep, directory, todo, statuses, dask, log)
                 except BaseException:
                     # a run a worker finished while the cluster shut down is done, not interrupted

@@ -423,6 +423,23 @@ def test_a_changed_study_is_refused_in_the_terms_of_its_options(tmp_path):
                        match=r"option '--h' = \[1\.0, 0\.25\] is invalid: .*accepts added levels only"):
         run_convergence(scene, tmp_path / "study", "h", [1.0, 0.25], ["area"], [*quick, "phases.0.dt=1.0"],
                         workers=1, log=lambda line: None)
+    # --h into a --dt study of two phases (dt zipped): "scene key 'sweep.mode' = 'product'", a key no study writes
+    from femphase.converge import _study_error
+    from femphase.sweep import SweepError
+
+    mode = SweepError("sweep.mode", "product", f"'zip' as in the sweep of {tmp_path}, which accepts added values only "
+                                               "(start a new directory for another sweep)")
+    assert str(_study_error(mode, "--h", [1.0, 0.5])) == (
+        f"option '--h' = [1.0, 0.5] is invalid: levels of the parameter the study of {tmp_path} refines, which is "
+        "another; start a new directory for another study")
+    # a study's directory given to femphase sweep: it named the sweep's mode and its keys
+    from femphase.sweep import run_sweep
+
+    sweep = tmp_path / "sweep.toml"
+    sweep.write_text(f'[sweep]\nscene = "{scene}"\n[axes]\n"numerics.tolerance_t" = [0.1]\n')
+    with pytest.raises(SweepError, match=r"option '-o' = .* is invalid: a new directory, or one of a sweep \(femphase "
+                                         r"sweep\): it holds a convergence study \(femphase converge\)"):
+        run_sweep(sweep, tmp_path / "study", workers=1, log=lambda line: None)
 
 
 def test_a_negative_level_list_gets_the_options_own_message(tmp_path, capsys):

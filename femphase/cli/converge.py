@@ -85,7 +85,8 @@ def run(args: argparse.Namespace) -> int:
         with sigterm_as_interrupt() as terminated:
             result = run_convergence(args.scene, args.output, parameter, given[parameter], observables,
                                      [*fixed, *args.set], expected_order=args.order, workers=args.workers,
-                                     scheduler=args.scheduler, log=lambda line: print(line, flush=True))
+                                     scheduler=args.scheduler, log=lambda line: print(line.replace("femphase sweep:", "femphase converge:", 1),
+                                                                           flush=True))
     except KeyboardInterrupt:
         print(f"femphase converge: interrupted; rerun the same command to continue ({args.output})", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
@@ -133,7 +134,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         help="comma-separated: period, mean_elongation, area, separation (default mean_elongation)")
     parser.add_argument("--order", type=float, default=None,
                         help="the formal order: used with two levels and when the observed order exceeds it "
-                             "(default 2 for --h, --mesh and --dt, 1 for --tolerance-t)")
+                             "(default 2 for --h and --mesh, the scheme's order for --dt (euler: 1), 1 for "
+                             "--tolerance-t)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="override a scene value in every run, e.g. --set phases.1.duration=2000")
     where = parser.add_mutually_exclusive_group()
