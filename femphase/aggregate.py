@@ -365,10 +365,16 @@ def _warn_short_runs(sweep: Sweep, completes: list[RunData], summary: list[dict]
             continue
         end = sum(float(phase["duration"]) for phase in table.scene.get("phases", [])) if table.scene else math.nan
         reached = float(table.time[-1]) if len(table.time) else math.nan
+        # global.csv cut on its own leaves the particles' frames whole and its columns NaN
+        rows = np.any([np.isfinite(values) for values in table.globals.values()], axis=0) if table.globals else None
+        globals_reached = float(table.time[np.flatnonzero(rows)[-1]]) if rows is not None and rows.any() else math.nan
+        tolerance = TIME_TOLERANCE * max(1.0, abs(end))
         if not run.directory.is_dir():
             short.append(f"{run.id} (its directory is gone)")
-        elif row["run_status"] != "completed" or not reached >= end - TIME_TOLERANCE * max(1.0, abs(end)):
+        elif row["run_status"] != "completed" or not reached >= end - tolerance:
             short.append(f"{run.id} (run.json: {row['run_status'] or 'missing'}, frames to t = {reached:g} of {end:g})")
+        elif rows is not None and not globals_reached >= end - tolerance:
+            short.append(f"{run.id} (global.csv's rows to t = {globals_reached:g} of {end:g})")
     if short:
         warnings.warn(f"sweep.json calls {len(short)} run{'s' if len(short) > 1 else ''} done whose directories do "
                       "not hold a completed run "

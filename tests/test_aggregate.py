@@ -214,6 +214,11 @@ def test_runs_called_done_whose_directories_were_cut_are_warned(sweep, tmp_path)
                                          r"completed, frames to t = 25 of 80\)"):
         result = aggregate(copy)
     assert [row["n_frames"] for row in result.summary[:2]] == [0, 4]
+    # global.csv cut alone: the particles' frames whole, its columns NaN from there, without a word
+    lines = (copy / "runs" / "002" / "global.csv").read_text().splitlines(keepends=True)
+    (copy / "runs" / "002" / "global.csv").write_text("".join(lines[:4]))  # t = 0, 10, 20
+    with pytest.warns(UserWarning, match=r"002 \(global\.csv's rows to t = 20 of 80\)"):
+        aggregate(copy)
 
 
 def test_averaging_window_is_the_papers_last_50_of_250_frames():
