@@ -342,7 +342,9 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
         warning = same_substeps(levels)
         if warning:
             unresolved = same_substeps(levels[-3:]) != ""  # a pair among the three the limit comes from
-            estimates = {name: _without_limit(e, warning) if unresolved else
+            # an observable not measured keeps that reason first: the substeps are not why it has no limit
+            estimates = {name: _without_limit(e, f"{e.note}; {warning}" if e.note.startswith("not measured") else
+                                              warning) if unresolved else
                          replace(e, note=f"{e.note}; {warning}" if e.note else warning)
                          for name, e in estimates.items()}
     _write_tables(directory, parameter, levels, estimates)

@@ -265,6 +265,11 @@ def test_a_tolerance_study_names_the_levels_whose_substeps_the_tolerance_did_not
     assert all(0 <= level["capped"] <= level["substeps"] for level in levels)
     header = (tmp_path / "study" / "convergence.csv").read_text().splitlines()[0]
     assert "substeps,rejected,capped,mean_substep" in header
+    # an observable measured in no run says so first: the note gave the substeps alone
+    from femphase.converge import analyse
+
+    period = analyse(tmp_path / "study", "tolerance_t", ["period"])["estimates"]["period"]
+    assert period.note.startswith("no limit: not measured in 3 of the 3 runs; tolerance_t = 0.1 and 0.03"), period.note
 
 
 def test_levels_with_different_substeps_get_no_note():
