@@ -189,7 +189,8 @@ def read_sweep(directory: str | Path) -> Sweep:
     directory = Path(directory)
     path = directory / SWEEP_INDEX
     if not path.is_file():
-        what = "does not exist" if not directory.exists() else f"has no {SWEEP_INDEX}"
+        what = ("does not exist" if not directory.exists() else "is a file, not a directory"
+                if not directory.is_dir() else f"has no {SWEEP_INDEX}")
         raise InputError(f"sweep directory {str(directory)!r} {what}: expected the output directory of "
                          "`femphase sweep SWEEP.toml -o DIR`")
     try:

@@ -381,6 +381,9 @@ def test_not_a_sweep_is_a_clear_error(tmp_path, capsys):
     assert "has no sweep.json" in capsys.readouterr().err
     assert main(["aggregate", str(tmp_path / "nowhere")]) == 2
     assert "does not exist" in capsys.readouterr().err
+    (tmp_path / "file").write_text("")  # it said "has no sweep.json"
+    assert main(["aggregate", str(tmp_path / "file")]) == 2
+    assert "is a file, not a directory" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("change, message", [

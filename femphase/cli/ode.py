@@ -53,8 +53,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
         description="Solve the minimal model r(t), θ(t), φ(t) of Hadjifrangiskou, Valani & "
         "Pinto and write ode.csv and ode.json.",
     )
-    parser.add_argument("--rate", type=float, required=True, help="shear rate γ̇ (> 0)")
-    parser.add_argument("-o", "--output", required=True, help="output directory")
+    parser.add_argument("--rate", type=float, required=True,
+                        help="shear rate γ̇ (> 0; the scenes' velocity scale, the number a scene's flow.rate gives: "
+                             "ω = kγ̇ per time unit)")
+    parser.add_argument("-o", "--output", required=True,
+                        help="output directory (ode.csv, ode.json: docs/outputs.md)")
     parser.add_argument("--overwrite", action="store_true", help="replace the ode.csv and ode.json it holds")
     parser.add_argument(
         "--t-end", type=float, default=None,

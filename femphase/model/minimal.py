@@ -264,7 +264,7 @@ def solve_minimal_model(
     # each half period is integrated apart (about 10 ms): beyond this, minutes to hours
     _require("t_end", t_end, t_end / half_period <= MAX_HALF_PERIODS,
              f"at most {MAX_HALF_PERIODS} half periods π/(2ω) = {half_period:.4g} (ω = kγ̇), i.e. t_end ≤ "
-             f"{MAX_HALF_PERIODS * half_period:.4g}; this one spans {t_end / half_period:.0f}")
+             f"{MAX_HALF_PERIODS * half_period:.4g}; this one spans {t_end / half_period:.0f} half periods")
 
     starts = _half_period_marks(rate, t_end, parameters.k)
     ends = np.append(starts[1:], t_end)
