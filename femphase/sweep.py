@@ -614,7 +614,19 @@ def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, 
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep, assignments)
     directory = output_directory(directory).resolve()  # "" is refused, not taken for "."
     recorded = _check_directory(sweep, directory)
+    fresh = not directory.exists()
     writable_directory(directory)
+    try:
+        return _run_locked(sweep, directory, recorded, client, scheduler, workers, log)
+    except BaseException:
+        if fresh and not (directory / "sweep.json").exists():  # what this call made, holding no sweep yet
+            shutil.rmtree(directory, ignore_errors=True)
+        raise
+
+
+def _run_locked(sweep: Sweep, directory: Path, recorded: dict, client, scheduler: str | None, workers: int | None,
+                log: Callable[[str], None]) -> dict:
+    """:func:`run_sweep` in a checked, writable ``directory``, under its lock."""
     with locked(directory / "locks" / "sweep.lock", blocking=False) as mine:
         if not mine:
             raise SweepError("-o", str(directory), "a sweep directory no other femphase sweep is running on")

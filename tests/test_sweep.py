@@ -153,8 +153,14 @@ def test_a_scheduler_that_cannot_be_reached_is_named_as_the_option(tmp_path, add
     # the failed Client, alive while its exception is, is not left as Dask's default scheduler
     # (femphase converge's netCDF write in the same process then asked for it)
     assert dask.config.get("scheduler", None) == before
-    # nothing ran, so nothing ties the directory to this sweep file (a corrected one was refused)
-    assert sorted(path.name for path in (tmp_path / "out").iterdir()) == ["locks"]
+    # nothing ran, so nothing ties the directory to this sweep file (a corrected one was refused),
+    # and a directory this call made is gone again (it left locks/sweep.lock)
+    assert not (tmp_path / "out").exists()
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("kept")
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}), pytest.raises(SweepError):
+        run_sweep(write(tmp_path), tmp_path / "mine", scheduler=address)
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "kept"  # a directory it did not make stays
 
 
 def test_an_output_path_through_a_file_is_bad_input(tmp_path, capsys):
