@@ -23,8 +23,8 @@ import numpy as np
 from femphase.errors import FlowError, SceneError
 from femphase.registry import Registry, import_module
 
-__all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "largest_speed", "linear_shear",
-           "no_flow", "number", "poiseuille", "python_flow", "row_flow"]
+__all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "largest_speed",
+           "linear_shear", "no_flow", "number", "poiseuille", "python_flow", "row_flow"]
 
 
 SHEAR_SCALES = ("wall_velocity", "shear_rate")

@@ -146,10 +146,11 @@ def _report(exc: BaseException) -> tuple[int | None, str]:
     def said(checkpoint: str) -> str:
         return checkpoint if kept == "checkpoint" else lost or ""
 
-    if isinstance(exc, Interrupted):
-        return exc.exit_code, f"{exc}; " + said("the checkpoint of that step is kept (continue with --resume)")
-    if isinstance(exc, KeyboardInterrupt):
-        return 130, "interrupted" + (f"; {said('the last checkpoint is kept (continue with --resume)')}" if kept else "")
+    if isinstance(exc, (Interrupted, KeyboardInterrupt)):
+        kept_now = said("the checkpoint of that step is kept (continue with --resume)" if isinstance(exc, Interrupted)
+                        else "the last checkpoint is kept (continue with --resume)")
+        return (exc.exit_code if isinstance(exc, Interrupted) else 130,
+                (f"{exc}" if isinstance(exc, Interrupted) else "interrupted") + (f"; {kept_now}" if kept_now else ""))
     if isinstance(exc, (RunStopped, FlowError)):
         what = said("the last good checkpoint is kept" if isinstance(exc, (BlowUpError, FlowError)) else
                     "the last checkpoint is kept")

@@ -85,8 +85,7 @@ def run(args: argparse.Namespace) -> int:
         with sigterm_as_interrupt() as terminated:
             result = run_convergence(args.scene, args.output, parameter, given[parameter], observables,
                                      [*fixed, *args.set], expected_order=args.order, workers=args.workers,
-                                     scheduler=args.scheduler, log=lambda line: print(line.replace("femphase sweep:", "femphase converge:", 1),
-                                                                           flush=True))
+                                     scheduler=args.scheduler, log=_progress)
     except KeyboardInterrupt:
         print(f"femphase converge: interrupted; rerun the same command to continue ({args.output})", file=sys.stderr)
         return EXIT_TERMINATED if terminated else EXIT_INTERRUPTED
@@ -111,6 +110,11 @@ def run(args: argparse.Namespace) -> int:
     print(("(* assumed, not observed)  " if assumed else "") + f"tables: {Path(args.output) / 'convergence.csv'}, "
           "convergence.nc; figure: convergence.png")
     return 0
+
+
+def _progress(line: str) -> None:
+    """A line of the study's sweep, as this command's (the sweep's prefix is its own)."""
+    print(line.replace("femphase sweep:", "femphase converge:", 1), flush=True)
 
 
 def register(subparsers: argparse._SubParsersAction) -> None:

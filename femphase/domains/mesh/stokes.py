@@ -91,8 +91,8 @@ from femphase.fem.periodic import fold_matrix, periodic_dof_map
 from femphase.flows import FLOWS, Flow
 
 __all__ = ["STOKES_DRIVES", "StokesCacheWarning", "StokesFlow", "cache_dir", "cache_key", "cache_path",
-           "build_stokes_flow", "channel_mesh", "check_open_channel", "domain_stokes_flow", "poiseuille_profile", "solve_stokes", "stokes_drive",
-           "stokes_flow", "unit_stokes_flow"]
+           "build_stokes_flow", "channel_mesh", "check_open_channel", "domain_stokes_flow", "poiseuille_profile",
+           "solve_stokes", "stokes_drive", "stokes_flow", "unit_stokes_flow"]
 
 
 #: Keys of a scene's ``flow = {type = "stokes", ...}`` table; exactly one driving key.
