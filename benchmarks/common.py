@@ -2,8 +2,9 @@
 
 import os
 
-# BLAS/OpenMP threads oversubscribe the 2-core reference machine (3–10× slower seen)
-for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+# BLAS/OpenMP threads oversubscribe the 2-core reference machine (3–10× slower seen); numba's
+# too, for any parallel loop (femphase compiles none)
+for _name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMBA_NUM_THREADS"):
     os.environ[_name] = "1"
 
 import argparse  # noqa: E402

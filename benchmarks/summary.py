@@ -134,7 +134,8 @@ ROWS = (
         _time_error("FEM euler"), "python benchmarks/work_precision.py --schemes"),
     Row("tolerance proportionality (a disc relaxing, two discs drifting apart, the sheared lattice's r̄(t))",
         "benchmarks/results/tolerance.json", _tolerance, "python benchmarks/tolerance.py"),
-    Row("lattice under shear (N = 100), CPU per time unit at the default",
+    Row("lattice under shear (N = 100), CPU per time unit of the shear's steps at the default (no relaxation, "
+        "no frames; whole runs: the first two rows)",
         "benchmarks/results/step_time.json",
         lambda d: (f"{d['default_ms_per_time_unit']:.2f} ms; "
                    f"{d['speedup_over_euler_dt_0.1_at_equal_period_error']:.1f}× first order at equal period error"),
@@ -157,7 +158,8 @@ ROWS = (
         _protocol_alone,
         "python benchmarks/protocol.py --scene obstacle_mesh.toml --rates none "
         "--output protocol_obstacle_solves_alone.json"),
-    Row("meshed obstacle channel (examples/obstacle_mesh.toml, dt = 10), memory under flow",
+    Row("meshed obstacle channel (examples/obstacle_mesh.toml, dt = 10, relaxed 200, then 4000 of Stokes flow), "
+        "memory under flow; the flow's CPU from the end of the relaxation, its set-up included",
         "benchmarks/results/mesh_memory.json", _mesh_memory, "python benchmarks/mesh_memory.py --stokes-time 4000"),
 )
 
