@@ -26,7 +26,9 @@ of the time; the summary says how many frames each input has and how many matche
 * observables, per frame: the largest ``|difference|`` over the particles (particles matched by
   id) of the centroid x (minimum image over the period) and y, the area ∫φ², the elongation
   and the orientation (nematic: differences taken modulo π; only for particles whose
-  elongation is ≥ 0.01 in both inputs, a disc has no orientation). The centroid and shape
+  elongation is ≥ 0.01 in both inputs, a disc has no orientation; a mesh whose diagonals
+  all point one way, meshes/straight_structured.vtu, reads a disc as r = 0.026 along them,
+  docs/outputs.md, so there the orientations of near-discs are the mesh's). The centroid and shape
   are taken over the particles present in both inputs (a vanished particle's are NaN,
   docs/outputs.md); the area over all, so a particle that vanished in one input only
   shows there. Runs read them from
