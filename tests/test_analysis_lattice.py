@@ -177,6 +177,15 @@ def test_constructed_t1_loses_one_pair_and_gains_one():
     assert lattice.t1_event_times(frames, [0.0, 1.0], LX).tolist() == [1.0]
 
 
+def test_a_flip_counts_once_the_lost_bond_is_ten_percent_longer_than_the_gained():
+    # pins DEFAULT_LENGTH_CONTRAST: a doubled contrast passed every test, whose frames jumped
+    # from a length ratio of 1.035 to 1.258. The lost bond a–b is 10, the gained c–d the gap:
+    # 10/9.5 = 1.053 is not decisive, 10/8.8 = 1.136 is
+    frames = [t1_quadrilateral(gap) for gap in (14.0, 9.5, 8.8)]
+    assert lattice.t1_event_times(frames, [0.0, 1.0, 2.0], LX).tolist() == [2.0]
+    assert lattice.t1_event_times(frames, [0.0, 1.0, 2.0], LX, length_contrast=0.2).tolist() == []
+
+
 def test_t1_counting_ignores_flickering_at_the_square():
     # every lane interface slides one spacing, crossing one square (s = a/2) where its five
     # cells flip; near the square the Delaunay choice flickers back and forth

@@ -49,6 +49,21 @@ def test_gradient_matches_finite_difference_of_discrete_energy():
         assert numeric == pytest.approx(layout.mass[p] * gradient[p], rel=1e-6, abs=1e-9)
 
 
+def test_a_decaying_terms_rate_times_phi_is_its_derivative():
+    # the repulsion's decay_rate drives the default scheme's split flow step, and nothing
+    # tied it to the derivative the energy test checks: halved, it changed the split step's
+    # fields by 0.06 with every test passing
+    state = random_state()
+    layout, phi = state.flat()
+    fields = WindowedFields(phi, layout, state.radii)
+    decaying = [term for term in FreeEnergy.paper(ModelParameters()).terms if term.decays]
+    assert [term.name for term in decaying] == ["repulsion"]
+    for term in decaying:
+        rate = term.decay_rate(fields)
+        assert np.all(rate >= 0)
+        np.testing.assert_allclose(rate * phi, term.explicit_derivative(fields), rtol=1e-12, atol=1e-15)
+
+
 def dense_energy(state, params):
     """The free energy from the dense (N, n_dofs) fields and the assembled operators."""
     ops = state.domain.operators

@@ -55,3 +55,29 @@ def test_a_time_dependent_flow_is_rejected_with_its_key_when_a_key_is_missing():
         scene_from_dict({"domain": {"Lx": LX, "Ly": LY}, "particles": {"layout": "single"},
                          "phases": [{"duration": 1.0, "dt": 1.0, "frame_interval": 1.0,
                                      "flow": {"type": "oscillating_shear", "rate": 0.1}}]})
+
+
+def test_flows_measure_y_from_the_lower_wall_and_the_oscillation_from_its_phase():
+    # every test's lower wall was at y = 0, where y − y0 is y: dropping y0 from the shear, or
+    # its sign in Poiseuille, went unseen, and so did the sign of the oscillation's phase
+    from skfem import MeshTri
+
+    from femphase.domains.mesh.domain import MeshDomain
+    from femphase.flows import flow_from_spec
+
+    mesh, _ = structured_channel(20.0, 12.0, 1.0)
+    domain = MeshDomain.from_mesh(MeshTri(mesh.p + np.array([[0.0], [-4.0]]), mesh.t))  # walls at y = −4 and 8
+    y = np.array([-4.0, 2.0, 8.0])
+    x = np.zeros_like(y)
+    shear = flow_from_spec({"type": "shear", "rate": 0.3}, domain)
+    np.testing.assert_allclose(shear.velocity(x, y, 0.0)[0], [0.0, 0.15, 0.3], atol=1e-15)
+    plain = flow_from_spec({"type": "shear", "rate": 0.3, "scale": "shear_rate"}, domain)
+    np.testing.assert_allclose(plain.velocity(x, y, 0.0)[0], [0.0, 1.8, 3.6], atol=1e-14)
+    poiseuille = flow_from_spec({"type": "poiseuille", "rate": 0.3}, domain)
+    np.testing.assert_allclose(poiseuille.velocity(x, y, 0.0)[0], [0.0, 0.3, 0.0], atol=1e-15)
+    omega, start = 0.2, 7.0  # φ0 = −ωT starts the oscillation from rest at the run's time T
+    oscillating = flow_from_spec({"type": "oscillating_shear", "rate": 0.3, "frequency": omega,
+                                  "phase": -omega * start}, domain)
+    np.testing.assert_allclose(oscillating.velocity(x, y, start)[0], 0.0, atol=1e-15)
+    quarter = start + 0.5 * np.pi / omega
+    np.testing.assert_allclose(oscillating.velocity(x, y, quarter)[0], [0.0, 0.15, 0.3], atol=1e-15)

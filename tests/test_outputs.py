@@ -237,6 +237,13 @@ def test_a_vanished_particle_has_no_centroid_or_shape_and_no_neighbours():
     state.fields[2][:] *= 1e-40       # rounding noise: a centroid that could lie anywhere
     layout, phi = state.flat()
     assert present(layout, phi).tolist() == [True, False, False, True]
+    # the level is the interface's, 1/2 (fields of 0 and 1e-40 did not pin it): a faded field
+    # that peaks just below it has vanished, one just above has not
+    faded = [field / max(field.max(), 1e-300) for field in state.fields]  # the zero field stays zero
+    for peak, expected in ((0.49, False), (0.51, True)):
+        layout, phi = type(state)(state.domain, state.windows, [peak * f for f in faded], state.radii).flat()
+        assert present(layout, phi).tolist() == [expected, False, expected, expected]
+    layout, phi = state.flat()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no divide-by-zero warnings on the way
         shape = shape_observables(state)
