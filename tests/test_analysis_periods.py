@@ -205,3 +205,23 @@ def test_first_peaks_are_the_primary_peak_times():
     shift = 0.3 * (time[1] - time[0])
     np.testing.assert_allclose(periods.first_peaks(time, elongation(time - shift, transient=0.0)), peaks + shift,
                                atol=0.05 * (time[1] - time[0]))
+
+
+def test_the_uncertainty_is_the_documented_sum_of_its_parts(monkeypatch):
+    # each part of the composition was loose in the tests: the standard error's ddof, the half
+    # difference of the two estimates and the resolution's √6 could change unseen. The peaks
+    # are set here, so every part is known: intervals 10, 11, 9, 11 (mean 10.25) against the
+    # autocorrelation's period (10, refined between samples 0.5 apart)
+    time = np.arange(0.0, 120.0, 0.5)
+    signal = np.sin(2 * np.pi * time / 10.0)
+    monkeypatch.setattr(periods, "_primary_peak_times", lambda grid, values, period: np.array([2.5, 12.5, 23.5, 32.5,
+                                                                                                43.5]))
+    monkeypatch.setattr(periods, "_period_drift", lambda intervals, resolution: 0.0)
+    estimate = periods.oscillation_period(time, signal, discard_fraction=0.0)
+    assert estimate.period == pytest.approx(10.0, rel=1e-3) and estimate.n_cycles == 4
+    intervals = np.array([10.0, 11.0, 9.0, 11.0])
+    standard_error = np.sqrt(np.sum((intervals - 10.25) ** 2) / 3) / 2  # s.d. with n − 1, over √n
+    half_difference = (estimate.period - 10.25) / 2
+    resolution = 0.5 / (np.sqrt(6) * 4)  # each end peak uniform within ± step/2: step/√12 each, √2 of them, over n
+    assert estimate.uncertainty == pytest.approx(np.sqrt(standard_error**2 + half_difference**2 + resolution**2),
+                                                 rel=1e-12)
