@@ -110,6 +110,16 @@ def test_a_measured_uncertainty_widens_the_bar_and_noise_is_named():
     assert resolved.error_bar < 1.01 * np.hypot(exact.error_bar, 2 * np.hypot(4 / 3, 1 / 3))
 
 
+def test_noise_is_looked_for_in_both_differences_of_the_finest_three():
+    # only two-level studies tested it, where the finest pair is the only pair: a check of
+    # the finest pair alone passed. Here the coarser difference (4) is within twice its
+    # uncertainty (2 √(1.5² + 1.5²) = 4.24) and the finer (3.5) above its own
+    # (2 √(1.5² + 0.1²) = 3.007)
+    estimate = richardson([1.0, 0.5, 0.25], [10.0, 14.0, 17.5], uncertainties=[1.5, 1.5, 0.1])
+    assert "less than twice their measurement uncertainty (10 ± 1.5 and 14 ± 1.5)" in estimate.note, estimate.note
+    assert "17.5 ±" not in estimate.note
+
+
 def test_coarse_levels_that_do_not_converge_with_the_finest_three_are_named():
     quiet = richardson([4.0, 2.0, 1.0, 0.5], [3.0 + 0.5 * h**2 for h in (4.0, 2.0, 1.0, 0.5)])
     assert "coarser than the finest three" not in quiet.note
