@@ -4,10 +4,17 @@ import time
 
 import numpy as np
 import pytest
+from helpers import small_system
 
+from femphase.config import Numerics
+from femphase.flows import linear_shear
+from femphase.model.parameters import ModelParameters
 from femphase.run.simulation import Simulation, Tracker
 from femphase.run.trackers import FrameRecorder
 from femphase.scene import scene_from_dict
+from femphase.timestepping.adaptive import AdaptiveSAV2
+from femphase.timestepping.sav2 import RelaxedSAV2
+from femphase.timestepping.stepper import Stepper
 
 
 class SubstepCounts(Tracker):
@@ -404,3 +411,61 @@ def test_capped_counts_the_substeps_whose_size_the_area_mode_ceiling_set(monkeyp
     monkeypatch.setattr(AdaptiveSAV2, "RANK_ONE_STEP", 1e9)  # the ceiling out of reach
     accepted_free, _, capped_free = _drifting_pair(3000.0)
     assert capped_free == 0 and accepted_free < accepted  # the capped substeps grow without it
+
+
+# -- the controller's constants, pinned (an outside mutation check changed each unseen) ---------
+
+def _scripted(monkeypatch, errors, dt=2.0):
+    """A sheared disc's stepper whose relax reports ``errors`` in turn (the last repeated),
+    without the area-mode ceiling; the substeps it is asked for are recorded."""
+    sizes, relax = [], RelaxedSAV2.relax
+    def fake(self, phi, layout, time, radii, r, h, **decays):
+        sizes.append(h)
+        new, r_next, _ = relax(self, phi, layout, time, radii, r, h, **decays)
+        return new, r_next, errors[min(len(sizes) - 1, len(errors) - 1)]
+    monkeypatch.setattr(RelaxedSAV2, "relax", fake)
+    monkeypatch.setattr(AdaptiveSAV2, "RANK_ONE_STEP", 1e9)
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
+    stepper = Stepper(domain, ModelParameters(), Numerics(tolerance_t=0.1), dt, linear_shear(0.5, 40.0), state.radii)
+    return stepper, state, sizes
+
+
+def test_a_phase_starts_at_a_quarter_step(monkeypatch):
+    # pins FIRST = 4, the documented first substep dt/4
+    stepper, state, sizes = _scripted(monkeypatch, [1e-14])
+    stepper.step(state)
+    assert sizes[0] == 2.0 / 4
+
+
+def test_growth_after_a_quiet_substep_is_four_fold(monkeypatch):
+    # pins GROWTH = 4: an error of 0.05 keeps dt/4 (factor 0.9·2^0.4·(prev/tol)^0.155 ≈ 1.19, then
+    # ≈ 1.07, short of 4/3); after 1e-14 the factor is clipped to 4: dt/4 → dt
+    stepper, state, sizes = _scripted(monkeypatch, [0.05, 0.05, 0.05, 1e-14])
+    stepper.step(state)
+    assert sizes == [0.5] * 4
+    # min(GROWTH, huge) = 4: dt/4 grows to dt/1 at the step's end
+    assert int(state.memory["adaptive_divisions"][0]) == 1
+
+
+def test_a_rejected_substep_far_above_the_tolerance_shrinks_by_shrink(monkeypatch):
+    # pins the rejection's (tol/err)^0.5 and its floor 0.2
+    stepper, state, sizes = _scripted(monkeypatch, [10.0, 1e-14])
+    stepper.step(state)
+    # factor = max(0.2, 0.9 (0.1/10)^0.5 = 0.09) = 0.2: 0.2·dt/4 = dt/20, the largest size ≤ that is dt/24
+    assert sizes[:2] == [0.5, 2.0 / 24]
+
+
+def test_the_area_ceiling_follows_the_fastest_particle():
+    # pins the ceiling's max over particles (a mean gave a larger bound), from the rate
+    # c_i = J0·8μ·∫φ_i²/(πR²)² computed here
+    params = ModelParameters()
+    domain, state = small_system([[20.0, 20.0], [20.0, 60.0]], width=80.0, radius=8.0, initial_radius=8.0)
+    stepper = Stepper(domain, params, Numerics(), 2.0, linear_shear(0.5, 80.0), state.radii)
+    layout, phi = state.flat()
+    phi = phi.copy()
+    first = slice(layout.offsets[0], layout.offsets[1])
+    phi[first] *= 0.5
+    areas = np.array([np.sum(layout.mass[layout.offsets[i]:layout.offsets[i + 1]] * phi[layout.offsets[i]:layout.offsets[i + 1]] ** 2) for i in range(2)])
+    rates = params.mobility * 8.0 * params.area_stiffness * areas / (np.pi * 8.0**2) ** 2
+    assert rates.max() > 1.5 * rates.min()
+    assert stepper.scheme.largest_substep(phi, layout, state.radii) == pytest.approx(1.5 / rates.max(), rel=1e-6)

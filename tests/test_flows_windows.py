@@ -196,3 +196,11 @@ def test_misfits_of_a_whole_layout_follow_the_rule_window_by_window():
         assert policy.misfits(layout, phi, lattice).tolist() == expected
         seen.update(expected)
     assert seen == {True, False}
+
+
+def test_window_policy_numbers_at_h_1_and_a_quarter():
+    # the other tests read the policy's room and longest margin back from it
+    p = WindowPolicy.for_spacing(1.0)
+    assert (p.margin, p.room, p.quantum, p.longest_margin) == (4, 1, 4, 4 + 2 * 1 + 4)
+    q = WindowPolicy.for_spacing(0.25)  # margin 4/0.25 = 16 nodes, room ⌈16/4⌉ = 4, quantum 2·⌈1/0.25⌉ = 8
+    assert (q.margin, q.room, q.quantum, q.longest_margin) == (16, 4, 8, 16 + 8 + 8)

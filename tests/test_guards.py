@@ -219,3 +219,32 @@ def test_a_vanishing_particle_stops_a_strict_run():
     sc = scene(single, [phase(400.0, 10.0, 50.0)], scheme="adaptive", strict=True)
     with pytest.raises(AccuracyError, match="vanished"):
         Simulation(sc).run(sc.initial_state(), [AccuracyGuard()])
+
+
+def test_saturation_warns_at_1_15_dt_star():
+    # pins SLOWDOWN_LIMIT = 1.1: the other tests' dt/dt* was far above it, and their message
+    # check 'phases.0.dt ≤ 1' matched a limit of 1.2's '≤ 1.1' as well
+    base = scene(PAIR, [phase(1.0, 1.0)])
+    dt_star = step_measures(base, base.phases[0], base.radii).dt_star
+    dt = 1.15 * dt_star  # slowdown dt/dt* = 1.15 > 1.1
+    guard, caught = run(scene(PAIR, [phase(3 * dt, dt)]))
+    assert [i.kind for i in guard.issues] == ["saturation"]
+
+
+def test_the_strain_rate_remedy_names_the_envelope_value():
+    # pins STRAIN_RATE_ENVELOPE = 10/240: 'rate ≤ 0.04' matched the messages of 0.041 and 0.049
+    sc = scene(SLAB, [phase(100.0, 1.0, 50.0), phase(50.0, 0.5, 25.0, type="shear", rate=0.2, scale="shear_rate")])
+    guard, caught = run(sc)
+    assert "exceeds the strongest measured one, 0.0417" in str(caught[0].message)  # 10/240 = 0.041666…
+
+
+def test_a_vanishing_particle_is_reported_at_the_first_frame_below_a_hundredth():
+    # pins VANISHED_RATIO = 0.01: frames 50 apart jumped from above 0.01 to below 1e-29
+    single = {"domain": {"Lx": 40.0, "Ly": 40.0}, "particles": {"layout": "single"}, "model": {"radius": 3.0, "mu": 0.0}}
+    recorder = FrameRecorder()
+    guard, caught = run(scene(single, [phase(400.0, 1.0, 1.0)], scheme="adaptive"), trackers=[recorder])
+    area = recorder.series("area")[:, 0] / (np.pi * 9.0)
+    below = np.flatnonzero(area < 0.01)
+    assert area[below[0]] > 0.001  # a frame between the two thresholds exists
+    vanished = [i for i in guard.issues if i.kind == "vanished"]
+    assert vanished[0].time == recorder.times[below[0]]

@@ -308,3 +308,34 @@ def test_the_energy_check_after_a_restart_is_the_free_energy_of_that_field():
                                                           domain.stiffness_apply(layout))).total
     assert abs(expected - fresh) > 1e-3 * abs(fresh)
     assert scheme.free_energy(changed, layout, state.radii) == pytest.approx(expected, rel=1e-13)
+
+
+def test_the_limited_relaxation_leaves_exactly_one_minus_eta_of_the_dissipation():  # S2, S5
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=5.0)
+    stepper = Stepper(domain, ModelParameters(), Numerics(scheme="sav2"), 1.0, None, state.radii)
+    scheme = stepper.scheme
+    layout, phi = state.flat()
+    def implicit(values):
+        return stepper.energy.implicit_energy(WindowedFields(values, layout, state.radii, domain.stiffness_apply(layout)))
+    r0 = 0.5 * scheme.restart(WindowedFields(phi, layout, state.radii))  # r below √(E1 + C): relaxation limited
+    new, r1, _ = scheme._sav_step(phi, layout, 0.0, state.radii, r0, 1.0)
+    change = new - phi
+    dissipation = float(layout.mass @ (change * change)) / (stepper.mobility * 1.0)
+    # RSAV-CN: D/2 φᵀKφ + r² falls by the dissipation exactly; relaxation r² += η·dissipation, η = 0.95
+    drop = (implicit(new) + r1**2) - (implicit(phi) + r0**2)
+    assert drop == pytest.approx(-(1 - 0.95) * dissipation, rel=1e-3, abs=1e-9 * dissipation)
+
+
+def test_the_predictor_takes_the_source_at_the_end_of_its_half_step():  # S6
+    dt, t = 1.0, 3.0
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=5.0)
+    layout, phi = state.flat()
+    def ramp(x, y, time):
+        return np.full(np.shape(x), 0.01 * time)
+    def const(x, y, time):
+        return np.full(np.shape(x), 0.01 * (t + 0.5 * dt))
+    got = Stepper(domain, ModelParameters(), Numerics(scheme="sav2"), dt, None, state.radii, ramp).scheme._predictor(
+        phi, layout, t, state.radii, dt)[0]
+    want = Stepper(domain, ModelParameters(), Numerics(scheme="sav2"), dt, None, state.radii, const).scheme._predictor(
+        phi, layout, t, state.radii, dt)[0]
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

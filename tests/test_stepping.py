@@ -270,3 +270,38 @@ def test_a_state_the_scene_cannot_continue_is_refused_not_run_forever():
         Simulation(scene()).run(state)
     with pytest.raises(ValueError, match="another domain"):
         Simulation(scene()).run(scene(length=80.0).initial_state())
+
+
+def test_an_unsteady_row_flow_moves_by_the_integral_of_its_velocity():  # V2
+    from femphase.flows import row_flow
+    domain, state = small_system([[20.0, 20.0]], radius=8.0, initial_radius=8.0)
+    layout, phi = state.flat()
+    flow = row_flow("ramp", lambda y, t: 1.0 * t + 0.0 * y, steady=False)
+    before = domain.centroids(layout, phi)[0, 0]
+    moved_phi, moved = domain.advection(flow, 1.0, Numerics()).advect(phi.copy(), layout, 1.0)
+    after = domain.centroids(moved, moved_phi)[0, 0]
+    # ∫_1^2 t dt = 1.5 (the midpoint rule is exact for a velocity linear in time)
+    assert after - before == pytest.approx(1.5, abs=1e-3)
+
+
+def test_semi_lagrangian_departure_points_are_second_order():  # V5
+    domain, state = small_system([[30.0, 20.0]], length=60.0, width=50.0, radius=8.0, initial_radius=8.0)
+    layout, phi = state.flat()
+    a, c, dt = 0.05, 1.0, 4.0
+    flow = python_flow(lambda x, y: (a * y + 0.0 * x, c + 0.0 * y))
+    before = domain.centroids(layout, phi)[0]
+    moved_phi, moved = domain.advection(flow, dt, Numerics()).advect(phi.copy(), layout, 0.0)
+    after = domain.centroids(moved, moved_phi)[0]
+    # y(t) = y0 + c t, x' = a y: Δx = a dt (y0 + c dt/2) = 0.05·4·22 = 4.4 (not 4.8), Δy = 4
+    assert after[0] - before[0] == pytest.approx(a * dt * (before[1] + 0.5 * c * dt), abs=0.05)
+    assert after[1] - before[1] == pytest.approx(c * dt, abs=0.05)
+
+
+def test_a_row_shift_moves_the_window_by_the_rounded_mean_shift():  # V4
+    from femphase.flows import row_flow
+    domain, state = small_system([[20.0, 20.0]], length=60.0, radius=8.0, initial_radius=8.0)
+    layout, phi = state.flat()
+    flow = row_flow("uniform", lambda y, t: 2.75 + 0.0 * y)  # 2.75 nodes per step at h = 1
+    _, moved = domain.advection(flow, 1.0, Numerics()).advect(phi.copy(), layout, 0.0)
+    # rint(2.75) = 3 whole nodes, fractional −0.25 left to the rows
+    assert (moved.corners[0, 2] - layout.corners[0, 2]) % 60 == 3
