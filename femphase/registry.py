@@ -23,11 +23,13 @@ import importlib
 import inspect
 import os
 import sys
-from typing import Callable, Generic, Iterable, TypeVar
+from contextlib import contextmanager
+from typing import Callable, Generic, Iterable, Iterator, TypeVar
 
-from femphase.errors import SceneError
+from femphase.errors import FemphaseError, SceneError
 
-__all__ = ["EXTENSIONS_VARIABLE", "MARKERS", "Registry", "import_extensions", "import_module", "markdown", "with_registries"]
+__all__ = ["EXTENSIONS_VARIABLE", "MARKERS", "Registry", "blamed", "import_extensions", "import_module", "markdown",
+           "users_definition", "with_registries"]
 
 #: The environment variable naming the modules that register entries, comma-separated.
 EXTENSIONS_VARIABLE = "FEMPHASE_IMPORT"
@@ -69,11 +71,7 @@ class Registry(Generic[T]):
         """``module.qualname`` of an entry defined outside femphase (the user's own module),
         else None: a fault of the user's entry is reported naming it, one of femphase's own
         is a bug."""
-        entry = self._entries[name]
-        module = getattr(entry, "__module__", None) or ""
-        if module == "femphase" or module.startswith("femphase."):
-            return None
-        return f"{module}.{getattr(entry, '__qualname__', repr(entry))}"
+        return users_definition(self._entries[name])
 
     def __contains__(self, name: object) -> bool:
         return name in self._entries
@@ -82,6 +80,28 @@ class Registry(Generic[T]):
         """The first paragraph of the entry's docstring, on one line."""
         doc = inspect.getdoc(self._entries[name]) or ""
         return " ".join(doc.split("\n\n")[0].split())
+
+
+def users_definition(entry: object) -> str | None:
+    """``module.qualname`` of a class or function defined outside femphase (the user's own
+    module), else None."""
+    module = getattr(entry, "__module__", None) or ""
+    if module == "femphase" or module.startswith("femphase."):
+        return None
+    return f"{module}.{getattr(entry, '__qualname__', repr(entry))}"
+
+
+@contextmanager
+def blamed(origin: str | None, error: Callable[[Exception], Exception]) -> Iterator[None]:
+    """Within the block, an exception of the user's entry defined at ``origin`` is raised as
+    ``error(exc)``, which names the entry; femphase's own errors, and every exception where
+    ``origin`` is None (femphase's own entry: a bug), pass as they are."""
+    try:
+        yield
+    except Exception as exc:
+        if origin is None or isinstance(exc, FemphaseError):
+            raise
+        raise error(exc) from exc
 
 
 def markdown(registries: Iterable[Registry]) -> str:

@@ -366,13 +366,13 @@ def check_numerics(scene: Scene, scheme: str | None = None) -> None:
     from femphase.timestepping.fd import fem_schemes
 
     given, instead = ("fd", '"fem"') if key == "--method" else (scheme, fem_schemes())
-    scheme_class(scheme, "numerics.scheme")
-    if key == "--method" and numerics.mass not in SCHEMES.get(scheme).masses:
+    scheme_entry = scheme_class(scheme)
+    if key == "--method" and numerics.mass not in scheme_entry.masses:
         # the scene's own scheme is not run, so advice to change it would not help
-        raise SceneError("numerics.mass", numerics.mass, " or ".join(f'"{m}"' for m in SCHEMES.get(scheme).masses)
+        raise SceneError("numerics.mass", numerics.mass, " or ".join(f'"{m}"' for m in scheme_entry.masses)
                          + f" with --method {given} (the finite-difference reference is the structured channel's "
                          'lumped-mass scheme)')
-    SCHEMES.get(scheme).check_mass(numerics.mass)
+    scheme_entry.check_mass(numerics.mass)
     if domain.kind == "mesh" and numerics.diagonals != Numerics.diagonals:
         raise SceneError("numerics.diagonals", numerics.diagonals, f'"{Numerics.diagonals}" (the default) on a mesh: '
                          "the diagonals are the structured channel's triangulation, a mesh's triangles its file's")

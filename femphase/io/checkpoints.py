@@ -43,8 +43,7 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
     import h5py
 
     path = Path(path)
-    arrays = [*state.fields, *(observers or {}).values(), *state.memory.values()]
-    ensure_room(path, sum(int(np.asarray(values).nbytes) for values in arrays), state.time)
+    ensure_room(path, [*state.fields, *(observers or {}).values(), *state.memory.values()], state.time)
     tmp = partial_path(path)
     with h5py.File(tmp, "w") as handle:
         handle.attrs.update({

@@ -18,7 +18,7 @@ import json
 import os
 import signal
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -57,12 +57,14 @@ def failpoint(name: str) -> None:
 ROOM_RESERVE = 4 * 2**20
 
 
-def ensure_room(path: Path, nbytes: int, time: float) -> None:
-    """NoRoomError when the device holding ``path`` (a file to write) has less than
-    ``nbytes`` + :data:`ROOM_RESERVE` free: the run stops before the write, at simulated
-    time ``time``. A quota (EDQUOT) is not seen here; the write then fails as it must."""
+def ensure_room(path: Path, arrays: Iterable, time: float) -> None:
+    """NoRoomError when the device holding ``path`` (a file to write) has less free than the
+    bytes of ``arrays`` (what the file will hold) and :data:`ROOM_RESERVE`: the run stops
+    before the write, at simulated time ``time``. A quota (EDQUOT) is not seen here; the
+    write then fails as it must."""
     import shutil
 
+    nbytes = sum(int(np.asarray(values).nbytes) for values in arrays)
     free = shutil.disk_usage(Path(path).parent).free
     if free < nbytes + ROOM_RESERVE:
         raise NoRoomError(f"the run stopped at t = {time:g}: the device holding {Path(path).parent} has "

@@ -258,7 +258,7 @@ class Outputs:
 
         index = len(self.field_times)
         path = self.directory / FIELDS_DIR / frame_file(index)
-        ensure_room(path, sum(int(np.asarray(values).nbytes) for values in data.values()), time)
+        ensure_room(path, data.values(), time)
         tmp = partial_path(path)
         with h5py.File(tmp, "w") as handle:
             handle.attrs["time"] = time

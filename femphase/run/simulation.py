@@ -19,8 +19,9 @@ import numpy as np
 from femphase.analysis.observables import OBSERVABLES, Observable, resolve
 from femphase.analysis.shape import ShapeObservables
 from femphase.config import Numerics
-from femphase.errors import ExtensionError, FemphaseError, FlowError, Interrupted, SceneError, StopRun
+from femphase.errors import ExtensionError, FlowError, Interrupted, SceneError, StopRun
 from femphase.model.energy import FreeEnergy, WindowedFields
+from femphase.registry import blamed, users_definition
 from femphase.scene import Phase, Scene
 from femphase.state import State
 from femphase.timestepping import Stepper
@@ -128,13 +129,9 @@ class Simulation:
     def observable(self, name: str) -> Observable:
         if name not in self.observables:
             entry, origin = OBSERVABLES.get(name, "output.observables"), OBSERVABLES.origin(name)
-            try:
+            with blamed(origin, lambda exc: SceneError("output.observables", name, f"an observable built as "
+                                                       f"{origin}(simulation): it raised {type(exc).__name__}: {exc}")):
                 self.observables[name] = entry(self)
-            except Exception as exc:
-                if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
-                    raise
-                raise SceneError("output.observables", name, f"an observable built as {origin}(simulation): it "
-                                 f"raised {type(exc).__name__}: {exc}") from None
         return self.observables[name]
 
     def columns(self) -> tuple[list[str], list[str]]:
@@ -257,10 +254,10 @@ class Simulation:
         layout, phi = state.flat()
         fields = WindowedFields(phi, layout, state.radii)
         for term in self.energy.terms:
-            module = type(term).__module__ or ""
-            if module == "femphase" or module.startswith("femphase."):
+            origin = users_definition(type(term))
+            if origin is None:
                 continue
-            name = f"the energy term {term.name!r} ({module}.{type(term).__qualname__})"
+            name = f"the energy term {term.name!r} ({origin})"
             energy = term.energy(fields)
             if not (np.ndim(energy) == 0 and np.isrealobj(energy) and np.isfinite(energy)):
                 raise ValueError(f"{name}: energy() must return one finite number; it returned "
@@ -331,14 +328,10 @@ class Simulation:
 def _observed(observable: Observable, name: str, state: State, so_far: ChainMap) -> dict:
     """What ``observable`` returns for ``state``: a user's observable that raises stops the
     run naming it (ExtensionError), one that returns other than a mapping is refused."""
-    try:
+    origin = OBSERVABLES.origin(name)
+    with blamed(origin, lambda exc: ExtensionError(f"the observable {name!r} ({origin})", state.step, state.time,
+                                                   f"it raised {type(exc).__name__}: {exc}")):
         values = observable(state, so_far)
-    except Exception as exc:
-        origin = OBSERVABLES.origin(name)
-        if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
-            raise
-        raise ExtensionError(f"the observable {name!r} ({origin})", state.step, state.time,
-                             f"it raised {type(exc).__name__}: {exc}") from exc
     if not isinstance(values, Mapping):
         raise SceneError("output.observables", name, f"an observable that returns a mapping of its columns; it "
                          f"returned {type(values).__name__}")

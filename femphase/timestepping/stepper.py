@@ -31,11 +31,12 @@ from femphase.config import Numerics
 from femphase.domains.advection import nodal_velocity
 from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
-from femphase.errors import ExtensionError, FemphaseError, SceneError
+from femphase.errors import ExtensionError, SceneError
 from femphase.fem.blocks import conjugate_gradient
 from femphase.flows import Flow, no_flow
 from femphase.model.energy import FreeEnergy, WindowedFields
 from femphase.model.parameters import ModelParameters
+from femphase.registry import blamed
 from femphase.state import State
 from femphase.timestepping.base import SCHEMES, check_fields, scheme_class
 
@@ -83,7 +84,9 @@ class Stepper:
         self._last_solve: tuple[np.ndarray, np.ndarray] | None = None
         #: a steady flow's largest nodal speed (:meth:`_largest_speed`)
         self._speed: float | None = None
-        self.scheme = _built_scheme(scheme or numerics.scheme, self)
+        #: the time scheme, and where it is defined if in the user's own module (its faults are
+        #: named so)
+        self.scheme, self._scheme_origin = _built_scheme(scheme or numerics.scheme, self)
         #: whether steps compute in single precision (numerics.precision, under flow only)
         self.single_precision = (numerics.single_precision_allowed(self.scheme.name) and not self.flow.is_still
                                  and domain.single_precision_steps(numerics) and self.scheme.mixed_precision)
@@ -241,16 +244,11 @@ class Stepper:
     def _advance(self, phi: np.ndarray, layout: Layout, state: State, steps: int) -> tuple[np.ndarray, Layout]:
         """The scheme's advance; a scheme of the user's own module that raises or returns other
         than (φ, layout) stops the run naming it (ExtensionError)."""
-        scheme = self.scheme
-        origin = SCHEMES.origin(scheme.name) if scheme.name in SCHEMES else None
-        try:
+        scheme, origin = self.scheme, self._scheme_origin
+        with blamed(origin, lambda exc: ExtensionError(f"the time scheme {scheme.name!r} ({origin})", state.step,
+                                                       state.time, f"its advance raised {type(exc).__name__}: {exc}")):
             result = scheme.advance(phi, layout, state, steps) if scheme.merges_steps else scheme.advance(phi, layout,
                                                                                                          state)
-        except Exception as exc:
-            if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
-                raise
-            raise ExtensionError(f"the time scheme {scheme.name!r} ({origin})", state.step, state.time,
-                                 f"its advance raised {type(exc).__name__}: {exc}") from exc
         if origin is not None:
             new_phi, new_layout = result if isinstance(result, tuple) and len(result) == 2 else (None, None)
             if not (isinstance(new_phi, np.ndarray) and isinstance(new_layout, Layout)
@@ -335,14 +333,12 @@ class Stepper:
         return out
 
 
-def _built_scheme(name: str, stepper: "Stepper"):
-    """The scheme ``name`` for ``stepper``: a scheme of the user's own module that cannot be
-    built is refused naming it (SceneError, ``numerics.scheme``)."""
-    cls, origin = scheme_class(name), SCHEMES.origin(name)
-    try:
-        return cls(stepper)
-    except Exception as exc:
-        if origin is None or isinstance(exc, FemphaseError):  # femphase's own: a bug
-            raise
-        raise SceneError("numerics.scheme", name, f"a scheme built as {origin}(stepper): it raised "
-                         f"{type(exc).__name__}: {exc}") from None
+def _built_scheme(name: str, stepper: "Stepper") -> tuple:
+    """The scheme ``name`` for ``stepper``, and where it is defined if in the user's own
+    module (:meth:`~femphase.registry.Registry.origin`), else None: one of the user's that
+    cannot be built is refused naming it (SceneError, ``numerics.scheme``)."""
+    cls = scheme_class(name)
+    origin = SCHEMES.origin(name)
+    with blamed(origin, lambda exc: SceneError("numerics.scheme", name, f"a scheme built as {origin}(stepper): it "
+                                               f"raised {type(exc).__name__}: {exc}")):
+        return cls(stepper), origin
