@@ -70,7 +70,7 @@ from femphase.domains.base import Domain
 from femphase.domains.grid.domain import GridDomain
 from femphase.domains.grid.lattice import ChannelGrid, grid_dof_map
 from femphase.io.reader import FieldFrames, match_times, open_run
-from femphase.io.rundir import COMPARISON
+from femphase.io.rundir import COMPARISON, COMPARISON_DIR
 from femphase.state import State
 
 __all__ = ["ENERGIES", "FIELD_NORMS", "GRID_SUFFIXES", "OBSERVABLES", "ORIENTATION_MIN_ELONGATION", "START_OFFSET",
@@ -624,4 +624,4 @@ def _plot(result: dict, path: Path) -> None:
 
 def default_output(b: str | Path) -> Path:
     b = Path(b)
-    return b / "compare" if b.is_dir() else b.with_name(b.stem + "_compare")
+    return b / COMPARISON_DIR if b.is_dir() else b.with_name(b.stem + "_compare")

@@ -167,8 +167,9 @@ class Numerics:
     #: the substep's tolerance its error is a hundredth of what the estimate may be. Measured on
     #: examples/straight_mesh.toml (relaxation 400, then 1200 time units of its Stokes flow
     #: at dt = 10, against solves to 1e-10; benchmarks/krylov_tolerance.py): centroids moved by
-    #: 4.4e-4 (1.8e-4 with the predictor at 1e-5 of the substep's tolerance), where substeps
-    #: of 2.5 instead of 3.33 move them by 0.16, for 32 % fewer CG iterations under flow
+    #: 7.3e-4 (3.8e-4 with the predictor at 1e-5 of the substep's tolerance), where substeps
+    #: of 2.5 instead of 3.33 move them by 0.18, for 36 % fewer CG iterations under flow
+    #: (3217 against 5036) and 20 % fewer in the relaxation
     #: (docs/decisions/0023-loose-predictor-solves.md).
     PREDICTOR_KRYLOV_FRACTION = 1e-2
 

@@ -69,6 +69,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -76,6 +77,9 @@ from femphase.errors import FemphaseError, SceneError
 from femphase.io.files import atomic_write, output_directory
 from femphase.io.reader import RunData, mean_present, open_run
 from femphase.tomlio import toml_value
+
+if TYPE_CHECKING:  # dask.distributed loads only where a study runs
+    from distributed import Client
 
 __all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "StudyIncomplete", "analyse",
            "formal_order", "last_phase_substeps", "option_of", "richardson", "run_convergence", "same_substeps",
@@ -572,7 +576,7 @@ def _check_levels(scene: str | Path, parameter: str, levels: list, assignments: 
 
 def run_convergence(scene: str | Path, directory: str | Path, parameter: str, values: list[float],
                     observables: list[str], assignments: list[str] = (), *, expected_order: float | None = None,
-                    workers: int | None = None, scheduler: str | None = None, client=None,
+                    workers: int | None = None, scheduler: str | None = None, client: Client | None = None,
                     log: Callable[[str], None] = print) -> dict:
     """Run (or continue) a convergence study of ``scene`` into ``directory`` and analyse it
     (module docstring); ``assignments`` are ``--set KEY=VALUE`` overrides of every run;

@@ -22,8 +22,10 @@ from __future__ import annotations
 import importlib
 import inspect
 import os
+import re
 import sys
 from contextlib import contextmanager
+from types import ModuleType
 from typing import Callable, Generic, Iterable, Iterator, TypeVar
 
 from femphase.errors import FemphaseError, SceneError
@@ -104,12 +106,19 @@ def blamed(origin: str | None, error: Callable[[Exception], Exception]) -> Itera
         raise error(exc) from exc
 
 
+#: A Sphinx cross-reference role in a docstring (``:meth:`~a.b```), which markdown does not render.
+_ROLE = re.compile(r":(?:meth|func|data|class|attr|mod|exc):`~?([^`]+)`")
+
+
 def markdown(registries: Iterable[Registry]) -> str:
-    """One markdown table per registry: name and summary of every entry."""
+    """One markdown table per registry: name and summary of every entry (cross-reference
+    roles of the docstrings as plain code)."""
     blocks = []
     for registry in registries:
         lines = [f"### {registry.title} (`{registry.key}`)", "", "| name | what it is |", "|---|---|"]
-        lines += [f"| `{name}` | {registry.summary(name).replace('|', chr(92) + '|')} |" for name in registry.names()]
+        for name in registry.names():
+            summary = _ROLE.sub(r"`\1`", registry.summary(name)).replace("|", "\\|")
+            lines.append(f"| `{name}` | {summary} |")
         blocks.append("\n".join(lines))
     return "\n\n".join(blocks)
 
@@ -141,7 +150,7 @@ def import_extensions(names: str | None = None) -> None:
                              f"or the environment variable {EXTENSIONS_VARIABLE} = {names!r})") from None
 
 
-def import_module(name: str):
+def import_module(name: str) -> ModuleType:
     """The module ``name``, imported from ``sys.path`` or, failing that, from the working
     directory (the ``femphase`` command does not put it on the path, as ``python -m``
     would). Raises what the import raises."""

@@ -90,6 +90,7 @@ from collections.abc import Callable
 from contextlib import contextmanager, nullcontext
 from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from femphase import tomlio
 from femphase.errors import FemphaseError, Interrupted, SceneError
@@ -99,6 +100,9 @@ from femphase.io.rundir import CHECKPOINT, OUTPUTS, Status
 from femphase.run.runner import run_scene
 from femphase.scene import Scene, parse_assignment, read_scene_data, scene_from_dict
 from femphase.tomlio import toml_value
+
+if TYPE_CHECKING:  # dask.distributed loads only where a sweep runs
+    from distributed import Client
 
 __all__ = ["EXIT_INCOMPLETE", "MODES", "SLOW_MALLOC", "TABLES", "WORKER_ENV", "load_sweep", "Run", "run_status",
            "run_sweep", "Sweep", "SweepError"]
@@ -598,7 +602,7 @@ def _check_workers(client) -> None:
                       "(docs/sweeps.md, \"Workers\")", stacklevel=2)
 
 
-def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client=None, *, assignments: list[str] = (),
+def run_sweep(sweep: Sweep | str | Path, directory: str | Path, client: Client | None = None, *, assignments: list[str] = (),
               scheduler: str | None = None, workers: int | None = None,
               log: Callable[[str], None] = print) -> dict:
     """Run (or continue) a sweep into ``directory``; returns the index (sweep.json's content).

@@ -357,7 +357,7 @@ def test_a_mesh_scene_is_refined_by_its_mesh_files(tmp_path):
     assert area.order_observed and 1.0 < area.order < 3.5
     assert abs(area.errors[2]) < abs(area.errors[0])
     # a mesh file replaced after its run: the run's spacing was read from the new file
-    # (order 1.90 → 6.45, no word); run.json's mesh digest now refuses it
+    # (order 1.90 → 6.45, no word); run.json's mesh digest refuses it
     from femphase.converge import analyse
 
     write_domain(files[1], *delaunay_channel(40.0, edge_for_spacing(0.85), lambda x: 0 * x, lambda x: 0 * x + 40.0,

@@ -318,7 +318,7 @@ def test_runs_with_vanished_particles_keep_their_frames_in_comparisons_and_figur
 
 def test_frame_times_are_written_as_the_multiples_of_dt_they_are(tmp_path):
     # the clock adds dt step by step: ten steps of 0.1 wrote 0.9999999999999999, and a filter
-    # time == 1.0 found nothing; the outputs now give the times to 12 significant digits
+    # time == 1.0 found nothing; the outputs give the times to 12 significant digits
     import h5py
 
     scene = scene_from_dict({

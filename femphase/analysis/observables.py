@@ -123,7 +123,7 @@ class Order(Observable):
     """Ψ6 (bond order) and Ψ2^L (nematic order of the elongation axes, e^{2iθ}) per particle
     (``|ψ6|``, ``|ψ2|``) and per frame (``|mean ψ|``), the lattice angle (radians) and the running count
     of T1 events, from periodic-Delaunay neighbours of the centroids. The T1 counter also
-    looks at the centroids between frames, every ``output.t1_interval`` (:meth:`look`)."""
+    looks at the centroids between frames, every ``output.t1_interval`` (:meth:`Order.look`)."""
 
     name = "order"
     particle_columns = ("psi6_abs", "psi2_abs")

@@ -16,9 +16,9 @@ Conventions:
 * centroid: φ-weighted mean ∫xφ/∫φ, x unwrapped about the circular mean over the period
   Lx, so a particle straddling the periodic seam is measured whole;
 * area: ∫φ² (the quantity the soft area constraint holds at πR²);
-* a particle whose φ nowhere exceeds the window threshold has vanished (:func:`present`):
-  its field is rounding noise, whose "centroid" can lie outside the domain, so its x, y,
-  elongation and orientation are NaN (its area is kept);
+* a particle whose φ reaches 1/2 (:data:`PRESENT_LEVEL`) nowhere has vanished
+  (:func:`present`): it has no interface, and its field's "centroid" can lie outside the
+  domain, so its x, y, elongation and orientation are NaN (its area is kept);
 * wall contact (:func:`wall_contact`): 1 when φ_i exceeds the window threshold
   (``numerics.threshold``, 0.01) on at least one wall dof, else 0. Wall dofs are the dofs of
   the nodes on wall facets: on the structured channel the node rows y = 0 and y = Ly, on a
@@ -52,6 +52,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from femphase.config import Numerics
 from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
 from femphase.state import State
@@ -61,7 +62,7 @@ __all__ = ["DEFAULT_THRESHOLD", "PRESENT_LEVEL", "ShapeObservables", "elongation
 
 
 #: The window threshold (``numerics.threshold``'s default): φ above it belongs to a particle.
-DEFAULT_THRESHOLD = 0.01
+DEFAULT_THRESHOLD: float = Numerics.threshold
 
 
 @dataclass(frozen=True)
@@ -134,11 +135,12 @@ PRESENT_LEVEL = 0.5
 def present(layout: Layout, phi: np.ndarray) -> np.ndarray:
     """(N,) bool in particle order: whether φ_i reaches :data:`PRESENT_LEVEL` anywhere. A
     particle that does not has vanished: it has no interface, and its moments measure a faint
-    residue. (Without an area term a disc of R = 3 shrinks away within 50 time units and its
-    field decays to rounding noise, ∫φ² ≈ 1e-86, whose weighted mean put one centroid at
-    y = 111.7 in a 40-high channel; an exactly zero field made the T1 counter's triangulation
-    fail. With model.gamma = 10 a vanished particle's field came back under shear as a
-    residue of φ ≤ 0.03, and particles.csv gave it positions and elongations again.)"""
+    residue. The level is the interface's, not the window threshold, because a residue can
+    stay above the threshold: without an area term a disc of R = 3 shrinks away within 50
+    time units, and a field of rounding noise (∫φ² ≈ 1e-86) can put a weighted-mean centroid
+    outside the channel (y = 111.7 in a 40-high one), or, when exactly zero, break the T1
+    counter's triangulation; with model.gamma = 10 a vanished particle's field returns under
+    shear as a residue of φ ≤ 0.03, which would give it positions and elongations again."""
     out = np.zeros(len(layout.windows), dtype=bool)
     if phi.size:
         out[layout.order] = layout.reduce(np.maximum, phi) >= PRESENT_LEVEL

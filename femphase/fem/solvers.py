@@ -178,7 +178,7 @@ class TensorSolver:
         return out.reshape(-1, self.n).T.reshape(rhs.shape)
 
 
-def make_solver(matrix: sp.spmatrix, method: str = "auto", tol: float = 1e-10):
+def make_solver(matrix: sp.spmatrix, method: str = "auto", tol: float = 1e-10) -> DirectSolver | AMGSolver:
     """A solver for ``matrix``: "direct" (LU), "amg" (pyamg + Krylov) or "auto" (LU up to
     DIRECT_MAX_DOFS). "tensor" needs the matrix's factors: build a :class:`TensorSolver`."""
     if method not in SOLVER_METHODS:

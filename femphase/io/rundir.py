@@ -64,7 +64,7 @@ from femphase.io.files import (
 )
 from femphase.io.provenance import now
 
-__all__ = ["CHECKPOINT", "COMPARISON", "DERIVED", "FIELDS_DIR", "FIGURES", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
+__all__ = ["CHECKPOINT", "COMPARISON", "COMPARISON_DIR", "FIELDS_DIR", "FIGURES", "FIGURES_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
            "Status", "frame_time", "prepare_directory", "resume_position"]
 
 CHECKPOINT = "checkpoint.h5"
@@ -73,8 +73,9 @@ RUN_LOG = "run.log"
 LOCK = ".femphase.lock"
 #: Where ``femphase plot`` and ``femphase compare`` write by default inside a run directory:
 #: they describe its run, so ``--overwrite`` deletes their files with it (:data:`FIGURES`,
-#: compare.csv, .json and .png), and other files there stay.
-DERIVED = ("figures", "compare")
+#: :data:`COMPARISON`), and other files there stay.
+FIGURES_DIR = "figures"
+COMPARISON_DIR = "compare"
 #: The figures ``femphase plot`` writes into ``figures/``, each in any format (``NAME.png`` …).
 FIGURES = ("snapshot", "elongation", "limit_cycle", "order")
 #: The files ``femphase compare`` writes into its output folder.
@@ -118,9 +119,10 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
 
     A directory holding femphase outputs is refused unless ``resume`` (continue it) or
     ``overwrite`` (delete femphase's files in it, and only those: :data:`OUTPUTS`, and the
-    figures and comparisons of the run replaced in :data:`DERIVED`); a directory another
-    process is running in is refused either way (two resumes of one run appended every frame
-    twice; an overwrite deleted the files of the run under way)."""
+    figures and comparisons of the run replaced in :data:`FIGURES_DIR` and
+    :data:`COMPARISON_DIR`); a directory another process is running in is refused either way
+    (two resumes of one run would append every frame twice; an overwrite would delete the
+    files of the run under way)."""
     directory = output_directory(directory)
     existing = [name for name in OUTPUTS if (directory / name).exists()]
     if resume:
@@ -164,11 +166,11 @@ def prepare_directory(directory: Path, *, resume: bool, overwrite: bool) -> File
 def _own_files(directory: Path) -> tuple[list[Path], list[Path]]:
     """(files, folders): what femphase wrote into a run directory, by name, for
     ``--overwrite`` to delete (:data:`OUTPUTS`, the field frames, the figures and comparison
-    of :data:`DERIVED`, and the partial files a killed run leaves, :func:`partial_path`);
+    in :data:`FIGURES_DIR` and :data:`COMPARISON_DIR`, and the partial files a killed run leaves, :func:`partial_path`);
     other files in those folders are the user's and stay. SceneError, before anything is
     deleted, where one of those names is not a file."""
     fields = [MESH_FILE, FRAME_FILES]
-    derived = {"figures": [f"{name}.*" for name in FIGURES], "compare": list(COMPARISON),
+    derived = {FIGURES_DIR: [f"{name}.*" for name in FIGURES], COMPARISON_DIR: list(COMPARISON),
                FIELDS_DIR: fields + [partial_path(Path(name)).name for name in fields]}
     files = [path for name in OUTPUTS if name != FIELDS_DIR
              for path in (directory / name, partial_path(directory / name)) if path.exists()]

@@ -171,7 +171,7 @@ class EnergyTerm(ABC):
         raise NotImplementedError(f"the {self.name} term is not a pointwise decay")
 
     def rank_one_coefficient(self, fields: WindowedFields) -> np.ndarray:
-        """β_i ≥ 0 per window (layout order; 1/(energy·length⁴) in lattice units), for a term
+        """β_i ≥ 0 per window (layout order; energy/length⁴ in lattice units), for a term
         with a ``rank_one`` part."""
         raise NotImplementedError(f"the {self.name} term has no rank-one part")
 

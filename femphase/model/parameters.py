@@ -46,10 +46,10 @@ class ModelParameters:
     """Model constants, with the paper's values as defaults (lattice units).
 
     interface_width  λ   interface thickness ~2λ (length)
-    tension          γ   γ/λ is the interface energy scale
-    repulsion        κ   κ/λ is the overlap energy scale
+    tension          γ   line tension (energy / length); γ/λ is the interface energy density
+    repulsion        κ   overlap strength (energy / length); κ/λ is the overlap energy density
     area_stiffness   μ   strength of the soft area constraint (energy)
-    mobility         J0  relaxation rate (1 / (energy · time))
+    mobility         J0  in ∂tφ = −J0 δF/δφ, δF/δφ an energy per area (length² / (energy · time))
     radius           R   target radius of every particle unless a scene sets radii per particle
     """
 

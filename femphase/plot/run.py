@@ -46,7 +46,7 @@ from femphase.io.checkpoints import load_checkpoint
 from femphase.io.fields import point_data
 from femphase.io.files import writable_directory
 from femphase.io.reader import RunData, match_times, open_run
-from femphase.io.rundir import CHECKPOINT, FIGURES
+from femphase.io.rundir import CHECKPOINT, FIGURES, FIGURES_DIR
 from femphase.model.minimal import MAX_HALF_PERIODS, ParameterError
 from femphase.oscillations import K_PAPER, ode_alignment, ode_fits, ode_solution, order_series
 from femphase.plot.figures import pyplot, save
@@ -320,7 +320,7 @@ def plot_run(directory: str | Path, output: str | Path | None = None, *, ode_rat
     run = open_run(directory).complete()
     if len(run.time) == 0:
         raise ValueError(f"{str(Path(directory) / 'particles.csv')!r} has no frames yet")
-    out = Path(output) if output is not None else run.directory / "figures"
+    out = Path(output) if output is not None else run.directory / FIGURES_DIR
     # both checked before any figure is written
     if ode_rate is not None and not (np.isfinite(ode_rate) and ode_rate > 0):
         raise ParameterError("ode_rate", ode_rate, "the shear rate γ̇ of the ODE: a finite number > 0")

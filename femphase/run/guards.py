@@ -67,8 +67,9 @@ each warned (:class:`AccuracyWarning`) at most once per phase (``vanished`` once
     particle shrinks by its interface's curvature unless the area term holds it; without it
     (μ = 0) a disc of R = 3 vanishes within 300 time units (areas 1e-30 and below), and its
     centroid, elongation and orientation, computed from a field of rounding noise, wander
-    (elongation 3.6 and 11 in particles.csv) until its φ is nowhere above the window
-    threshold, from where they are NaN (:func:`femphase.analysis.shape.present`). The warning
+    (elongation 3.6 and 11 in particles.csv) until its φ reaches 1/2 nowhere
+    (:data:`femphase.analysis.shape.PRESENT_LEVEL`), from where they are NaN
+    (:func:`femphase.analysis.shape.present`). The warning
     names the particle, its area and the time from which its shape columns mean nothing, and
     the key that holds particles at their area (``model.mu``).
 

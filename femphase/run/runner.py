@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -36,7 +37,7 @@ def check_resumed_method(directory: str | Path, method: str) -> None:
 
 
 @contextmanager
-def stop_on_signals():
+def stop_on_signals() -> Iterator[Callable[[], int | None]]:
     """While active, SIGINT and SIGTERM (what Ctrl-C, ``timeout``, Slurm and ``docker stop``
     send) ask the run to stop after the current step: yields the ``stop`` callable of
     :meth:`femphase.run.simulation.Simulation.run`. A second signal interrupts at once. Outside the main thread

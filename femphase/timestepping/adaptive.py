@@ -8,7 +8,6 @@ a tenth of it at the default, its power 3/4 about the default in general
 
 from __future__ import annotations
 
-
 import warnings
 
 import numpy as np

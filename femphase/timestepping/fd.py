@@ -31,7 +31,7 @@ comparing the two methods is a real cross-check.
   differenced along its own direction. ``numerics.fd_advection = "upwind1"`` selects
   first-order upwind instead (numerical diffusion ``|u| h/2``), to test how much a cruder
   advection, which the paper does not exclude, changes the physics.
-* Time: explicit predictor–corrector (Heun, second order), the paper's dt = 0.1 by default::
+* Time: explicit predictor–corrector (Heun, second order); dt is the phase's (the paper runs dt = 0.1)::
 
       k1 = f(φⁿ, tⁿ),  φ* = φⁿ + dt k1,  k2 = f(φ*, tⁿ⁺¹),  φⁿ⁺¹ = φⁿ + dt (k1 + k2)/2,
       f(φ, t) = −v·∇_h φ − J0 g(φ) + J0 2γλ Δ_h φ + s(x, y, t).

@@ -31,7 +31,7 @@ class RelaxedSAV2(TimeScheme):
     over dt/2) with a relaxation step that is Crank–Nicolson in the gradient term and
     explicit midpoint in the rest (from a linearly implicit Euler predictor): relaxed
     scalar-auxiliary-variable (SAV) form without flow, plain IMEX midpoint with flow, the
-    repulsion then split off and integrated in exponential form (:meth:`relax`). No
+    repulsion then split off and integrated in exponential form (:meth:`RelaxedSAV2.relax`). No
     stabilisation to saturate. Lumped mass only.
 
     Energy stability: the SAV step never increases its modified energy, but the free energy

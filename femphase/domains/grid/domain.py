@@ -277,7 +277,7 @@ class GridDomain(Domain):
             return refitted, refitted.gather(fields)
         # windows moved within their groups (under shear nearly every refit: recentred
         # windows, :meth:`WindowPolicy.fit`): the same slots, only theirs rewritten (with a
-        # scatter and gather of all windows a refit took 0.91 ms at γ̇ = 1, now 0.83)
+        # scatter and gather of all windows a refit takes 0.91 ms at γ̇ = 1 instead of 0.83)
         phi = phi.copy()
         for slot, field in changed.items():
             phi[layout.offsets[slot]:layout.offsets[slot + 1]] = field
@@ -308,7 +308,7 @@ class GridDomain(Domain):
         tensor solver does not apply."""
         return self.caches.cache("tensor bases")
 
-    def advection(self, flow: Flow, dt: float, numerics: Numerics):
+    def advection(self, flow: Flow, dt: float, numerics: Numerics) -> RowShift | SemiLagrangian:
         if flow.row_velocity is not None:
             return RowShift(self, flow, dt)
         return SemiLagrangian(self, flow, dt)
