@@ -316,36 +316,44 @@ CEILING_SUBSTEPS = 64
 
 
 def _check_area_ceiling(scene: Scene, scheme: str | None = None) -> None:
-    """Warn when the adaptive scheme's area-mode ceiling (:attr:`AdaptiveSAV2.RANK_ONE_STEP`
-    over the area constraint's rate c = J0·8μ/(πR²), the smallest R, areas at their target)
-    holds a phase's substeps below dt/:data:`CEILING_SUBSTEPS`, and when sav2, the same step
-    at a fixed dt, steps past that ceiling."""
+    """Warn when the adaptive scheme's area-mode ceiling (:attr:`AdaptiveSAV2.RANK_ONE_STEP`,
+    or :attr:`AdaptiveSAV2.IMPLICIT_RANK_ONE_STEP` with ``numerics.area_implicit``, over the
+    area constraint's rate c = J0·8μ/(πR²), the smallest R, areas at their target) holds a
+    phase's substeps below dt/:data:`CEILING_SUBSTEPS`, and when sav2, the same step at a
+    fixed dt, steps past that ceiling."""
     from femphase.timestepping.adaptive import AdaptiveSAV2
 
     numerics, model = scene.numerics, scene.model
     scheme = numerics.scheme if scheme is None else scheme
-    if scheme not in ("adaptive", "sav2") or numerics.area_implicit or model.area_stiffness <= 0:
+    if scheme not in ("adaptive", "sav2") or model.area_stiffness <= 0:
         return
     radius = float(np.min(scene.radii))
     rate = model.area_rate(radius)
-    ceiling = AdaptiveSAV2.RANK_ONE_STEP / rate
+    implicit = numerics.area_implicit
+    bound = AdaptiveSAV2.IMPLICIT_RANK_ONE_STEP if implicit else AdaptiveSAV2.RANK_ONE_STEP
+    ceiling = bound / rate
     k, phase = max(enumerate(scene.phases), key=lambda item: item[1].dt)
-    if scheme == "sav2" and phase.dt > ceiling:  # the same explicit step, without the ceiling
+    if scheme == "sav2" and phase.dt > ceiling:  # the same step, without the ceiling
+        seen = ("with the area mode implicit a lone disc fell into a period-2 oscillation of its area (±30 %) "
+                "past c·dt = 4.7, docs/scenes.md" if implicit else
+                "on examples/single.toml it blew up at dt = 5 and ended 31 % off in area at dt = 10")
+        remedy = "" if implicit else ", numerics.area_implicit = true"
         warnings.warn(
-            f'numerics.scheme = "sav2" at phases.{k}.dt = {phase.dt:g} steps past {AdaptiveSAV2.RANK_ONE_STEP:g}/c = '
-            f"{ceiling:.3g} time units (c = J0·8μ/(πR²) = {rate:.3g} at R = {radius:g}), where its explicit step "
-            "stops damping the area: on examples/single.toml it blew up at dt = 5 and ended 31 % off in area at "
-            f"dt = 10. Set the phases' dt ≤ {ceiling:.3g}, numerics.area_implicit = true, or the adaptive scheme",
+            f'numerics.scheme = "sav2" at phases.{k}.dt = {phase.dt:g} steps past {bound:g}/c = '
+            f"{ceiling:.3g} time units (c = J0·8μ/(πR²) = {rate:.3g} at R = {radius:g}), where its step "
+            f"stops damping the area: {seen}. Set the phases' dt ≤ {ceiling:.3g}{remedy}, or the adaptive scheme",
             StiffnessWarning, stacklevel=3,
         )
     elif scheme == "adaptive" and phase.dt / ceiling > CEILING_SUBSTEPS:
+        remedy = ("" if implicit else
+                  f"numerics.area_implicit = true raises that ceiling to {AdaptiveSAV2.IMPLICIT_RANK_ONE_STEP:g}/c "
+                  "(with errors of the area mode the estimate does not see, docs/scenes.md); ")
         warnings.warn(
             f"model.area_stiffness = {model.area_stiffness:g} makes the area constraint stiff (rate "
             f"c = J0·8μ/(πR²) = {rate:.3g} per time unit at R = {radius:g}): the adaptive substep stays below "
-            f"{AdaptiveSAV2.RANK_ONE_STEP:g}/c = {ceiling:.3g} time units, where its explicit step stops damping "
-            f"the area, at least {phase.dt / ceiling:.0f} substeps per step of phases.{k}.dt = {phase.dt:g}. "
-            "numerics.area_implicit = true lifts that ceiling (with larger errors the estimate does not see, "
-            "docs/decisions/0022-area-mode-ceiling-kept.md); a smaller area_stiffness lowers c",
+            f"{bound:g}/c = {ceiling:.3g} time units, where its step stops damping the area, at least "
+            f"{phase.dt / ceiling:.0f} substeps per step of phases.{k}.dt = {phase.dt:g}. "
+            f"{remedy}{'a' if remedy else 'A'} smaller area_stiffness lowers c",
             StiffnessWarning, stacklevel=3,
         )
 

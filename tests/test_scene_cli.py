@@ -264,8 +264,12 @@ def test_the_t1_count_looks_between_frames_at_its_interval():
 
 
 @pytest.mark.parametrize("mu, numerics, warns", [(3000.0, {}, "at least 398 substeps"), (200.0, {}, ""),
-                                                  (3000.0, {"area_implicit": True}, ""),
-                                                  (3000.0, {"scheme": "sav2"}, "steps past 1.5/c = 0.0251")])
+                                                  (3000.0, {"area_implicit": True}, "below 4/c = 0.067 time units"),
+                                                  (1000.0, {"area_implicit": True}, ""),
+                                                  (3000.0, {"scheme": "sav2"}, "steps past 1.5/c = 0.0251"),
+                                                  (20.0, {"scheme": "sav2", "area_implicit": True}, ""),
+                                                  (1000.0, {"scheme": "sav2", "area_implicit": True},
+                                                   "period-2 oscillation")])
 def test_an_area_constraint_that_caps_the_substep_far_below_dt_warns(mu, numerics, warns):
     from femphase.errors import StiffnessWarning
 
@@ -275,8 +279,9 @@ def test_an_area_constraint_that_caps_the_substep_far_below_dt_warns(mu, numeric
         warnings.simplefilter("always")
         scene_from_dict(table)
     stiff = [w for w in caught if issubclass(w.category, StiffnessWarning)]
-    # c = 0.5·8·3000/(π 8²) = 59.7 per time unit: the ceiling 1.5/c = 0.0251, 398 substeps of dt = 10
-    # (sav2 takes that step at dt = 10, without the ceiling: warned as a step past it)
+    # c = 0.5·8·3000/(π 8²) = 59.7 per time unit: the ceiling 1.5/c = 0.0251, 398 substeps of dt = 10,
+    # with the area mode implicit 4/c = 0.067, 149 (sav2 takes that step at dt = 10, without the
+    # ceiling: warned as a step past it; at μ = 20 with the mode implicit dt = 10 is inside 4/c)
     assert bool(stiff) == bool(warns)
     if warns:
         assert warns in str(stiff[0].message)
