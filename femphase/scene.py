@@ -638,10 +638,13 @@ def _check_particles(scene: Scene) -> None:
     # its own image: the particle started so vanished (its area 182 of 1597, x and y NaN)
     diameter = 2 * float(np.max(scene.initial_radii()))
     if diameter >= min(domain.width, domain.period):
-        key = "particles.initial_radius" if p.initial_radius is not None else "model.radius"
-        raise SceneError(key, diameter / 2, f"initial discs that fit between the walls and within the period: a "
-                         f"radius < {min(domain.width, domain.period) / 2:g} (half the width Ly = {domain.width:g} "
-                         f"and half the period Lx = {domain.period:g})")
+        # unset, the initial radius is R/2: the key to change is still initial_radius (or R)
+        target = "particles.radii" if p.radii is not None else "model.radius"
+        default = "" if p.initial_radius is not None else (
+            f"; unset, it is half of each particle's target radius ({target} = {float(np.max(scene.radii)):g} at most)")
+        raise SceneError("particles.initial_radius", diameter / 2, f"initial discs that fit between the walls and "
+                         f"within the period: a radius < {min(domain.width, domain.period) / 2:g} (half the width "
+                         f"Ly = {domain.width:g} and half the period Lx = {domain.period:g}){default}")
     if p.layout != "random":  # fixed centres: check them now, not at the run
         _warn_cut_discs(scene, initial_centres(scene))
     lam, smallest = scene.model.interface_width, float(np.min(scene.radii))
@@ -651,7 +654,9 @@ def _check_particles(scene: Scene) -> None:
             f"{key}: a target radius R = {smallest:g} below {BULK_RADIUS:g}λ = {BULK_RADIUS * lam:g} (λ = {lam:g}, "
             f"model.interface_width) leaves the particle without a bulk: it is all interface, and relaxed it peaks "
             f"below φ = 1 (0.87 at R = λ, 0.36 at R = 0.4λ); the area term still holds ∫φ² at πR², but its shape "
-            f"and the interface energy are not a particle's. Use R ≥ {BULK_RADIUS * lam:g} or a smaller "
+            f"and the interface energy are not a particle's, and below about R = 0.53λ (at h = 1) it peaks under "
+            f"1/2, where it counts as vanished and its x, y, elongation and orientation are NaN "
+            f"(docs/outputs.md). Use R ≥ {BULK_RADIUS * lam:g} or a smaller "
             f"model.interface_width", ModelWarning, stacklevel=3)
 
 

@@ -287,6 +287,21 @@ def test_an_area_constraint_that_caps_the_substep_far_below_dt_warns(mu, numeric
         assert warns in str(stiff[0].message)
 
 
+@pytest.mark.parametrize("particles, named", [
+    ({"layout": "single"}, "'particles.initial_radius' = 4.0 is invalid: initial discs that fit between the walls "
+                           "and within the period: a radius < 3 (half the width Ly = 40 and half the period Lx = 6); "
+                           "unset, it is half of each particle's target radius (model.radius = 8 at most)"),
+    ({"layout": "single", "initial_radius": 3.5}, "'particles.initial_radius' = 3.5 is invalid"),
+])
+def test_an_initial_disc_wider_than_the_period_names_the_initial_radius(particles, named):
+    # unset, the initial radius is R/2 = 4: the refusal named model.radius = 4.0, which was 8
+    table = {"domain": {"Lx": 6.0, "Ly": 40.0}, "particles": particles,
+             "phases": [{"duration": 10.0, "dt": 10.0, "frame_interval": 10.0}]}
+    with pytest.raises(SceneError) as caught:
+        scene_from_dict(table)
+    assert named in str(caught.value)
+
+
 @pytest.mark.parametrize("particles, warns", [({"layout": "single"}, False),
                                               ({"layout": "list", "centres": [[10.0, 20.0], [30.0, 20.0]],
                                                 "radii": [8.0, 2.5]}, True)])
