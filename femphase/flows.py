@@ -24,7 +24,7 @@ from femphase.errors import FlowError, SceneError
 from femphase.registry import Registry, import_module
 
 __all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "largest_speed",
-           "linear_shear", "no_flow", "number", "poiseuille", "python_flow", "row_flow"]
+           "linear_shear", "no_flow", "number", "poiseuille", "python_flow", "row_flow", "time_mean"]
 
 
 SHEAR_SCALES = ("wall_velocity", "shear_rate")
@@ -57,6 +57,23 @@ class Flow:
     @property
     def is_still(self) -> bool:
         return self.velocity is None
+
+
+#: The three-point Gauss–Legendre rule on [0, 1] (nodes, weights): exact for polynomials of
+#: degree ≤ 5 in t.
+GAUSS_NODES = 0.5 + 0.5 * np.sqrt(0.6) * np.array([-1.0, 0.0, 1.0])
+GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
+
+
+def time_mean(velocity: Callable[[float], np.ndarray], time: float, span: float) -> np.ndarray:
+    """(1/span) ∫ velocity(s) ds over [time, time + span], by :data:`GAUSS_WEIGHTS`: what an
+    advection step of ``span`` in a flow that changes in time moves by. For a flow whose
+    direction field is fixed, v(x, t) = f(t) w(x) (an oscillating shear), the advection over
+    the step is then the mean velocity's to the rule's accuracy, where the velocity at the
+    step's midpoint, also second order, errs by the factor sin(ωs/2)/(ωs/2) of a flow of
+    frequency ω (−17 % at ω·span = 2.1, a substep of 3.33 in a flow of period 10)."""
+    return sum(weight * np.asarray(velocity(time + node * span), dtype=float)
+               for node, weight in zip(GAUSS_NODES, GAUSS_WEIGHTS))
 
 
 class FlowDomain(Protocol):

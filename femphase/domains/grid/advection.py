@@ -35,7 +35,7 @@ from femphase.domains.advection import StepAdvection, regather
 from femphase.domains.base import Domain
 from femphase.domains.grid.windows import GridLayout, Window, pad_window
 from femphase.domains.layout import Layout
-from femphase.flows import Flow
+from femphase.flows import Flow, time_mean
 
 __all__ = ["RowShift", "SemiLagrangian", "row_phases", "row_runs", "shift_rows"]
 
@@ -93,7 +93,11 @@ class RowShift(StepAdvection):
         self._runs: tuple[list, list] | None = None
 
     def _row_shift(self, time: float) -> np.ndarray:
-        return np.asarray(self.flow.row_velocity(self._y, time + 0.5 * self.dt), dtype=float) * self.dt / self.domain.grid.h
+        """Nodes each row moves over the step from ``time``: ∫u(y, t) dt over the step, exact
+        for a steady flow and by :func:`~femphase.flows.time_mean` for one that changes."""
+        row, y = self.flow.row_velocity, self._y
+        mean = row(y, time) if self.flow.steady else time_mean(lambda t: row(y, t), time, self.dt)
+        return np.asarray(mean, dtype=float) * self.dt / self.domain.grid.h
 
     def _window_shifts(self, row_shift: np.ndarray, first_rows: np.ndarray, heights: np.ndarray,
                        full_width: bool) -> tuple[np.ndarray, np.ndarray]:

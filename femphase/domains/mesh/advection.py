@@ -52,7 +52,7 @@ from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
 from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
-from femphase.flows import Flow
+from femphase.flows import Flow, time_mean
 
 __all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "GalerkinAdvection",
            "GalerkinPade", "GalerkinRungeKutta", "advection_matrix", "corrected_inverse", "skew_advection",
@@ -64,7 +64,7 @@ def skew_advection(u, v, w):
     return 0.5 * (dot(w.velocity, grad(u)) * v - dot(w.velocity, grad(v)) * u)
 
 
-def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0) -> sp.csr_matrix:
+def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float = 0.0) -> sp.csr_matrix:
     """The skew-symmetric advection matrix C_ij = c(φ_j, φ_i) on the periodic dofs,
 
         c(φ, ψ) = ½ ∫ (v·∇φ) ψ − ½ ∫ (v·∇ψ) φ,
@@ -72,15 +72,21 @@ def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0) -> sp.csr_ma
     equal to the advective form for a divergence-free v with v·n = 0 on the walls and
     periodic sides, and exactly antisymmetric for the only weakly divergence-free P2 Stokes
     velocity, so the step conserves ∫φ² (mass-matrix norm) at any dt. The velocity enters at
-    the quadrature points (the P2 Stokes field exactly, analytic flows by evaluation)."""
+    the quadrature points (the P2 Stokes field exactly, analytic flows by evaluation): at
+    ``time``, or with ``span`` > 0 its mean over [time, time + span]
+    (:func:`~femphase.flows.time_mean`; C is linear in v, so this is the mean of C over the
+    step)."""
     if flow.stokes is not None:
         basis = flow.stokes.pressure_basis  # P1 on the velocity basis' quadrature points
         velocity = np.asarray(flow.stokes.velocity_basis.interpolate(flow.stokes.velocity))
     else:
         basis = Basis(domain.mesh, ElementTriP1(), intorder=4)
         x, y = basis.mapping.F(basis.X)
-        u, v = flow.velocity(x, y, time)
-        velocity = np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)])
+
+        def at(t: float) -> np.ndarray:
+            u, v = flow.velocity(x, y, t)
+            return np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)])
+        velocity = at(time) if span == 0.0 else time_mean(at, time, span)
     fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
     matrix = skew_advection.assemble(basis, velocity=velocity)
     return (fold.T @ matrix @ fold).tocsr()
@@ -92,14 +98,15 @@ PADE_POLE = -3.0 + 1j * np.sqrt(3.0)
 
 class GalerkinAdvection(StepAdvection):
     """What the two Galerkin steps share: the advection matrix C of the flow, assembled once
-    for a steady flow and at every step's midpoint for a time-dependent one, and kept in the
+    for a steady flow and at every step, as its mean over the step, for a time-dependent one, and kept in the
     domain's budget per flow, so that advections of one flow over different dt (the adaptive
     scheme's substep sizes) share it and what is derived from it (:meth:`_per_flow`)."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
-        #: the time C is assembled at: None for a steady flow, else the current step's midpoint
-        self._when: float | None = None
+        #: the time C is averaged over: None for a steady flow, else the current step's
+        #: (start, length)
+        self._when: tuple[float, float] | None = None
 
     def _per_flow(self, name: str, build: Callable[[], object]):
         """What ``build()`` derives from the flow at :attr:`_when` (C itself, its aligned entries,
@@ -115,12 +122,13 @@ class GalerkinAdvection(StepAdvection):
     @property
     def advection(self) -> sp.csr_matrix:
         """C (full mesh, periodic dofs) at :attr:`_when`."""
-        return self._per_flow("matrix", lambda: advection_matrix(self.domain, self.flow, self._when or 0.0))
+        return self._per_flow("matrix", lambda: advection_matrix(self.domain, self.flow, *(self._when or (0.0, 0.0))))
 
     def _step_from(self, time: float) -> None:
-        """Set :attr:`_when` for the step from ``time``: its midpoint, for a flow that changes."""
+        """Set :attr:`_when` for the step from ``time``, for a flow that changes: C is then its
+        mean over the step (:func:`advection_matrix`)."""
         if not self.flow.steady:
-            self._when = time + 0.5 * self.dt
+            self._when = (time, self.dt)
 
 
 class GalerkinPade(GalerkinAdvection):
