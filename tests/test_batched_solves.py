@@ -88,6 +88,24 @@ def test_cg_reaches_its_tolerance_on_the_window_systems(sheared, tolerance):
     assert np.abs(solution - exact).max() > 1e-3 * tolerance * np.abs(exact).max() or tolerance == 1e-12
 
 
+def test_cg_moves_a_field_whose_change_is_below_its_tolerance(sheared):
+    # a small substep's system: the change of the field, ∝ dt, fell inside the goal
+    # tolerance × max|D⁻¹ rhs|, ∝ 1, so CG returned its start and the relaxation stood still
+    # (a mesh run in an oscillating shear at phase dt 0.5 took substeps of 0.005, 21 % off)
+    from femphase.fem.blocks import RESIDUAL_REDUCTION
+
+    domain, _, layout, phi = sheared
+    stiffness = domain.window_operator(layout, "stiffness")
+    matrix = (sp.diags(layout.mass / 0.005) + 0.12 * stiffness).tocsr()
+    rhs = layout.mass * phi / 0.005
+    exact = spla.spsolve(matrix.tocsc(), rhs)
+    change = np.abs(exact - phi).max()
+    assert change < 1e-3 * np.abs(rhs / matrix.diagonal()).max()  # the case: inside the goal at 1e-3
+    solution, iterations, _ = conjugate_gradient(matrix.dot, matrix.diagonal(), rhs, phi, 1e-3)
+    assert iterations >= 1
+    assert np.abs(solution - exact).max() <= 2 * RESIDUAL_REDUCTION * change
+
+
 def test_a_krylov_solve_that_cannot_converge_says_so(sheared):
     domain, _, layout, phi = sheared
     stiffness = domain.window_operator(layout, "stiffness")
@@ -163,8 +181,10 @@ def test_a_batched_solve_starts_from_its_guess():
     solution = step.solve(nodal, phi, layout, 1.0 / 3.0, 0.0)
     used = step.krylov_iterations
     again = step.solve(nodal, phi, layout, 1.0 / 3.0, 0.0, guess=solution)
-    assert used > 0 and step.krylov_iterations == used  # started at the solution: no iteration
-    assert np.array_equal(again, solution)
+    # started at the solution: a few iterations reduce its residual tenfold (RESIDUAL_REDUCTION),
+    # against ten from the field before, and the field stays within the tolerance's reach
+    assert 0 < step.krylov_iterations - used <= used // 3
+    assert np.abs(again - solution).max() < 1e-3 * np.abs(solution).max()
 
 
 def test_energies_on_meshes_use_the_layouts_block_diagonal_stiffness_within_the_budget():
