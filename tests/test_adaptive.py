@@ -452,6 +452,19 @@ def test_growth_after_a_quiet_substep_is_four_fold(monkeypatch):
     assert int(state.memory["adaptive_divisions"][0]) == 1
 
 
+def test_a_zero_estimate_does_not_cut_the_next_substep_to_the_shrink_bound(monkeypatch):
+    # an estimate of 0 in the fields' precision (floored at 1e-14) fed the proportional term
+    # (1e-13)^0.155 = 0.01: after it an error of 0.003 (3 % of the tolerance) gave the factor
+    # 0.9·33^0.4·0.01 = 0.038, clipped to 0.2, and substeps fell fivefold (a mesh run took
+    # substeps of 0.005). Read at ERROR_FLOOR = 1e-4 of the tolerance the factor is
+    # 0.9·33^0.4·(1e-4)^0.155 ≈ 0.89. dt/4 (quiet, but a larger size cannot start at dt/4),
+    # dt/4 with the error 0.003, then the largest size ≤ 0.89·dt/4 that starts at dt/2: dt/6
+    # (with the 1e-14 read as it is, 0.2·dt/4 → dt/24)
+    stepper, state, sizes = _scripted(monkeypatch, [1e-14, 0.003])
+    stepper.step(state)
+    assert sizes[:3] == [0.5, 0.5, 2.0 / 6]
+
+
 def test_a_rejected_substep_far_above_the_tolerance_shrinks_by_shrink(monkeypatch):
     # pins the rejection's (tol/err)^0.5 and its floor 0.2
     stepper, state, sizes = _scripted(monkeypatch, [10.0, 1e-14])

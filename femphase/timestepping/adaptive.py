@@ -80,6 +80,11 @@ class AdaptiveSAV2(RelaxedSAV2):
     #: The PI controller (Gustafsson; the defaults of SUNDIALS ARKODE's PI): exponents of
     #: the error ratios for an estimate of local order 2, a safety factor, growth bounds.
     K_I, K_P, SAFETY, GROWTH, SHRINK = 0.8 / 2, 0.31 / 2, 0.9, 4.0, 0.2
+    #: The least previous error, relative to the tolerance, that the controller's proportional
+    #: term (previous/tolerance)^K_P reads (Hairer & Wanner's DOPRI5 floor, 1e-4): a substep
+    #: whose estimate is 0 in the fields' precision (floored at 1e-14) would otherwise cut the
+    #: next one's factor by (1e-13)^K_P = 0.01, to the shrink bound, whatever its own error.
+    ERROR_FLOOR = 1e-4
     #: z = c·h, c the fastest explicit rank-one mode's rate (each particle's area relaxing
     #: back), up to which substeps may grow: the explicit midpoint step moves that mode by
     #: 1 − z + z²/2, 0.625 at z = 1.5, 1 (undamped) at 2, while the embedded estimate scales
@@ -237,7 +242,7 @@ class AdaptiveSAV2(RelaxedSAV2):
             at_ceiling += capped
             factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous_error / self.tolerance) ** self.K_P
             factor = min(self.GROWTH, max(self.SHRINK, factor))
-            previous_error = error
+            previous_error = max(error, self.ERROR_FLOOR * self.tolerance)
             m, capped = self.capped_divisions(factor / m, largest, done)
             # room for the next advection: this substep's second half and the next one's first
             layout, phi = stepper.refit(layout, phi, state.time + dt * done / self.UNITS,
