@@ -287,6 +287,28 @@ def test_an_area_constraint_that_caps_the_substep_far_below_dt_warns(mu, numeric
         assert warns in str(stiff[0].message)
 
 
+@pytest.mark.parametrize("kappa, particles, flow, warns", [
+    (5.0, 2, "shear", "c·h = 18.8 at substeps of 3.77"), (0.5, 2, "shear", ""), (5.0, 2, "none", ""),
+    (5.0, 1, "shear", ""), (50.0, 2, "shear", "Set phases.0.dt ≤ 0.2")])
+def test_a_stiff_split_repulsion_under_flow_warns(kappa, particles, flow, warns):
+    # κ = 5 under shear: the split decay's error, which the estimate does not contain, left two
+    # pressed discs' repulsion energy 12 % off at dt = 10 with tolerance_t 0.01 changing nothing
+    from femphase.errors import StiffnessWarning
+
+    centres = [[10.0, 20.0], [26.0, 20.0]][:particles]
+    table = {"model": {"kappa": kappa}, "domain": {"Lx": 40.0, "Ly": 40.0},
+             "particles": {"layout": "list", "centres": centres},
+             "phases": [{"duration": 10.0, "dt": 10.0, "frame_interval": 10.0, "flow": {"type": flow, "rate": 1.0}
+                         if flow != "none" else {"type": "none"}}]}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        scene_from_dict(table)
+    stiff = [str(w.message) for w in caught if issubclass(w.category, StiffnessWarning) and "κ" in str(w.message)]
+    assert bool(stiff) == bool(warns)
+    if warns:
+        assert warns in stiff[0]
+
+
 @pytest.mark.parametrize("particles, named", [
     ({"layout": "single"}, "'particles.initial_radius' = 4.0 is invalid: initial discs that fit between the walls "
                            "and within the period: a radius < 3 (half the width Ly = 40 and half the period Lx = 6); "
