@@ -29,9 +29,9 @@ and r = s₂/s₃ the finest pair's ratio:
   limit's measurement uncertainty (a period's own, from its cycles: :func:`_with_noise`);
 * each run's error f_k − f∞;
 * for a tolerance study, the neighbouring levels whose last phase took the same substeps
-  (:func:`same_substeps`), named in every observable's note; where such a pair lies among
-  the finest three levels, no order and no limit (their difference is not the error the
-  tolerance controls).
+  (:func:`same_substeps`), named in every observable's note; where a level of such a pair
+  is among the finest three, no order and no limit (the tolerance does not control its
+  step, so its difference to the others is not the error the tolerance controls).
 
 The limit is not reported (NaN, with the reason) when the differences change sign
 (oscillatory convergence) or p ≤ 0 (divergence): the levels are not in the asymptotic
@@ -82,7 +82,8 @@ if TYPE_CHECKING:  # dask.distributed loads only where a study runs
     from distributed import Client
 
 __all__ = ["FORMAL_ORDER", "OBSERVABLES", "PARAMETERS", "ConvergenceError", "Estimate", "StudyIncomplete", "analyse",
-           "formal_order", "last_phase_substeps", "option_of", "richardson", "run_convergence", "same_substeps",
+           "formal_order", "last_phase_substeps", "option_of", "plateau_among_finest", "richardson", "run_convergence",
+           "same_substeps",
            "study_sweep"]
 
 #: Refinement parameters: command-line name → (scene key, its unit). For "mesh" the values are
@@ -140,7 +141,7 @@ def _observed_order(s: np.ndarray, f: np.ndarray) -> float:
     expm1(p x)/(−expm1(−p y)), which rises from 0 to ∞ over all real p, through x/y at p = 0
     (r^p at a constant ratio r): a ratio of differences below x/y has a negative p, however
     the levels are spaced. Solved by bisection on [−50, 50] (:data:`ORDER_RANGE`), narrowed
-    where the levels lie so far apart that s^p would leave the doubles (|p|·ln(s₁/s₃) up to
+    where the levels lie so far apart that s^p would leave the doubles (|p|·max(x, y) up to
     700); ±inf beyond."""
     s1, s2, s3 = s[-3:]
     target = (f[-3] - f[-2]) / (f[-2] - f[-1])
@@ -345,7 +346,7 @@ def analyse(directory: Path, parameter: str, observables: list[str], expected_or
     if parameter == "tolerance_t":
         warning = same_substeps(levels)
         if warning:
-            unresolved = same_substeps(levels[-3:]) != ""  # a pair among the three the limit comes from
+            unresolved = plateau_among_finest(levels)
             # an observable not measured keeps that reason first: the substeps are not why it has no limit
             estimates = {name: _without_limit(e, f"{e.note}; {warning}" if e.note.startswith("not measured") else
                                               warning) if unresolved else
@@ -410,7 +411,15 @@ def same_substeps(levels: list[dict]) -> str:
                if capped else "")
     return (f"tolerance_t = {named} took the same substeps in the last phase ({finest['substeps']:g}, mean "
             f"{finest['mean_substep']:.3g}{ceiling}), so their difference is not the time error the tolerance "
-            f"controls; refine from {finest['s']:g} down")
+            f"controls; start the study below {finest['s']:g}")
+
+
+def plateau_among_finest(levels: list[dict]) -> bool:
+    """Whether a level of a :func:`same_substeps` pair is among the finest three (levels
+    coarse to fine), the levels a limit comes from: a pair whose finer level is the third
+    finest counts, though its coarser one is outside them (0.1 and 0.01 of 0.1, 0.01, 1e-3,
+    3e-4 gave order 0.34 and a limit 0.004 from the time-converged value, inside its bar)."""
+    return same_substeps(levels[-4:]) != ""
 
 
 def _write_tables(directory: Path, parameter: str, levels: list[dict], estimates: dict[str, Estimate]) -> None:

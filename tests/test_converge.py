@@ -268,7 +268,7 @@ def test_a_tolerance_study_names_the_levels_whose_substeps_the_tolerance_did_not
     # under shear the area-mode ceiling sets the substep at 0.1 and 0.03; 1e-3 refines it
     assert levels[0]["substeps"] == levels[1]["substeps"] < levels[2]["substeps"]
     note = result["estimates"]["area"].note
-    assert "tolerance_t = 0.1 and 0.03 took the same substeps" in note and "refine from 0.03 down" in note
+    assert "tolerance_t = 0.1 and 0.03 took the same substeps" in note and "start the study below 0.03" in note
     # a pair among the finest three: their difference is no time error, so no order and no
     # limit (with the finest two equal the study reported a limit ± 0, 0.011 off)
     assert math.isnan(result["estimates"]["area"].limit) and note.startswith("no limit: ")
@@ -280,6 +280,21 @@ def test_a_tolerance_study_names_the_levels_whose_substeps_the_tolerance_did_not
 
     period = analyse(tmp_path / "study", "tolerance_t", ["period"])["estimates"]["period"]
     assert period.note.startswith("no limit: not measured in 3 of the 3 runs; tolerance_t = 0.1 and 0.03"), period.note
+
+
+def test_a_plateau_level_among_the_finest_three_leaves_no_limit():
+    # tolerance_t 0.1, 0.01, 1e-3, 3e-4: 0.1 and 0.01 took the same substeps, 0.01 is among the
+    # finest three, and the limit they gave lay 0.004 from the time-converged value (order 0.34)
+    from femphase.converge import plateau_among_finest
+
+    def levels(*substeps):
+        return [{"s": s, "substeps": n, "rejected": 0, "capped": 0, "mean_substep": 100.0 / n}
+                for s, n in zip((0.1, 0.01, 1e-3, 3e-4, 1e-4), substeps)]
+
+    assert plateau_among_finest(levels(451, 451, 863, 1500))
+    assert plateau_among_finest(levels(300, 451, 451, 863))
+    assert not plateau_among_finest(levels(451, 451, 863, 1500, 2600))  # the pair is coarser than the three
+    assert not plateau_among_finest(levels(300, 451, 863, 1500))
 
 
 def test_levels_with_different_substeps_get_no_note():
