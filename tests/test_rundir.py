@@ -155,6 +155,24 @@ def test_the_phase_under_way_may_end_later_or_sooner_but_not_before_the_checkpoi
                         150.0)
 
 
+def test_a_resume_records_renamed_scenes_and_phases_among_its_changes():
+    # run.json's changes listed nothing for a renamed scene, whose console line used the new name
+    phase = {"name": "shear", "dt": 10.0, "frame_interval": 10.0, "duration": 100.0}
+    saved = {"name": "a", "phases": [phase]}
+    changes = resume_position(saved, {"name": "b", "phases": [{**phase, "name": "sheared"}]}, 50.0)[2]
+    assert changes == ["name: 'a' → 'b'", "phases.0.name: 'shear' → 'sheared'"]
+
+
+def test_a_refused_resume_points_to_the_runs_earlier_assignments(scene, tmp_path, capsys):
+    # the README's "--resume --set phases.1.duration=…" is refused after a run started with
+    # other --set values, and the message did not say where they are
+    run = tmp_path / "run"
+    assert _run(scene, run, "--set", "phases.1.duration=10", "--set", "phases.0.frame_interval=10") == 0
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 2
+    assert "the run's earlier ones are in its run.json (each segment's \"set\")" in capsys.readouterr().err
+
+
 def test_a_run_without_checkpoints_cannot_resume_and_is_told_why(scene, tmp_path, capsys):
     run = tmp_path / "run"
     assert _run(scene, run, "--set", "phases.1.duration=10", "--set", "output.checkpoint=false") == 0

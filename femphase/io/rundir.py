@@ -367,7 +367,7 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
     and particles, numerics.diagonals, output.observables, and the duration or flow of
     phases already done or the flow of the phase under way, and the dt or frame interval of
     phases done and not extended (the run's scene.toml would describe steps it never took)."""
-    changes = []
+    changes = [f"name: {saved.get('name')!r} → {scene.get('name')!r}"] if saved.get("name") != scene.get("name") else []
     for table in FROZEN_TABLES:
         old, new = saved.get(table, {}), scene.get(table, {})
         for key in sorted(set(old) | set(new)):
@@ -414,7 +414,7 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
                                      f"ran with it until t = {min(end, time):g} and does not run again")
         start = end
     for k, (old, new) in enumerate(zip(old_phases, new_phases)):
-        for key in ("duration", "dt", "frame_interval", "flow"):
+        for key in ("name", "duration", "dt", "frame_interval", "flow"):
             if old.get(key) != new.get(key):
                 changes.append(f"phases.{k}.{key}: {old.get(key)!r} → {new.get(key)!r}")
     if len(new_phases) != len(old_phases):

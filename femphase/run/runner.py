@@ -108,7 +108,12 @@ def run_scene(scene: Scene, directory: str | Path, *, resume: bool = False, over
             if (domain.kind == "mesh" and "h" not in current["domain"]
                     and saved.get("domain", {}).get("h") == domain.median_edge):
                 saved["domain"].pop("h")
-            phase, phase_step, changes = resume_position(saved, current, metadata["time"])
+            try:
+                phase, phase_step, changes = resume_position(saved, current, metadata["time"])
+            except SceneError as exc:  # most often an earlier --set the resume's command left out
+                raise SceneError(exc.key, exc.value, f"{exc.valid}. A resume reads the scene file again with its "
+                                 "own --set assignments only: the run's earlier ones are in its run.json "
+                                 "(each segment's \"set\")") from None
             state, observers = load_checkpoint(checkpoint, simulation.domain)
             state.phase, state.phase_step = phase, phase_step
             simulation.restore_observers(observers)
