@@ -163,22 +163,24 @@ def test_a_resume_records_renamed_scenes_and_phases_among_its_changes():
     assert changes == ["name: 'a' → 'b'", "phases.0.name: 'shear' → 'sheared'"]
 
 
+def _refused_resume(scene: Path, run: Path, capsys, assignment: str) -> str:
+    """The error of resuming with phases.1.duration=20 a run started with ``assignment``."""
+    assert _run(scene, run, "--set", "phases.1.duration=10", "--set", assignment) == 0
+    capsys.readouterr()
+    assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 2
+    return capsys.readouterr().err
+
+
 def test_a_refused_resume_points_to_the_runs_earlier_assignments(scene, tmp_path, capsys):
     # the README's "--resume --set phases.1.duration=…" is refused after a run started with
     # other --set values, and the message did not say where they are
-    run = tmp_path / "run"
-    assert _run(scene, run, "--set", "phases.1.duration=10", "--set", "phases.0.frame_interval=10") == 0
-    capsys.readouterr()
-    assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 2
-    assert "the run's earlier ones are in its run.json (each segment's \"set\")" in capsys.readouterr().err
+    error = _refused_resume(scene, tmp_path / "run", capsys, "phases.0.frame_interval=10")
+    assert "the run's earlier ones are in its run.json (each segment's \"set\")" in error
 
 
 def test_a_run_without_checkpoints_cannot_resume_and_is_told_why(scene, tmp_path, capsys):
-    run = tmp_path / "run"
-    assert _run(scene, run, "--set", "phases.1.duration=10", "--set", "output.checkpoint=false") == 0
-    capsys.readouterr()
-    assert _run(scene, run, "--resume", "--set", "phases.1.duration=20") == 2
-    assert "written with output.checkpoint = false, so it cannot be continued" in capsys.readouterr().err
+    error = _refused_resume(scene, tmp_path / "run", capsys, "output.checkpoint=false")
+    assert "written with output.checkpoint = false, so it cannot be continued" in error
     assert _run(scene, tmp_path / "new", "--resume") == 2
     assert "holds checkpoint.h5 (it does not exist: start the run without --resume)" in capsys.readouterr().err
 
