@@ -160,6 +160,25 @@ def test_sigterm_interrupts_as_ctrl_c_and_is_recorded():
     assert terminated == [signal.SIGTERM] and signal.getsignal(signal.SIGTERM) is before
 
 
+def test_sigint_interrupts_where_the_process_started_with_it_ignored():
+    # a script's background job inherits SIGINT ignored: a sweep ran on to exit 0 through it,
+    # where femphase run stopped (exit 130)
+    import os
+    import signal
+
+    from femphase.cli.interrupts import sigterm_as_interrupt
+
+    before = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            with sigterm_as_interrupt() as terminated:
+                os.kill(os.getpid(), signal.SIGINT)
+                pytest.fail("SIGINT did not interrupt")
+        assert terminated == [] and signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGINT, before)
+
+
 def test_a_figure_names_the_observables_it_cannot_draw(tmp_path, monkeypatch):
     # a study with no limit wrote a blank figure, and one with some dropped the others silently
     from femphase import converge
