@@ -505,11 +505,14 @@ def _plot(path: Path, parameter: str, levels: list[dict], estimates: dict[str, E
         import textwrap
 
         text = "\n".join(textwrap.fill(f"not drawn, {line}", 120) for line in undrawn)
-        fig.text(0.01, 0.01, text, fontsize=7, va="bottom", ha="left", color="darkred")
-        fig.tight_layout(rect=(0, 0.06 + 0.03 * text.count("\n"), 1, 1))
+        # the figure grows by the note's lines (7 pt, spaced 1.3), which sit below the axes' labels
+        note_height = (text.count("\n") + 1) * 1.3 * 7 / 72 + 0.1  # inches
+        width, height = fig.get_size_inches()
+        fig.set_size_inches(width, height + note_height)
+        fig.text(0.01, 0.05 / (height + note_height), text, fontsize=7, va="bottom", ha="left", color="darkred")
+        save(fig, path, rect=(0.0, note_height / (height + note_height), 1.0, 1.0))
     else:
-        fig.tight_layout()
-    save(fig, path)
+        save(fig, path)
 
 
 def option_of(scene_key: str) -> str:

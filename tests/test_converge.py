@@ -179,13 +179,36 @@ def test_sigint_interrupts_where_the_process_started_with_it_ignored():
         signal.signal(signal.SIGINT, before)
 
 
+def test_the_notes_under_a_figure_leave_its_axes_clear(tmp_path, monkeypatch):
+    # save() laid the figure out again over the whole of it: six lines of notes covered the
+    # x-axis labels
+    from femphase import converge
+    from femphase.plot import figures
+
+    gaps = []
+
+    def laid_out(fig, path, rect=(0.0, 0.0, 1.0, 1.0)):
+        fig.tight_layout(rect=rect)
+        renderer = fig.canvas.get_renderer()
+        notes_top = max(text.get_window_extent(renderer).y1 for text in fig.texts)
+        gaps.append(min(ax.get_tightbbox(renderer).y0 for ax in fig.axes) - notes_top)
+
+    monkeypatch.setattr(figures, "save", laid_out)
+    levels = [{"s": s, "cpu_s": 1.0} for s in (1.0, 0.5, 0.25)]
+    reason = "a long reason that wraps over two lines of the note " * 4
+    estimates = {f"observable{k}": converge._without_limit(richardson([1.0, 0.5, 0.25], [1.0, 2.0, 1.5]), reason)
+                 for k in range(3)}
+    converge._plot(tmp_path / "convergence.png", "h", levels, estimates)
+    assert gaps and gaps[0] > 0
+
+
 def test_a_figure_names_the_observables_it_cannot_draw(tmp_path, monkeypatch):
     # a study with no limit wrote a blank figure, and one with some dropped the others silently
     from femphase import converge
     from femphase.plot import figures
 
     drawn = []
-    monkeypatch.setattr(figures, "save", lambda fig, path: drawn.append(fig))
+    monkeypatch.setattr(figures, "save", lambda fig, path, **layout: drawn.append(fig))
     levels = [{"s": s, "cpu_s": 1.0} for s in (1.0, 0.5, 0.25)]
     estimates = {"area": richardson([1.0, 0.5, 0.25], [3.0 + s**2 for s in (1.0, 0.5, 0.25)]),
                  "period": richardson([1.0, 0.5, 0.25], [1.0, 2.0, 1.5])}

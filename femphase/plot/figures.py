@@ -17,11 +17,13 @@ def pyplot():
     return plt
 
 
-def save(fig, path: Path) -> Path:
-    """Write ``fig`` to ``path`` (its folders made; the format from the suffix) and close it."""
+def save(fig, path: Path, rect: tuple[float, float, float, float] = (0.0, 0.0, 1.0, 1.0)) -> Path:
+    """Write ``fig`` to ``path`` (its folders made; the format from the suffix) and close it,
+    its axes laid out inside ``rect`` (left, bottom, right, top in figure fractions; the rest
+    is left to text placed there)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     fig.savefig(path, dpi=130)
     import matplotlib.pyplot as plt
 
