@@ -377,7 +377,7 @@ def _check_mesh_unchanged(run: RunData, run_id: str) -> None:
 
 
 def last_phase_substeps(info: dict) -> dict:
-    """``substeps``, ``rejected`` and ``capped`` (those the area-mode ceiling set) of a
+    """``substeps``, ``rejected`` and ``capped`` (those a ceiling set: the area mode's, or the split repulsion's) of a
     run's last phase from its run.json (``info``), and ``mean_substep``, the phase's
     duration over its substeps (time units); NaN for schemes that do not count substeps and
     for runs that did not reach the last phase."""
@@ -407,7 +407,7 @@ def same_substeps(levels: list[dict]) -> str:
     finest = pairs[-1][1]
     involved = list({id(level): level for pair in pairs for level in pair}.values())
     capped = [level for level in involved if math.isfinite(level["capped"]) and level["capped"] > 0]
-    ceiling = ("; the area-mode ceiling capped " + ", ".join(f"{level['capped']:g} at {level['s']:g}" for level in capped)
+    ceiling = ("; a ceiling capped " + ", ".join(f"{level['capped']:g} at {level['s']:g}" for level in capped)
                if capped else "")
     return (f"tolerance_t = {named} took the same substeps in the last phase ({finest['substeps']:g}, mean "
             f"{finest['mean_substep']:.3g}{ceiling}), so their difference is not the time error the tolerance "

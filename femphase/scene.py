@@ -311,19 +311,12 @@ def scene_from_dict(data: dict, base_dir: str | Path = ".", scheme: str | None =
     return scene
 
 
-#: The largest c·h, c = 4·J0·κ/λ the repulsion's decay rate where a neighbour's φ is 1 and h
-#: a flow substep, at which a scene runs the split repulsion without a warning. Two discs
-#: pressed together (examples/single.toml, centres 5 apart, relaxation 200 then shear 50 at
-#: γ̇ = 1) ended with a repulsion energy off its value at dt = 0.1 by 3 % at c·h = 1.9 (the
-#: paper's κ), 3.6 % at 10, 8 % at 25, 12 % at 19 and 4.8-fold at 188, while tolerance_t =
-#: 0.01 left it where it was: the splitting error is not in the estimate.
-SPLIT_REPULSION_STEP = 10.0
-
-
 def _check_split_repulsion(scene: Scene, scheme: str | None = None) -> None:
-    """Warn when a flow phase's substeps (at most its dt, and the adaptive scheme's at most
-    the area-mode ceiling) reach c·h > :data:`SPLIT_REPULSION_STEP` with the repulsion split
-    off and integrated as a decay (``numerics.repulsion_split``, sav2 and adaptive)."""
+    """Warn when a flow phase's split repulsion (``numerics.repulsion_split``, sav2 and
+    adaptive) decays at c·h above :attr:`AdaptiveSAV2.DECAY_STEP`, c = 4·J0·κ/λ its rate where
+    a neighbour's φ is 1 (the splitting's error is not in the estimate): sav2 at its dt; the
+    adaptive scheme, whose substeps that bound caps, where it forces more than
+    :data:`CEILING_SUBSTEPS` substeps per step of dt."""
     from femphase.timestepping.adaptive import AdaptiveSAV2
 
     numerics, model = scene.numerics, scene.model
@@ -332,21 +325,28 @@ def _check_split_repulsion(scene: Scene, scheme: str | None = None) -> None:
             or scene.n_particles < 2:
         return
     rate = 4.0 * model.mobility * model.repulsion / model.interface_width
-    ceiling = np.inf
-    if scheme == "adaptive" and model.area_stiffness > 0:
-        bound = AdaptiveSAV2.IMPLICIT_RANK_ONE_STEP if numerics.area_implicit else AdaptiveSAV2.RANK_ONE_STEP
-        ceiling = bound / model.area_rate(float(np.min(scene.radii)))
+    ceiling = AdaptiveSAV2.DECAY_STEP / rate
     for k, phase in enumerate(scene.phases):
-        substep = min(phase.dt, ceiling)
-        if phase.flow.get("type", "none") == "none" or rate * substep <= SPLIT_REPULSION_STEP:
+        if phase.flow.get("type", "none") == "none":
             continue
-        warnings.warn(
-            f"model.repulsion (κ) = {model.repulsion:g}: under phases.{k}.flow the repulsion is split off the step and "
-            f"integrated as a decay at up to c = 4·J0·κ/λ = {rate:.3g} per time unit, c·h = {rate * substep:.3g} at "
-            f"substeps of {substep:.3g}, and the error estimate does not contain that splitting's error (two pressed "
-            f"discs: their repulsion energy 12 % off at c·h = 19, 4.8-fold at 188). Set phases.{k}.dt ≤ "
-            f"{SPLIT_REPULSION_STEP / rate:.3g} (c·h ≤ {SPLIT_REPULSION_STEP:g}: 3.6 % there)",
-            StiffnessWarning, stacklevel=3)
+        effect = ("measured: two pressed discs under shear, their repulsion energy 3.6 % off at c·h = 10, 12 % at "
+                  "19, 4.8-fold at 188; docs/decisions/0052-split-repulsion-decay-ceiling.md")
+        if scheme == "sav2" and phase.dt > ceiling:
+            warnings.warn(
+                f'numerics.scheme = "sav2" at phases.{k}.dt = {phase.dt:g}: model.repulsion (κ) = '
+                f"{model.repulsion:g} splits off the step a decay at up to c = 4·J0·κ/λ = {rate:.3g} per time "
+                f"unit, c·dt = {rate * phase.dt:.3g}, whose splitting error the step does not see ({effect}). "
+                f"Set phases.{k}.dt ≤ {ceiling:.3g}, or the adaptive scheme, which keeps c·h ≤ "
+                f"{AdaptiveSAV2.DECAY_STEP:g}",
+                StiffnessWarning, stacklevel=3)
+        elif scheme == "adaptive" and phase.dt / ceiling > CEILING_SUBSTEPS:
+            warnings.warn(
+                f"model.repulsion (κ) = {model.repulsion:g}: under phases.{k}.flow the repulsion is split off the "
+                f"step as a decay at up to c = 4·J0·κ/λ = {rate:.3g} per time unit, and the adaptive substep stays "
+                f"below {AdaptiveSAV2.DECAY_STEP:g}/c = {ceiling:.3g} time units, where the splitting's error stays "
+                f"small ({effect}): at least {phase.dt / ceiling:.0f} substeps per step of phases.{k}.dt = "
+                f"{phase.dt:g}. A smaller κ lowers c",
+                StiffnessWarning, stacklevel=3)
 
 
 #: Substeps per step of dt that the area-mode ceiling alone may force before a scene warns:

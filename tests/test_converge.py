@@ -349,7 +349,7 @@ def test_levels_with_different_substeps_get_no_note():
     assert same_substeps([level(0.1, 30, 1), level(0.01, 30, 0)]) == ""  # a rejection is a different step sequence
     assert same_substeps([level(0.1, math.nan), level(0.01, math.nan)]) == ""  # schemes that do not count
     assert "0.1 and 0.01" in same_substeps([level(0.1, 30), level(0.01, 30), level(1e-3, 80)])
-    assert "; the area-mode ceiling capped 12 at 0.1)" in same_substeps([level(0.1, 30, capped=12), level(0.01, 30), level(1e-3, 80)])
+    assert "; a ceiling capped 12 at 0.1)" in same_substeps([level(0.1, 30, capped=12), level(0.01, 30), level(1e-3, 80)])
 
 
 def test_the_command_refuses_bad_levels_and_observables_before_any_run(tmp_path):

@@ -19,9 +19,9 @@ A status line (level INFO) reads
 with t the simulated time (time units), step the steps done of the scene's total, the
 phase (index:name), the mean wall time per step since the previous line (ms), under the
 adaptive scheme the mean accepted substep since the previous line (time units; ``-``
-when none was taken), the substeps rejected since, and the accepted ones whose size the
-area-mode ceiling set rather than the error estimate (``capped``: when all are, the
-ceiling, not the tolerance, set the step); these three are absent for other schemes. Then
+when none was taken), the substeps rejected since, and the accepted ones whose size a
+ceiling (the area mode's, the split repulsion's) set rather than the error estimate
+(``capped``: when all are, the ceiling, not the tolerance, set the step); these three are absent for other schemes. Then
 the number of windows (one per particle) and their mean size in dofs, the resident memory of the process
 now (``rss``, /proc/self/statm; absent where there is no /proc) and its peak (``peak``,
 resource.getrusage's ru_maxrss), in MiB, and the remaining wall time if the remaining
@@ -129,7 +129,7 @@ class StatusLog(Tracker):
 
     def _substeps(self, state: State) -> list[str]:
         """``substep=``, ``rejected=`` and ``capped=`` (accepted substeps whose size the
-        area-mode ceiling set, not the error estimate) since the previous line, for schemes
+        ceilings of the adaptive scheme set, not the error estimate) since the previous line, for schemes
         that count their substeps (``adaptive``: ``State.memory["adaptive_counts"]`` and
         ``["adaptive_phase_counts"]``); none for others."""
         counts = state.memory.get("adaptive_counts")

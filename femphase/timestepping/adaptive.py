@@ -99,6 +99,12 @@ class AdaptiveSAV2(RelaxedSAV2):
     #: 0.996–0.999 up to z = 4.72 and fell into a period-2 oscillation of ±30 % at z = 4.97;
     #: the adaptive scheme unbounded ran at z ≈ 5.5 with its area ±14 % from frame to frame.
     IMPLICIT_RANK_ONE_STEP = 4.0
+    #: z = c·h, c the split decay's largest rate (the repulsion's, J0·4κ/λ Σ_{j≠i} φ_j²), up
+    #: to which flow substeps may grow: the splitting's error is not in the embedded estimate,
+    #: and it grows with z (docs/decisions/0052-split-repulsion-decay-ceiling.md:
+    #: two pressed discs under shear, their repulsion energy 3 % off at z = 1.9, 3.6 % at 10,
+    #: 12 % at 19, 4.8-fold at 188). At the paper's κ the bound is 20 time units: it never binds.
+    DECAY_STEP = 10.0
     #: The smallest local error allowed under flow at which the half-decays of consecutive
     #: substeps are merged across their shared advection (class docstring): the default 0.1
     #: merges them, 0.03 does not
@@ -129,8 +135,8 @@ class AdaptiveSAV2(RelaxedSAV2):
     def _advection(self, divisions: tuple[int, ...]):
         """The advection over the sum of the half substeps dt/(2m), m in ``divisions`` (None
         without flow): the second half of one substep and the first half of the next are
-        one advection (exact for steady row flows; midpoint-rule time for unsteady ones,
-        still second order), which halves the advection work."""
+        one advection (exact for steady row flows; the velocity's mean over it for unsteady
+        ones, :func:`femphase.flows.time_mean`), which halves the advection work."""
         if self.stepper.flow.is_still:
             return None
         stepper = self.stepper
@@ -141,20 +147,27 @@ class AdaptiveSAV2(RelaxedSAV2):
         """The largest substep (time units) that damps the rank-one modes,
         RANK_ONE_STEP / max_i c_i with c_i = J0 β_i (M_L φ_i)ᵀφ_i (≈ 0.4 per time unit at
         the paper's values: 3.77), IMPLICIT_RANK_ONE_STEP / max_i c_i with them implicit
-        (``numerics.area_implicit``: 10.05); unbounded without such modes."""
+        (``numerics.area_implicit``: 10.05), and under flow keeps the split decay's error
+        bounded, DECAY_STEP / (J0 max c) with c the decay terms' rate at every position
+        (the repulsion's 4κ/λ Σ_{j≠i} φ_j², at most 0.5 per time unit at the paper's
+        values: 20); unbounded without such modes and decays."""
         fields = WindowedFields(phi, layout, radii)
+        largest = np.inf
         beta = self.reacting.rank_one_coefficient(fields)
-        if beta is None or beta.size == 0:
-            return np.inf
-        rate = self.stepper.mobility * beta * fields.areas
-        bound = self.IMPLICIT_RANK_ONE_STEP if self.implicit_rank_one else self.RANK_ONE_STEP
-        return bound / max(float(rate.max()), 1e-300)
+        if beta is not None and beta.size:
+            rate = self.stepper.mobility * beta * fields.areas
+            bound = self.IMPLICIT_RANK_ONE_STEP if self.implicit_rank_one else self.RANK_ONE_STEP
+            largest = bound / max(float(rate.max()), 1e-300)
+        if self.decaying and phi.size:
+            rate = self.stepper.mobility * max(float(term.decay_rate(fields).max()) for term in self.decaying)
+            largest = min(largest, self.DECAY_STEP / max(rate, 1e-300))
+        return largest
 
     @classmethod
     def capped_divisions(cls, wanted: float, largest: float, done: int) -> tuple[int, bool]:
         """(m of the next substep for the controller's ``wanted`` size under the bound
         ``largest``, both in units of dt; whether that bound made it smaller than the
-        controller alone would have): a substep the area-mode ceiling set, not the error
+        controller alone would have): a substep a ceiling (:meth:`largest_substep`) set, not the error
         estimate."""
         m = cls.divisions_for(min(wanted, largest), done)
         return m, m != cls.divisions_for(wanted, done)
@@ -267,7 +280,8 @@ def counted_in_phase(counts: np.ndarray | None, phase: int, accepted: int, rejec
     """``State.memory["adaptive_phase_counts"]`` with ``accepted``, ``rejected`` and
     ``capped`` substeps added to phase ``phase``: (phases so far, 3) int64, row k the
     accepted substeps of phase k, the rejected ones, and the accepted ones whose size the
-    area-mode ceiling set rather than the error estimate (:meth:`AdaptiveSAV2.capped_divisions`).
+    ceilings of :meth:`AdaptiveSAV2.largest_substep` set rather than the error estimate
+    (:meth:`AdaptiveSAV2.capped_divisions`).
     The run directory's run.json reports them; ``adaptive_counts`` is the first two summed
     over phases, counted since the run began."""
     rows = max(phase + 1, 0 if counts is None else counts.shape[0])
