@@ -65,15 +65,36 @@ GAUSS_NODES = 0.5 + 0.5 * np.sqrt(0.6) * np.array([-1.0, 0.0, 1.0])
 GAUSS_WEIGHTS = np.array([5.0, 8.0, 5.0]) / 18.0
 
 
+#: Relative agreement of :func:`time_mean`'s rule on n and 2n pieces at which it stops, and
+#: the most pieces it takes.
+TIME_MEAN_TOLERANCE, TIME_MEAN_PIECES = 1e-6, 64
+
+
+def _gauss_mean(velocity: Callable[[float], np.ndarray], time: float, span: float, pieces: int) -> np.ndarray:
+    width = span / pieces
+    return sum(weight / pieces * np.asarray(velocity(time + (k + node) * width), dtype=float)
+               for k in range(pieces) for node, weight in zip(GAUSS_NODES, GAUSS_WEIGHTS))
+
+
 def time_mean(velocity: Callable[[float], np.ndarray], time: float, span: float) -> np.ndarray:
-    """(1/span) ∫ velocity(s) ds over [time, time + span], by :data:`GAUSS_WEIGHTS`: what an
-    advection step of ``span`` in a flow that changes in time moves by. For a flow whose
-    direction field is fixed, v(x, t) = f(t) w(x) (an oscillating shear), the advection over
-    the step is then the mean velocity's to the rule's accuracy, where the velocity at the
-    step's midpoint, also second order, errs by the factor sin(ωs/2)/(ωs/2) of a flow of
-    frequency ω (−17 % at ω·span = 2.1, a substep of 3.33 in a flow of period 10)."""
-    return sum(weight * np.asarray(velocity(time + node * span), dtype=float)
-               for node, weight in zip(GAUSS_NODES, GAUSS_WEIGHTS))
+    """(1/span) ∫ velocity(s) ds over [time, time + span]: what an advection step of ``span``
+    in a flow that changes in time moves by. For a flow whose direction field is fixed,
+    v(x, t) = f(t) w(x) (an oscillating shear), the advection over the step is then the
+    mean velocity's to the rule's accuracy, where the velocity at the step's midpoint, also
+    second order, errs by the factor sin(ωs/2)/(ωs/2) of a flow of frequency ω (−17 % at
+    ω·span = 2.1, a substep of 3.33 in a flow of period 10). By :data:`GAUSS_WEIGHTS` on
+    1, 2, 4 … pieces until two agree to :data:`TIME_MEAN_TOLERANCE` of the mean's largest
+    value (at most :data:`TIME_MEAN_PIECES`): one piece errs by 4.9e-5 at ω·span = 2.1 but
+    by 1.6 % of the amplitude over a whole period, and a substep may be a whole dt."""
+    coarse = _gauss_mean(velocity, time, span, 1)
+    pieces = 2
+    while True:
+        fine = _gauss_mean(velocity, time, span, pieces)
+        scale = max(float(np.max(np.abs(fine), initial=0.0)), 1e-300)
+        change = float(np.max(np.abs(fine - coarse), initial=0.0))
+        if pieces >= TIME_MEAN_PIECES or change <= TIME_MEAN_TOLERANCE * scale:
+            return fine
+        coarse, pieces = fine, 2 * pieces
 
 
 class FlowDomain(Protocol):

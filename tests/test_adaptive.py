@@ -482,6 +482,46 @@ def test_a_zero_estimate_does_not_cut_the_next_substep_to_the_shrink_bound(monke
     assert sizes[:3] == [0.5, 0.5, 2.0 / 6]
 
 
+def test_a_step_inside_a_merged_call_starts_under_its_own_ceiling(monkeypatch):
+    # the ceiling was recomputed at a step boundary inside a call but the next substep had
+    # been chosen under the old one: a whole step ran as one substep of 4× the new ceiling
+    stepper, state, sizes = _scripted(monkeypatch, [1e-14])
+    ceilings = iter([100.0, 0.5, 0.5, 0.5])
+    monkeypatch.setattr(AdaptiveSAV2, "largest_substep", lambda self, *args: next(ceilings))
+    stepper.step(state, 2)
+    assert sum(sizes) == pytest.approx(4.0)
+    second, done = [], 0.0
+    for size in sizes:
+        if done >= 2.0 - 1e-12:
+            second.append(size)
+        done += size
+    assert second and max(second) <= 0.5
+
+
+def test_a_stored_zero_error_is_read_at_the_floor(monkeypatch):
+    # checkpoints written before the floor hold 1e-14: a resume cut its first substep fivefold
+    stepper, state, sizes = _scripted(monkeypatch, [0.003])
+    state.memory["adaptive_divisions"] = np.array([4, 0])
+    state.memory["adaptive_error"] = np.array([1e-14])
+    stepper.step(state)
+    # factor 0.89 as after a floored quiet substep: the largest size ≤ 0.89·dt/4 that starts at
+    # dt/4 is dt/8 (read at 1e-14, 0.2·dt/4 → dt/24)
+    assert sizes[:2] == [0.5, 2.0 / 8]
+
+
+def test_the_split_decay_ceiling_reads_the_rate_the_decay_integrates(monkeypatch):
+    # with two decay terms the ceiling took the larger of their rates, the decay their sum
+    from helpers import small_system
+
+    params = ModelParameters()
+    domain, state = small_system([[14.0, 20.0], [26.0, 20.0]], radius=8.0, initial_radius=8.0)
+    stepper = Stepper(domain, params, Numerics(), 10.0, linear_shear(1.0, 40.0), state.radii)
+    monkeypatch.setattr(RelaxedSAV2, "decay_rate", lambda self, fields: np.full(fields.phi.shape, 40.0))
+    layout, phi = state.flat()
+    assert stepper.scheme.largest_substep(phi, layout, state.radii) == pytest.approx(
+        AdaptiveSAV2.DECAY_STEP / (params.mobility * 40.0))
+
+
 def test_a_rejected_substep_far_above_the_tolerance_shrinks_by_shrink(monkeypatch):
     # pins the rejection's (tol/err)^0.5 and its floor 0.2
     stepper, state, sizes = _scripted(monkeypatch, [10.0, 1e-14])

@@ -3,8 +3,9 @@
 Each domain picks its advection (:meth:`femphase.domains.base.Domain.advection`): the
 structured channel's row shift and semi-Lagrangian step (:mod:`femphase.domains.grid.advection`),
 the meshes' Galerkin steps (:mod:`femphase.domains.mesh.advection`). All take
-the flow at the step's midpoint t + dt/2 when it depends on time (second order in dt for the
-displacement; exact for steady flows).
+the flow's mean over the step when it depends on time (:func:`femphase.flows.time_mean`:
+exact in time for a flow of fixed direction field v = f(t) w(x), second order in dt for
+others; exact for steady flows).
 
 This module holds what they share: :class:`StepAdvection`, the nodal velocity, and the
 regathering of fields after a move regroups the windows.
@@ -20,7 +21,7 @@ import scipy.sparse as sp
 from femphase.caches import nbytes_of
 from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
-from femphase.flows import Flow
+from femphase.flows import Flow, time_mean
 
 __all__ = ["StepAdvection", "nodal_velocity", "regather"]
 
@@ -52,8 +53,11 @@ class StepAdvection:
                    if isinstance(value, np.ndarray) or sp.issparse(value))
 
     def velocity(self, time: float) -> np.ndarray:
-        """(2, n_dofs) nodal velocity at the step starting at ``time`` (its midpoint)."""
-        return nodal_velocity(self.domain, self.flow, time + 0.5 * self.dt)
+        """(2, n_dofs) nodal velocity over the step starting at ``time`` (the flow's mean over
+        it where the flow changes, as the advection takes it)."""
+        if self.flow.steady:
+            return nodal_velocity(self.domain, self.flow, time)
+        return time_mean(lambda t: nodal_velocity(self.domain, self.flow, t), time, self.dt)
 
 
 def nodal_velocity(domain: Domain, flow: Flow, time: float = 0.0) -> np.ndarray:

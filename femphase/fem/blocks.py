@@ -140,6 +140,7 @@ def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.n
             return x, iteration, r
         kernels.cg_direction(p, r, inverse, next_rz / rz)
         rz = next_rz
-    raise KrylovError(f"CG did not reach the relative residual {tolerance:g} in {maxiter} iterations "
+    raise KrylovError(f"CG did not reach the relative residual {tolerance:g} (or {RESIDUAL_REDUCTION:g} of its "
+                      f"start, whichever is smaller) in {maxiter} iterations "
                       f"(max |D⁻¹r| {largest:.3g}, goal {goal:.3g}): the windows' systems are "
                       "not mass-dominated; lower the phase's dt")

@@ -159,7 +159,7 @@ class AdaptiveSAV2(RelaxedSAV2):
             bound = self.IMPLICIT_RANK_ONE_STEP if self.implicit_rank_one else self.RANK_ONE_STEP
             largest = bound / max(float(rate.max()), 1e-300)
         if self.decaying and phi.size:
-            rate = self.stepper.mobility * max(float(term.decay_rate(fields).max()) for term in self.decaying)
+            rate = self.stepper.mobility * float(self.decay_rate(fields).max())
             largest = min(largest, self.DECAY_STEP / max(rate, 1e-300))
         return largest
 
@@ -187,7 +187,8 @@ class AdaptiveSAV2(RelaxedSAV2):
         if "adaptive_level" in memory:  # checkpoints that store the substep as dt/2^level
             memory["adaptive_divisions"] = 2 ** memory.pop("adaptive_level")
         total = steps * self.UNITS
-        # the rank-one modes' bound, once per step (the areas change slowly), in units of dt
+        # the ceilings (:meth:`largest_substep`), once per step and at every step boundary
+        # inside the call (areas and overlaps change slowly), in units of dt
         largest = self.largest_substep(phi, layout, state.radii) / dt
         # (m, whether the ceiling capped it) chosen at the end of the previous call; checkpoints
         # that did not record the second carry m alone
@@ -195,7 +196,9 @@ class AdaptiveSAV2(RelaxedSAV2):
         carried = int(stored[0])
         m, capped = self.capped_divisions(1.0 / carried, largest, 0)
         capped = capped or (stored.size > 1 and bool(stored[1]) and m == carried)
-        previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
+        # floored as when it was written (checkpoints from before the floor may hold 1e-14)
+        previous_error = max(float(memory.get("adaptive_error", np.array([self.tolerance]))[0]),
+                             self.ERROR_FLOOR * self.tolerance)
         if stepper.roomless:  # room for the first advection, which the call's refit left out
             layout, phi = stepper.refit(layout, phi, state.time, span=0.5 * dt / m)
         r = self.auxiliary(phi, layout, state)
@@ -208,6 +211,9 @@ class AdaptiveSAV2(RelaxedSAV2):
                 check_fields(phi, stepper.numerics.blowup_margin, state.step + done // self.UNITS,
                              state.time + dt * done / self.UNITS)
                 largest = self.largest_substep(phi, layout, state.radii) / dt
+                # the next substep was chosen under the previous step's ceiling
+                bounded = self.divisions_for(min(1.0 / m, largest), done)
+                capped, m = capped or bounded != m, bounded
             h = dt / m
             time = state.time + dt * done / self.UNITS
             advection = self._advection(owed + (m,))

@@ -95,11 +95,7 @@ class RelaxedSAV2(TimeScheme):
             return phi
 
         def rate(values: np.ndarray) -> np.ndarray:
-            fields = WindowedFields(values, layout, radii)
-            total = self.decaying[0].decay_rate(fields)
-            for term in self.decaying[1:]:
-                total = total + term.decay_rate(fields)
-            return total
+            return self.decay_rate(WindowedFields(values, layout, radii))
 
         # in place: each temporary of the plain expressions is a pass over 10⁵ positions
         denominator = rate(phi)
@@ -110,6 +106,14 @@ class RelaxedSAV2(TimeScheme):
         np.exp(factor, out=factor)
         factor *= phi
         return factor
+
+    def decay_rate(self, fields: WindowedFields) -> np.ndarray:
+        """c at every position (per time unit per mobility): the sum of the decay terms'
+        :meth:`~femphase.model.energy.EnergyTerm.decay_rate`, what :meth:`decay` integrates."""
+        total = self.decaying[0].decay_rate(fields)
+        for term in self.decaying[1:]:
+            total = total + term.decay_rate(fields)
+        return total
 
     def rank_one_predictor(self, explicit: np.ndarray, fields: WindowedFields, dt: float,
                            stabilisation: float) -> np.ndarray:

@@ -197,18 +197,17 @@ class SemiLagrangian(StepAdvection):
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
         grid, dt, pad = self.domain.grid, self.dt, self.PAD
         lattice = self.domain.lattice
-        t_mid = time + 0.5 * dt
         fields, windows = layout.scatter(phi), list(layout.windows)
         for i, (values, w) in enumerate(zip(fields, layout.windows)):
-            ux, uy = self._velocity(*self._node_coordinates(w), t_mid)
+            ux, uy = self._velocity(*self._node_coordinates(w), time)
             # move the window with the mean displacement so the departure points stay inside it
             kx = int(np.rint(np.mean(ux) * dt / grid.h)) if w.nx < grid.nx else 0
             ky = int(np.rint(np.mean(uy) * dt / grid.h))
             iy0 = min(max(w.iy0 + ky, 0), grid.ny - w.ny)
             new = Window(iy0, w.ny, (w.ix0 + kx) % grid.nx, w.nx)
             xn, yn = self._node_coordinates(new)
-            u0, v0 = self._velocity(xn, yn, t_mid)
-            um, vm = self._velocity(xn - 0.5 * dt * u0, yn - 0.5 * dt * v0, t_mid)
+            u0, v0 = self._velocity(xn, yn, time)
+            um, vm = self._velocity(xn - 0.5 * dt * u0, yn - 0.5 * dt * v0, time)
             xd = xn - dt * um
             yd = np.clip(yn - dt * vm, 0.0, grid.width)
             fields[i] = map_coordinates(
@@ -234,10 +233,17 @@ class SemiLagrangian(StepAdvection):
         y = np.broadcast_to(w.rows()[:, None] * grid.h, w.shape)
         return x, y
 
-    def _velocity(self, x: np.ndarray, y: np.ndarray, time: float):
-        """(u, v) at points, x wrapped into [0, Lx) and y clipped to the channel."""
+    def _velocity(self, x: np.ndarray, y: np.ndarray, time: float) -> tuple[np.ndarray, np.ndarray]:
+        """(u, v) at points, x wrapped into [0, Lx) and y clipped to the channel, over the step
+        from ``time``: the flow's, or for a flow that changes its mean over the step
+        (:func:`~femphase.flows.time_mean`; departure points traced in it are exact in time
+        for v = f(t) w(x), as the row shift is)."""
         grid = self.domain.grid
         x = np.mod(x, grid.length)
         y = np.clip(y, 0.0, grid.width)
-        u, v = self.flow.velocity(x, y, time)
-        return np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)
+
+        def at(t: float) -> np.ndarray:
+            u, v = self.flow.velocity(x, y, t)
+            return np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)])
+        u, v = at(time) if self.flow.steady else time_mean(at, time, self.dt)
+        return u, v
