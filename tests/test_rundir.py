@@ -118,7 +118,7 @@ def test_an_unusable_output_path_is_one_clear_message(scene, tmp_path, capsys, t
 
 
 @pytest.mark.parametrize("assignment, key", [
-    ("model.mu=10", "model.area_stiffness"),
+    ("model.mu=10", "model.area_stiffness (model.mu)"),  # the spelling typed, too
     ("domain.h=0.5", "domain.h"),
     ("domain.Lx=40", "domain.Lx"),
     ("particles.centres=[[10.0, 15.0], [21.0, 15.0], [15.0, 5.0]]", "particles.centres"),

@@ -63,6 +63,7 @@ from femphase.io.files import (
     writable_directory,
 )
 from femphase.io.provenance import now
+from femphase.model.parameters import PAPER_SYMBOLS
 
 __all__ = ["CHECKPOINT", "COMPARISON", "COMPARISON_DIR", "FIELDS_DIR", "FIGURES", "FIGURES_DIR", "FROZEN_TABLES", "LOCK", "OUTPUTS", "RUN_LOG", "Outputs", "RunLog",
            "Status", "frame_time", "prepare_directory", "resume_position"]
@@ -355,6 +356,11 @@ FROZEN_TABLES = ("model", "domain", "particles")
 MOVABLE = {("domain", "mesh")}
 
 
+#: Parameter name → the paper's symbol, which scenes accept as well (model.mu for
+#: model.area_stiffness): a refusal names both.
+_PAPER_NAMES = {name: symbol for symbol, name in PAPER_SYMBOLS.items()}
+
+
 def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, list[str]]:
     """Where a run saved at ``time`` by a scene ``saved`` (its resolved dict) continues under
     ``scene``: (phase, steps done in it, the changes as "key: old → new").
@@ -374,7 +380,9 @@ def resume_position(saved: dict, scene: dict, time: float) -> tuple[int, int, li
             if old.get(key) == new.get(key):
                 continue
             if (table, key) not in MOVABLE:
-                raise SceneError(f"{table}.{key}", new.get(key), f"{old.get(key)!r} as in the checkpoint: a resumed "
+                symbol = _PAPER_NAMES.get(key) if table == "model" else None  # the spelling a user may have typed
+                named = f"{table}.{key}" + (f" (model.{symbol})" if symbol else "")
+                raise SceneError(named, new.get(key), f"{old.get(key)!r} as in the checkpoint: a resumed "
                                  f"run cannot change its {table} (start a new run directory instead)")
             changes.append(f"{table}.{key}: {old.get(key)!r} → {new.get(key)!r}")
     for table, frozen in (("numerics", ("diagonals",)), ("output", ("observables",))):
