@@ -106,6 +106,19 @@ def test_cg_moves_a_field_whose_change_is_below_its_tolerance(sheared):
     assert np.abs(solution - exact).max() <= 2 * RESIDUAL_REDUCTION * change
 
 
+def test_cg_with_a_zero_right_hand_side_returns_near_zero():
+    # the goal was tolerance × max|D⁻¹ rhs| floored at the smallest double: from a non-zero
+    # guess CG iterated into underflow and divided by zero
+    n = 200
+    chain = sp.diags([-np.ones(n - 1), 2 * np.ones(n), -np.ones(n - 1)], [-1, 0, 1]).tolil()
+    chain[0, -1] = chain[-1, 0] = -1
+    matrix = (sp.identity(n) + 0.12 * chain.tocsr()).tocsr()
+    guess = np.full(n, 1e-3)
+    solution, iterations, _ = conjugate_gradient(matrix.dot, matrix.diagonal(), np.zeros(n), guess, 1e-3)
+    assert 1 <= iterations <= 3 and np.abs(solution).max() <= 1e-4
+    assert conjugate_gradient(matrix.dot, matrix.diagonal(), np.zeros(n), np.zeros(n), 1e-3)[1] == 0
+
+
 def test_a_krylov_solve_that_cannot_converge_says_so(sheared):
     domain, _, layout, phi = sheared
     stiffness = domain.window_operator(layout, "stiffness")

@@ -124,10 +124,11 @@ def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.n
 
     x = np.array(guess, dtype=np.result_type(rhs, guess), copy=True)
     inverse = (1.0 / diagonal).astype(x.dtype, copy=False)
-    goal = tolerance * max(float(np.max(np.abs(inverse * rhs))), np.finfo(float).tiny)
+    scale = float(np.max(np.abs(inverse * rhs), initial=0.0))
+    goal = tolerance * scale if scale > 0.0 else np.inf  # a zero rhs: the reduction alone sets the goal
     r = (rhs - (apply(x) if guess_product is None else guess_product)).astype(x.dtype, copy=False)
     z = inverse * r
-    largest = float(np.max(np.abs(z)))
+    largest = float(np.max(np.abs(z), initial=0.0))
     goal = min(goal, RESIDUAL_REDUCTION * largest)
     if largest <= goal:
         return x, 0, r
@@ -135,7 +136,11 @@ def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], diagonal: np.n
     rz = float(np.dot(r, z))
     for iteration in range(1, maxiter + 1):
         q = apply(p)
-        largest, next_rz = kernels.cg_update(x, r, p, q, inverse, rz / float(np.dot(p, q)))
+        curvature = float(np.dot(p, q))
+        if not curvature > 0.0:  # a zero rhs drove the residual into underflow here once
+            raise KrylovError(f"CG broke down at iteration {iteration} (pᵀAp = {curvature:.3g}, max |D⁻¹r| "
+                              f"{largest:.3g}, goal {goal:.3g}): the windows' systems are not positive definite")
+        largest, next_rz = kernels.cg_update(x, r, p, q, inverse, rz / curvature)
         if largest <= goal:
             return x, iteration, r
         kernels.cg_direction(p, r, inverse, next_rz / rz)
