@@ -373,7 +373,8 @@ def _check_mesh_unchanged(run: RunData, run_id: str) -> None:
     if recorded is not None and recorded != current:
         raise ConvergenceError("--mesh", run.scene["domain"]["mesh"], f"the mesh file run {run_id} computed on; "
                                f"it has changed since (digest {current}, the run's {recorded}), so its spacing "
-                               "would be another mesh's: restore the file, or start the study in a new directory")
+                               "would be another mesh's: restore the file, or start the study in a new directory "
+                               "(convergence.csv, .nc and .png there, if any, are an analysis from before the change)")
 
 
 def last_phase_substeps(info: dict) -> dict:
