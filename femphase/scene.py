@@ -324,13 +324,13 @@ def _check_split_repulsion(scene: Scene, scheme: str | None = None) -> None:
     if scheme not in ("adaptive", "sav2") or not numerics.repulsion_split or model.repulsion <= 0 \
             or scene.n_particles < 2:
         return
-    rate = 4.0 * model.mobility * model.repulsion / model.interface_width
+    rate = model.repulsion_rate()
     ceiling = AdaptiveSAV2.DECAY_STEP / rate
+    effect = ("measured: two pressed discs under shear, their repulsion energy 3.6 % off at c·h = 10, 12 % at 19, "
+              "4.8-fold at 188; docs/decisions/0052-split-repulsion-decay-ceiling.md")
     for k, phase in enumerate(scene.phases):
         if phase.flow.get("type", "none") == "none":
             continue
-        effect = ("measured: two pressed discs under shear, their repulsion energy 3.6 % off at c·h = 10, 12 % at "
-                  "19, 4.8-fold at 188; docs/decisions/0052-split-repulsion-decay-ceiling.md")
         if scheme == "sav2" and phase.dt > ceiling:
             warnings.warn(
                 f'numerics.scheme = "sav2" at phases.{k}.dt = {phase.dt:g}: model.repulsion (κ) = '

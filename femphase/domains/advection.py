@@ -21,7 +21,7 @@ import scipy.sparse as sp
 from femphase.caches import nbytes_of
 from femphase.domains.base import Domain
 from femphase.domains.layout import Layout
-from femphase.flows import Flow, time_mean
+from femphase.flows import Flow, time_mean, velocity_at
 
 __all__ = ["StepAdvection", "nodal_velocity", "regather"]
 
@@ -67,5 +67,4 @@ def nodal_velocity(domain: Domain, flow: Flow, time: float = 0.0) -> np.ndarray:
         out[:, domain.dof_map] = flow.stokes.velocity_at_nodes()  # periodic partners carry equal values
         return out
     x, y = domain.coordinates
-    u, v = flow.velocity(x, y, time)
-    return np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)]).astype(float)
+    return velocity_at(flow, x, y, time)

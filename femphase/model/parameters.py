@@ -80,6 +80,11 @@ class ModelParameters:
         back to its area, 1/τ_A (0.4 at the paper's values)."""
         return 8.0 * self.mobility * self.area_stiffness / (np.pi * radius**2)
 
+    def repulsion_rate(self) -> float:
+        """c = 4·J0·κ/λ: the rate (1/time) at which the repulsion decays a field where a
+        neighbour's φ is 1, its largest (0.5 at the paper's values)."""
+        return 4.0 * self.mobility * self.repulsion / self.interface_width
+
 
 def double_well(phi: np.ndarray) -> np.ndarray:
     """4 φ² (1 − φ)²: zero at φ = 0 and φ = 1."""

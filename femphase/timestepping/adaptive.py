@@ -196,9 +196,7 @@ class AdaptiveSAV2(RelaxedSAV2):
         carried = int(stored[0])
         m, capped = self.capped_divisions(1.0 / carried, largest, 0)
         capped = capped or (stored.size > 1 and bool(stored[1]) and m == carried)
-        # floored as when it was written (checkpoints from before the floor may hold 1e-14)
-        previous_error = max(float(memory.get("adaptive_error", np.array([self.tolerance]))[0]),
-                             self.ERROR_FLOOR * self.tolerance)
+        previous_error = float(memory.get("adaptive_error", np.array([self.tolerance]))[0])
         if stepper.roomless:  # room for the first advection, which the call's refit left out
             layout, phi = stepper.refit(layout, phi, state.time, span=0.5 * dt / m)
         r = self.auxiliary(phi, layout, state)
@@ -212,8 +210,8 @@ class AdaptiveSAV2(RelaxedSAV2):
                              state.time + dt * done / self.UNITS)
                 largest = self.largest_substep(phi, layout, state.radii) / dt
                 # the next substep was chosen under the previous step's ceiling
-                bounded = self.divisions_for(min(1.0 / m, largest), done)
-                capped, m = capped or bounded != m, bounded
+                m, recapped = self.capped_divisions(1.0 / m, largest, done)
+                capped = capped or recapped
             h = dt / m
             time = state.time + dt * done / self.UNITS
             advection = self._advection(owed + (m,))
@@ -259,9 +257,11 @@ class AdaptiveSAV2(RelaxedSAV2):
             done += self.UNITS // m
             accepted += 1
             at_ceiling += capped
-            factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous_error / self.tolerance) ** self.K_P
+            # the previous error at the floor, also where a checkpoint from before it holds 1e-14
+            previous = max(previous_error, self.ERROR_FLOOR * self.tolerance)
+            factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous / self.tolerance) ** self.K_P
             factor = min(self.GROWTH, max(self.SHRINK, factor))
-            previous_error = max(error, self.ERROR_FLOOR * self.tolerance)
+            previous_error = error
             m, capped = self.capped_divisions(factor / m, largest, done)
             # room for the next advection: this substep's second half and the next one's first
             layout, phi = stepper.refit(layout, phi, state.time + dt * done / self.UNITS,

@@ -35,7 +35,7 @@ from femphase.domains.advection import StepAdvection, regather
 from femphase.domains.base import Domain
 from femphase.domains.grid.windows import GridLayout, Window, pad_window
 from femphase.domains.layout import Layout
-from femphase.flows import Flow, time_mean
+from femphase.flows import Flow, time_mean, velocity_at
 
 __all__ = ["RowShift", "SemiLagrangian", "row_phases", "row_runs", "shift_rows"]
 
@@ -241,9 +241,6 @@ class SemiLagrangian(StepAdvection):
         grid = self.domain.grid
         x = np.mod(x, grid.length)
         y = np.clip(y, 0.0, grid.width)
-
-        def at(t: float) -> np.ndarray:
-            u, v = self.flow.velocity(x, y, t)
-            return np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)])
-        u, v = at(time) if self.flow.steady else time_mean(at, time, self.dt)
-        return u, v
+        if self.flow.steady:
+            return tuple(velocity_at(self.flow, x, y, time))
+        return tuple(time_mean(lambda t: velocity_at(self.flow, x, y, t), time, self.dt))

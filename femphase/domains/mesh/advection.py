@@ -52,7 +52,7 @@ from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
 from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
-from femphase.flows import Flow, time_mean
+from femphase.flows import Flow, time_mean, velocity_at
 
 __all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "GalerkinAdvection",
            "GalerkinPade", "GalerkinRungeKutta", "advection_matrix", "corrected_inverse", "skew_advection",
@@ -82,11 +82,8 @@ def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float 
     else:
         basis = Basis(domain.mesh, ElementTriP1(), intorder=4)
         x, y = basis.mapping.F(basis.X)
-
-        def at(t: float) -> np.ndarray:
-            u, v = flow.velocity(x, y, t)
-            return np.stack([np.broadcast_to(u, x.shape), np.broadcast_to(v, x.shape)])
-        velocity = at(time) if span == 0.0 else time_mean(at, time, span)
+        velocity = (velocity_at(flow, x, y, time) if span == 0.0
+                    else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
     fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
     matrix = skew_advection.assemble(basis, velocity=velocity)
     return (fold.T @ matrix @ fold).tocsr()
