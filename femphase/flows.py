@@ -294,7 +294,7 @@ FLOW_DEFECT = 1e-6
 
 
 def velocity_at(flow: Flow, x: np.ndarray, y: np.ndarray, t: float) -> np.ndarray:
-    """(2, *x.shape) velocity of ``flow`` at the points (x, y) at time t (lattice units per
+    """Velocity of ``flow`` at the points (x, y) at time t, shape ``(2,) + x.shape`` (lattice units per
     time unit), u and v broadcast to the points' shape."""
     return np.stack([np.broadcast_to(np.asarray(w, dtype=float), x.shape) for w in flow.velocity(x, y, t)])
 
