@@ -132,7 +132,8 @@ ROWS = (
         "python benchmarks/work_precision.py --schemes"),
     Row("the same, first-order scheme at dt = 1", "benchmarks/results/work_precision_schemes.json",
         _time_error("FEM euler"), "python benchmarks/work_precision.py --schemes"),
-    Row("tolerance proportionality (a disc relaxing, two discs drifting apart, the sheared lattice's r̄(t))",
+    Row("tolerance proportionality (a disc relaxing, two discs drifting apart, the sheared lattice's r̄(t), "
+        "two discs colliding at κ × 10)",
         "benchmarks/results/tolerance.json", _tolerance, "python benchmarks/tolerance.py"),
     Row("lattice under shear (N = 100), CPU per time unit of the shear's steps at the default (no relaxation, "
         "no frames; whole runs: the first two rows)",

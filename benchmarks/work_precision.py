@@ -89,7 +89,8 @@ class Point:
             return "FD (Heun)"
         names = {"mass": "{} mass", "diagonals": "{} diagonals", "windows": "windows {}",
                  "solver": "{}", "tolerance": "tol {:g}", "scheme": "{}", "tolerance_t": "tolerance_t {:g}",
-                 "repulsion_split": "{} repulsion", "area_implicit": "{} area mode", "precision": "{} precision"}
+                 "repulsion_split": "{} repulsion", "area_implicit": "{} area mode", "precision": "{} precision",
+                 "estimate": "{} estimate"}
         switches = {"repulsion_split": ("split", "unsplit"), "area_implicit": ("implicit", "explicit")}
         parts = [names[k].format(dict(zip((True, False), switches.get(k, ("on", "off")))).get(v, v))
                  for k, v in sorted(self.options.items())]

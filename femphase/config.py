@@ -14,8 +14,8 @@ import numpy as np
 
 from femphase.errors import SceneError
 
-__all__ = ["DIAGONAL_PATTERNS", "FD_ADVECTION", "MASS_TYPES", "MESH_ADVECTIONS", "PRECISIONS", "SOLVER_METHODS",
-           "Numerics"]
+__all__ = ["DIAGONAL_PATTERNS", "ESTIMATES", "FD_ADVECTION", "MASS_TYPES", "MESH_ADVECTIONS", "PRECISIONS",
+           "SOLVER_METHODS", "Numerics"]
 
 #: Triangulations of the structured channel: every square cut along the same diagonal
 #: ("right": lower left to upper right; "left") or the two alternating.
@@ -30,6 +30,7 @@ FD_ADVECTION = ("upwind3", "upwind1")
 PRECISIONS = ("mixed", "double")
 #: ``numerics.mesh_advection``: see :class:`Numerics`.
 MESH_ADVECTIONS = ("auto", "galerkin", "semi-lagrangian")
+ESTIMATES = ("embedded", "doubling")
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,18 @@ class Numerics:
                     0.41, 0.31, 0.086), two discs' separation after 20000 time units within
                     1.5e-3 (h-error ≥ 0.07) (benchmarks/README.md, "Tolerance
                     proportionality")
+    estimate        "adaptive" scheme, phases with flow: the error estimate that drives the
+                    substeps. "embedded" (default): the first-order companion step's
+                    difference, free, which sees the splitting of advection and repulsion
+                    decay only through the midpoint step (ceilings hold the stiff split parts);
+                    ``tolerance_t`` bounds it per substep. "doubling": every substep of h is
+                    also taken as two of h/2 (splitting included) and the halves are kept;
+                    their local error, a third of the two results' largest difference, contains
+                    every error the step makes, and ``tolerance_t`` bounds it per time unit
+                    (error per unit step: local error ≤ tolerance_t × h), so that the global
+                    error follows ``tolerance_t`` in proportion. Three relaxations per substep
+                    instead of one (docs/decisions/0053-step-doubling-estimate.md). Without
+                    flow the step is not split and the embedded estimate runs
     repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
                     off the explicit midpoint step (Strang) and integrates it as the pointwise
                     decay it is, in exponential form (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`);
@@ -137,6 +150,7 @@ class Numerics:
     solver: str = "auto"
     tolerance: float = 1e-10
     tolerance_t: float = 0.1
+    estimate: str = "embedded"
     repulsion_split: bool = True
     area_implicit: bool = False
     windows: bool = True
@@ -246,7 +260,8 @@ class Numerics:
                                   ("fd_advection", self.fd_advection, FD_ADVECTION),
                                   ("diagonals", self.diagonals, DIAGONAL_PATTERNS),
                                   ("precision", self.precision, PRECISIONS),
-                                  ("mesh_advection", self.mesh_advection, MESH_ADVECTIONS)):
+                                  ("mesh_advection", self.mesh_advection, MESH_ADVECTIONS),
+                                  ("estimate", self.estimate, ESTIMATES)):
             if value not in valid:
                 raise SceneError(f"numerics.{key}", value, f"one of {valid}")
         if self.stabilisation != "auto" and not (
