@@ -223,9 +223,10 @@ class Layout:
 
 
 def largest_difference(first: np.ndarray, first_layout: Layout, second: np.ndarray, second_layout: Layout) -> float:
-    """max |φ − ψ| over every particle and dof, φ = ``first`` on ``first_layout`` and ψ =
-    ``second`` on ``second_layout`` (each zero outside its windows): position by position
-    where the two layouts hold the same windows, else matched by (particle, dof)."""
+    """The largest absolute difference of φ and ψ over every particle and dof, φ = ``first``
+    on ``first_layout`` and ψ = ``second`` on ``second_layout`` (each zero outside its
+    windows): position by position where the two layouts hold the same windows, else
+    matched by (particle, dof)."""
     if not first.size and not second.size:
         return 0.0
     if first_layout.windows == second_layout.windows:
