@@ -135,6 +135,9 @@ ROWS = (
     Row("tolerance proportionality (a disc relaxing, two discs drifting apart, the sheared lattice's r̄(t), "
         "two discs colliding at κ × 10)",
         "benchmarks/results/tolerance.json", _tolerance, "python benchmarks/tolerance.py"),
+    Row("the same with the step-doubling estimate (numerics.estimate = \"doubling\", tolerance per time unit; "
+        "the cases with flow)",
+        "benchmarks/results/tolerance_doubling.json", _tolerance, "python benchmarks/tolerance.py --estimate doubling"),
     Row("lattice under shear (N = 100), CPU per time unit of the shear's steps at the default (no relaxation, "
         "no frames; whole runs: the first two rows)",
         "benchmarks/results/step_time.json",

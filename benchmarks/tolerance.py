@@ -99,10 +99,9 @@ DISC_TIMES = (10.0, 20.0, 50.0, 100.0)
 #: (module docstring)
 WINDOWS = {"disc": (0.5, 5e-2, 5e-3, 5e-4), "pair": (1e-4, 1e-5, 1e-6, 1e-7), "collision": (1e-2, 1e-3, 1e-4, 1e-5),
            "lattice": (1e-2, 1e-3, 1e-4, 1e-5)}
-#: The same with the step-doubling estimate, whose tolerance is per time unit; on the lattice
-#: two decades (its substeps average 1.7 at 1e-3 and 0.47 at 1e-4, and a run at 1e-6 would
-#: cost over 10 CPU-min)
-DOUBLING_WINDOWS = {"collision": (1e-4, 1e-5, 1e-6, 1e-7), "lattice": (1e-3, 1e-4, 1e-5)}
+#: The same with the step-doubling estimate, whose tolerance is per time unit (the lattice's
+#: substeps average 1.7 at 1e-3 and 0.58 at 1e-4)
+DOUBLING_WINDOWS = {"collision": (1e-4, 1e-5, 1e-6, 1e-7), "lattice": (1e-3, 1e-4, 1e-5, 1e-6)}
 FLOW_CASES = ("collision", "lattice")
 DEFAULT = Numerics().tolerance_t
 

@@ -78,8 +78,10 @@ class Numerics:
                     every error the step makes, and ``tolerance_t`` bounds it per time unit
                     (error per unit step: local error ≤ tolerance_t × h), so that the global
                     error follows ``tolerance_t`` in proportion. Three relaxations per substep
-                    instead of one (docs/decisions/0053-step-doubling-estimate.md). Without
-                    flow the step is not split and the embedded estimate runs
+                    instead of one, in double precision whatever ``precision``
+                    (:meth:`single_precision_allowed`;
+                    docs/decisions/0053-step-doubling-estimate.md). Without flow the step is
+                    not split and the embedded estimate runs
     repulsion_split "sav2" and "adaptive" under flow only: True (default) splits the repulsion
                     off the explicit midpoint step (Strang) and integrates it as the pointwise
                     decay it is, in exponential form (:meth:`femphase.timestepping.sav2.RelaxedSAV2.relax`);
@@ -227,9 +229,13 @@ class Numerics:
     def single_precision_allowed(self, scheme: str) -> bool:
         """Whether flow steps of ``scheme`` (the one the stepper runs, which ``--method`` may
         set apart from ``self.scheme``) may compute in single precision: ``precision =
-        "mixed"``, and for "adaptive" a ``tolerance_t`` of at least SINGLE_PRECISION_TOLERANCE."""
+        "mixed"``, and for "adaptive" a ``tolerance_t`` of at least SINGLE_PRECISION_TOLERANCE
+        and the embedded estimate. The step-doubling estimate divides the halves' difference
+        by the substep, so float32 rounding (~1e-6 per substep) reads as an error growing as
+        the substep shrinks, and the controller then refines to the smallest substeps."""
         return self.precision == "mixed" and (scheme != "adaptive"
-                                               or self.tolerance_t >= self.SINGLE_PRECISION_TOLERANCE)
+                                               or (self.tolerance_t >= self.SINGLE_PRECISION_TOLERANCE
+                                                   and self.estimate == "embedded"))
 
     def krylov_tolerance(self, still: bool) -> float:
         """Relative tolerance of the batched Krylov solves of the window systems:

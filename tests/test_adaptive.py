@@ -102,7 +102,8 @@ def test_a_substep_taken_above_the_tolerance_at_the_smallest_size_is_warned():
         Simulation(default).run(default.initial_state(), [])
 
 
-def test_a_resumed_adaptive_run_continues_bit_for_bit(tmp_path):
+@pytest.mark.parametrize("estimate", ["embedded", "doubling"])
+def test_a_resumed_adaptive_run_continues_bit_for_bit(tmp_path, estimate):
     from femphase.cli import main
     from femphase.io.checkpoints import load_checkpoint
     from femphase.scene import load_scene
@@ -117,12 +118,13 @@ layout = "list"
 centres = [[14.0, 20.0], [27.0, 20.0]]
 [numerics]
 scheme = "adaptive"
+estimate = "%s"
 [[phases]]
 duration = 60.0
 dt = 10.0
 frame_interval = 10.0
 flow = { type = "shear", rate = 0.3 }
-""")
+""" % estimate)
     assert main(["run", str(scene), "-o", str(tmp_path / "straight"), "-q"]) == 0
     assert main(["run", str(scene), "-o", str(tmp_path / "cut"), "-q", "--set", "phases.0.duration=30"]) == 0
     assert main(["run", str(scene), "-o", str(tmp_path / "cut"), "-q", "--resume"]) == 0

@@ -31,13 +31,14 @@ def pressed_pair():
     return domain, replace(state, time=0.0, step=0, memory={})
 
 
-def _one_substep(domain, state, estimate: str, h: float):
+def _one_substep(domain, state, estimate: str, h: float, flow=None):
     """The adaptive scheme's one substep of h (the whole step dt = h, the controller's first
-    size forced to it, a tolerance it meets) under shear: (the state after it, its estimate of
-    the substep's local error; the doubled estimate is per time unit, so times h)."""
+    size forced to it, a tolerance it meets) under ``flow`` (default shear at γ̇ = 1): (the
+    state after it, its estimate of the substep's local error; the doubled estimate is per
+    time unit, so times h)."""
     state = state.copy()
     numerics = Numerics(estimate=estimate, precision="double", tolerance_t=0.5, merged_steps=1)
-    stepper = Stepper(domain, STIFF, numerics, h, linear_shear(1.0, 40.0), state.radii)
+    stepper = Stepper(domain, STIFF, numerics, h, flow or linear_shear(1.0, 40.0), state.radii)
     state.memory["adaptive_divisions"] = np.array([1, 0])
     stepper.step(state)
     assert state.memory["adaptive_counts"].tolist() == [1, 0]
@@ -61,6 +62,24 @@ def test_the_doubled_estimate_is_the_local_error_splitting_included(pressed_pair
     assert embedded_estimate < 0.8 * local_error(embedded)
     assert 0.7 < doubled_estimate / local_error(doubled) < 1.5
     assert local_error(doubled) < 0.5 * local_error(embedded)  # the halves are kept
+
+
+@pytest.mark.parametrize("start", [0.0, 2.0])
+def test_in_a_flow_that_changes_the_doubled_estimate_is_still_the_local_error(pressed_pair, start):
+    # each advection is the velocity's mean over its own span: the whole substep's catch-up
+    # advection started at the substep's start made the estimate 19–129 times the local
+    # error (ω h = 0.25 here: 0.98 and 0.94 of it)
+    from femphase.flows import flow_from_spec
+
+    domain, relaxed = pressed_pair
+    start_state = replace(relaxed.copy(), time=start)
+    flow = flow_from_spec({"type": "oscillating_shear", "rate": 1.0, "frequency": 0.5}, domain)
+    reference = start_state.copy()
+    Stepper(domain, STIFF, Numerics(scheme="sav2", precision="double"), 0.5 / 128, flow,
+            reference.radii).step(reference, 128)
+    doubled, estimate = _one_substep(domain, start_state, "doubling", 0.5, flow)
+    error = max(np.abs(doubled.global_field(i) - reference.global_field(i)).max() for i in range(2))
+    assert 0.7 < estimate / error < 1.5, (estimate, error)
 
 
 def test_the_whole_substep_is_taken_and_its_halves_kept(pressed_pair, monkeypatch):
@@ -100,6 +119,40 @@ def test_with_doubling_the_error_of_a_collision_follows_the_tolerance():
     errors = [np.abs(_collision({"estimate": "doubling", "tolerance_t": tolerance}, 10.0) - reference).max()
               / reference.max() for tolerance in (1e-4, 1e-5)]
     assert 0.8 < np.log10(errors[0] / errors[1]) < 1.4, errors
+
+
+def test_with_doubling_the_substep_shrinks_through_a_collision_and_grows_once_apart():
+    # the discs touch from t ≈ 30, their repulsion energy peaks at t ≈ 130, and they are apart
+    # again from t ≈ 260: substeps per 10 time units 8 before, 32 during, 6 after at 1e-4
+    # (benchmarks/collision_substeps.py; the embedded estimate keeps 48 from t = 30 to 300)
+    from femphase.run.simulation import Tracker
+
+    class Counts(Tracker):
+        def __init__(self) -> None:
+            self.accepted = []
+
+        def frame(self, frame) -> None:
+            counts = frame.state.memory.get("adaptive_phase_counts")
+            self.accepted.append(0 if counts is None else int(counts[-1, 0]))
+
+    scene = scene_from_dict({
+        "domain": {"Lx": 60.0, "Ly": 40.0}, "model": {"kappa": 5.0},
+        "particles": {"layout": "list", "centres": [[34.0, 16.0], [14.0, 24.0]], "initial_radius": 8.0},
+        "numerics": {"estimate": "doubling", "tolerance_t": 1e-4, "windows": False},
+        "output": {"fields": False, "checkpoint": False},
+        "phases": [{"duration": 300.0, "dt": 10.0, "frame_interval": 10.0, "flow": {"type": "shear", "rate": 1.0}}]})
+    counts = Counts()
+    Simulation(scene).run(scene.initial_state(), [counts])
+    per_frame = np.diff(counts.accepted)  # entry k: substeps from t = 10k to 10(k + 1)
+    apart_before, contact, apart_after = per_frame[1:3], per_frame[10:20], per_frame[26:30]
+    assert contact.min() >= 2 * apart_before.max() and contact.min() >= 3 * apart_after.max(), per_frame
+
+
+def test_doubling_computes_its_flow_steps_in_double_precision():
+    # the halves' difference over h would read float32 rounding as an error growing as the
+    # substep shrinks (a collision at 1e-4 went to the smallest substeps in mixed precision)
+    assert Numerics(tolerance_t=1e-3).single_precision_allowed("adaptive")
+    assert not Numerics(tolerance_t=1e-3, estimate="doubling").single_precision_allowed("adaptive")
 
 
 def test_an_unknown_estimate_is_refused_naming_the_valid_ones():

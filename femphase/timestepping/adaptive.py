@@ -218,14 +218,14 @@ class AdaptiveSAV2(RelaxedSAV2):
         if not self.doubles:
             return whole, whole_layout, whole_r, error, m
         h = self.stepper.dt / m
-        half, half_layout, _, _ = self._split_step(phi, layout, time, radii, r, 2 * m, owed)
-        half, half_layout, half_r, _ = self._split_step(half, half_layout, time + 0.5 * h, radii, r, 2 * m,
+        half, half_layout, half_r, _ = self._split_step(phi, layout, time, radii, r, 2 * m, owed)
+        half, half_layout, half_r, _ = self._split_step(half, half_layout, time + 0.5 * h, radii, half_r, 2 * m,
                                                         (2 * m,))
+        if not np.all(np.isfinite(half)):  # the kept result: a blow-up (NaN estimate)
+            return half, half_layout, half_r, np.nan, 2 * m
         whole, whole_layout = self._advection((2 * m,)).advect(whole, whole_layout, time + 0.5 * h)
         difference = largest_difference(whole, whole_layout, half, half_layout)
-        if not np.isfinite(difference) and np.all(np.isfinite(half)):
-            difference = np.inf
-        return half, half_layout, half_r, difference / (3.0 * h), 2 * m
+        return half, half_layout, half_r, (difference if np.isfinite(difference) else np.inf) / (3.0 * h), 2 * m
 
     @classmethod
     def capped_divisions(cls, wanted: float, largest: float, done: int) -> tuple[int, bool]:
@@ -318,7 +318,9 @@ class AdaptiveSAV2(RelaxedSAV2):
             previous = max(previous_error, self.ERROR_FLOOR * self.tolerance)
             factor = self.SAFETY * (self.tolerance / error) ** self.K_I * (previous / self.tolerance) ** self.K_P
             factor = min(self.GROWTH, max(self.SHRINK, factor))
-            previous_error = error
+            # an infinite estimate taken at the smallest size (doubling: its whole substep not
+            # finite) would grow the next substep fourfold through the proportional term
+            previous_error = error if np.isfinite(error) else self.tolerance
             m, capped = self.capped_divisions(factor / m, largest, done)
             # room for the next attempt's advection: this substep's second half and the next
             # one's reach
