@@ -30,6 +30,7 @@ FD_ADVECTION = ("upwind3", "upwind1")
 PRECISIONS = ("mixed", "double")
 #: ``numerics.mesh_advection``: see :class:`Numerics`.
 MESH_ADVECTIONS = ("auto", "galerkin", "semi-lagrangian")
+#: ``numerics.estimate``: see :class:`Numerics`.
 ESTIMATES = ("embedded", "doubling")
 
 

@@ -97,26 +97,31 @@ def test_the_whole_substep_is_taken_and_its_halves_kept(pressed_pair, monkeypatc
     assert calls == [(0.0, 1.0, 0.5, 0.5), (0.0, 0.5, 0.25, 0.25), (0.5, 0.5, 0.25, 0.25)]
 
 
-def _collision(numerics: dict, dt: float) -> np.ndarray:
-    """The repulsion energy at t = 10, 20, …, 200 of two discs of R = 8 colliding in a shear
-    (κ × 10, 60 × 40 channel, the upper one 20 behind, centres 8 apart across the flow), on
-    the whole channel (``numerics.windows = false``: no refits, whose cuts do not converge in
-    time)."""
+def _collision(numerics: dict, dt: float, duration: float = 200.0, trackers=()) -> FrameRecorder:
+    """The frames every 10 time units of two discs of R = 8 colliding in a shear (κ × 10,
+    60 × 40 channel, the upper one 20 behind, centres 8 apart across the flow), on the whole
+    channel (``numerics.windows = false``: no refits, whose cuts do not converge in time)."""
     scene = scene_from_dict({
         "domain": {"Lx": 60.0, "Ly": 40.0}, "model": {"kappa": 5.0},
         "particles": {"layout": "list", "centres": [[34.0, 16.0], [14.0, 24.0]], "initial_radius": 8.0},
         "numerics": {**numerics, "windows": False}, "output": {"fields": False, "checkpoint": False},
-        "phases": [{"duration": 200.0, "dt": dt, "frame_interval": 10.0, "flow": {"type": "shear", "rate": 1.0}}]})
+        "phases": [{"duration": duration, "dt": dt, "frame_interval": 10.0,
+                    "flow": {"type": "shear", "rate": 1.0}}]})
     recorder = FrameRecorder()
-    Simulation(scene).run(scene.initial_state(), [recorder])
+    Simulation(scene).run(scene.initial_state(), [recorder, *trackers])
+    return recorder
+
+
+def _repulsion(recorder: FrameRecorder) -> np.ndarray:
+    """The repulsion energy at the frames after the first."""
     return recorder.series("repulsion", "global")[1:]
 
 
 def test_with_doubling_the_error_of_a_collision_follows_the_tolerance():
     # reference: sav2 at dt = 0.0125, its error ~1.5e-6 of the largest repulsion energy
     # (order 2.0 over dt = 0.025 … 0.00625), 5 % of the tighter run's
-    reference = _collision({"scheme": "sav2", "precision": "double"}, 0.0125)
-    errors = [np.abs(_collision({"estimate": "doubling", "tolerance_t": tolerance}, 10.0) - reference).max()
+    reference = _repulsion(_collision({"scheme": "sav2", "precision": "double"}, 0.0125))
+    errors = [np.abs(_repulsion(_collision({"estimate": "doubling", "tolerance_t": tolerance}, 10.0)) - reference).max()
               / reference.max() for tolerance in (1e-4, 1e-5)]
     assert 0.8 < np.log10(errors[0] / errors[1]) < 1.4, errors
 
@@ -135,14 +140,8 @@ def test_with_doubling_the_substep_shrinks_through_a_collision_and_grows_once_ap
             counts = frame.state.memory.get("adaptive_phase_counts")
             self.accepted.append(0 if counts is None else int(counts[-1, 0]))
 
-    scene = scene_from_dict({
-        "domain": {"Lx": 60.0, "Ly": 40.0}, "model": {"kappa": 5.0},
-        "particles": {"layout": "list", "centres": [[34.0, 16.0], [14.0, 24.0]], "initial_radius": 8.0},
-        "numerics": {"estimate": "doubling", "tolerance_t": 1e-4, "windows": False},
-        "output": {"fields": False, "checkpoint": False},
-        "phases": [{"duration": 300.0, "dt": 10.0, "frame_interval": 10.0, "flow": {"type": "shear", "rate": 1.0}}]})
     counts = Counts()
-    Simulation(scene).run(scene.initial_state(), [counts])
+    _collision({"estimate": "doubling", "tolerance_t": 1e-4}, 10.0, duration=300.0, trackers=[counts])
     per_frame = np.diff(counts.accepted)  # entry k: substeps from t = 10k to 10(k + 1)
     apart_before, contact, apart_after = per_frame[1:3], per_frame[10:20], per_frame[26:30]
     assert contact.min() >= 2 * apart_before.max() and contact.min() >= 3 * apart_after.max(), per_frame

@@ -57,8 +57,9 @@ class AdaptiveSAV2(RelaxedSAV2):
     accepted whatever its estimate (the step cannot shrink further; a smaller phase dt is
     then the remedy).
 
-    Several steps in one call (``steps`` > 1, :meth:`femphase.timestepping.stepper.Stepper.step`) are one run of substeps:
-    the half-advection and half-decay that end one step and those that start the next are
+    Several steps in one call (``steps`` > 1,
+    :meth:`femphase.timestepping.stepper.Stepper.step`) are one run of substeps: the
+    half-advection and half-decay that end one step and those that start the next are
     merged like any two substeps', and the window refit between them is the substeps' own.
     Only the end of the call is synchronised (φ at that time, all half-steps done); each
     step's end inside it is checked for blow-up and renews the rank-one bound. Results then
@@ -208,12 +209,12 @@ class AdaptiveSAV2(RelaxedSAV2):
         tolerance^(1/3) and the second-order global error tolerance^(2/3)). Each substep
         then decays on both sides of its midpoint step (:attr:`merges_decays` false): the
         merge's error is of first order in the substep, which a difference read at order 2
-        does not scale. Measured from a
-        relaxed pair of discs sheared at κ × 10, one substep of 0.5 and 1: the estimate 0.96
-        and 0.80 of the local error against sav2 at h/128, the embedded one 0.77 and 0.60
-        (benchmarks/doubling_local_error.py; docs/decisions/0053-step-doubling-estimate.md).
-        A whole substep that is not finite where its halves are is an infinite estimate: the
-        substep is refined, not the run stopped."""
+        does not scale. Measured from a relaxed pair of discs sheared at κ × 10, one substep
+        of 0.5 and 1: the estimate 0.96 and 0.80 of the local error against sav2 at h/128,
+        the embedded one 0.77 and 0.60 (benchmarks/doubling_local_error.py;
+        docs/decisions/0053-step-doubling-estimate.md). A whole substep that is not finite
+        where its halves are is an infinite estimate: the substep is refined, not the run
+        stopped; halves that are not finite are a NaN estimate, a blow-up."""
         whole, whole_layout, whole_r, error = self._split_step(phi, layout, time, radii, r, m, owed)
         if not self.doubles:
             return whole, whole_layout, whole_r, error, m
