@@ -1,0 +1,271 @@
+"""What a mesh flow step would cost with windows shaped to their particles and free layouts.
+
+    python benchmarks/mesh_window_floor.py [--relax 400] [--flow 800] [--room 1 2] [--repeats 2]
+                                           [--corrections 2 1] [--output FILE]
+
+A design study, not a femphase option: it replaces ``MeshDomain.refit`` in its own process.
+A mesh window today is the dofs inside a box (margin 4 around the φ > 0.01 set, room and
+slack, :class:`~femphase.domains.mesh.boxes.BoxPolicy`); here a **shaped** window is the
+dofs within ``margin + room`` of the set (Euclidean, periodic in x, cut at the walls), made
+at a refit and kept while every dof of the set lies within ``room`` of the set it was made
+for (so the margin holds). A window that fails this is made anew at the next refit; any new
+window makes a new layout, built as today (:class:`~femphase.domains.layout.Layout`, block
+matrices per layout).
+
+Each run is its own process, relaxed ``--relax`` time units in today's boxes and then run
+``--flow`` time units of flow, timed on the process clock. Its flow CPU is split into:
+
+* **refit**: the refits, the new layouts and the transfer of the fields to them (for the
+  shaped windows also the making of them, by a k-d tree, recorded apart as **shaping**:
+  not a design's cost);
+* **blocks**: what is built once per layout (block patterns and block-diagonal matrices,
+  Jacobi diagonals: :meth:`~femphase.domains.base.Domain.per_layout`);
+* **floor**: the rest, the work of the substeps themselves.
+
+Kinds: ``grid`` (examples/random.toml, Poiseuille of rate U, as ``mesh_parity.py``), ``box``
+(examples/straight_mesh.toml, Stokes flow of centre-line velocity U, today's windows) and
+``shaped`` at each ``--room`` and each ``--corrections`` K (the mesh advection's Jacobi
+corrections, :data:`~femphase.domains.mesh.advection.MASS_CORRECTIONS`: 2, the default, or
+fewer products per substep), alternated ``--repeats`` times; ratios are to the grid run of
+the same repeat. Each mesh run also records every particle's centroid and area at the end,
+and the shaped runs their largest differences from the box run of the same repeat and what a
+layout concatenated from pieces kept per window would cost (:func:`concatenated_layout_ms`).
+Writes ``results/mesh_window_floor.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULT = Path(__file__).parent / "results" / "mesh_window_floor.json"
+THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+class ShapedWindows:
+    """The refit of shaped windows (module docstring), replacing a mesh domain's, with CPU
+    accounts. A shaped window is a :class:`Box` used as a tag (x0 = −serial), whose dofs are
+    put into the domain's window cache; ``made[tag]`` holds each of its dofs' distance to the
+    set it was made for."""
+
+    def __init__(self, domain, policy, room: float) -> None:
+        self.domain, self.room = domain, room
+        self.threshold, self.margin = policy.threshold, policy.margin
+        self.made: dict = {}
+        self.serial = 0
+        self.x, self.y = domain.coordinates
+        self.windows_made = 0
+        #: CPU seconds spent making windows (a k-d tree each: a prototype's, not a design's cost)
+        self.shaping = 0.0
+
+    def dilation(self, inside: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+        """The dofs within ``reach`` of the dofs ``inside`` (sorted) and their distances."""
+        from scipy.spatial import cKDTree
+
+        from femphase.domains.mesh.boxes import Box, circular_extent, local_x
+
+        domain, x, y = self.domain, self.x, self.y
+        low, high = domain.y_range
+        start, end = circular_extent(x[inside], domain.period)
+        y0, y1 = max(float(y[inside].min()) - reach, low), min(float(y[inside].max()) + reach, high)
+        if end - start + 2 * reach >= domain.period:
+            box = Box(domain.x0, domain.period, y0, y1)
+        else:
+            box = Box(domain.x0 + float(np.mod(start - reach - domain.x0, domain.period)), end - start + 2 * reach,
+                      y0, y1)
+        candidates = domain._dofs_inside([box])[0]
+        tree = cKDTree(np.c_[local_x(x[inside], box.x0, domain.period), y[inside]])
+        distance, _ = tree.query(np.c_[local_x(x[candidates], box.x0, domain.period), y[candidates]],
+                                 distance_upper_bound=reach + 1e-9)
+        keep = distance <= reach + 1e-9
+        return candidates[keep], distance[keep]
+
+    def refit(self, layout, phi, policy, motion):
+        from femphase.domains.mesh.boxes import Box
+
+        domain = self.domain
+        boxes, fields = list(layout.windows), layout.scatter(phi)
+        changed = {}
+        for i, box in enumerate(boxes):
+            occupied = fields[i] > self.threshold
+            if not occupied.any():
+                continue
+            made = self.made.get(box)
+            if made is not None and float(made[occupied].max()) <= self.room:
+                continue
+            started = time.process_time()
+            dofs, distance = self.dilation(domain.window_dofs(box)[occupied], self.margin + self.room)
+            self.shaping += time.process_time() - started
+            self.serial += 1
+            tag = Box(-float(self.serial), 0.0, 0.0, 0.0)
+            domain._dofs.put(tag, dofs)
+            self.made[tag] = distance
+            changed[i] = tag
+        if not changed:
+            return layout, phi
+        scratch = np.zeros(domain.n_dofs, dtype=phi.dtype)
+        for i, tag in changed.items():
+            old, new = domain.window_dofs(boxes[i]), domain.window_dofs(tag)
+            scratch[old] = fields[i]
+            fields[i] = scratch[new]
+            scratch[old] = 0.0
+            self.made.pop(boxes[i], None)
+            boxes[i] = tag
+        self.windows_made += len(changed)
+        refitted = domain.layout(boxes)
+        return refitted, refitted.gather(fields)
+
+
+def concatenated_layout_ms(domain, layout, matrices: int = 4, repeats: int = 50) -> float:
+    """Milliseconds to build ``layout``'s flat arrays from pieces kept per window, the least
+    any layout built anew can cost: its dofs, its block pattern's rows and columns (shifted
+    to each window's place) and the entries of ``matrices`` single-precision block matrices,
+    each concatenated from its windows' pieces (best of ``repeats``)."""
+    pattern = domain.window_blocks(layout)
+    offsets = layout.offsets
+    entries = pattern.indptr[offsets].astype(np.int64)
+    windows = range(offsets.size - 1)
+    nodes = [layout.node_index[offsets[w]:offsets[w + 1]] for w in windows]
+    columns = [pattern.indices[entries[w]:entries[w + 1]] - offsets[w] for w in windows]
+    rows = [pattern.indptr[offsets[w]:offsets[w + 1]] - entries[w] for w in windows]
+    data = domain._operator_data["mass", np.float32][pattern.source]
+    values = [[data[entries[w]:entries[w + 1]].copy() for w in windows] for _ in range(matrices)]
+    sizes, counts = np.diff(offsets), np.diff(entries)
+
+    def build():
+        index = np.concatenate(columns)
+        index += np.repeat(offsets[:-1], counts).astype(index.dtype)
+        starts = np.concatenate(rows)
+        starts += np.repeat(entries[:-1], sizes).astype(starts.dtype)
+        return np.concatenate(nodes), index, starts, [np.concatenate(pieces) for pieces in values]
+
+    best = np.inf
+    for _ in range(repeats):
+        started = time.perf_counter()
+        build()
+        best = min(best, time.perf_counter() - started)
+    return 1e3 * best
+
+
+def child(kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> dict:
+    """Run one kind in this process (module docstring)."""
+    from femphase.domains.base import Domain
+    from femphase.domains.mesh import advection
+
+    advection.MASS_CORRECTIONS = corrections
+    from femphase.run.simulation import Simulation
+    from femphase.scene import load_scene
+
+    if kind == "grid":
+        scene = load_scene(ROOT / "examples/random.toml", [
+            'phases.1.name="flow"', f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+            f'phases.1.flow={{type = "poiseuille", rate = {velocity}}}', "output.fields=false"])
+    else:
+        scene = load_scene(ROOT / "examples/straight_mesh.toml", [
+            "phases.0.dt=10.0", "phases.1.dt=10.0", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+            f'phases.1.flow={{type = "stokes", max_velocity = {velocity}}}', "output.fields=false"])
+    simulation, state = Simulation(scene), scene.initial_state()
+    relaxation, flowing = scene.phases
+    stepper = simulation.stepper(relaxation, state.radii)
+    stepper.scheme.start_phase(state)
+    stepper.step(state, relaxation.n_steps)
+    stepper = simulation.stepper(flowing, state.radii)
+    stepper.scheme.start_phase(state)
+    domain = stepper.domain
+    spent = {"refit": 0.0, "blocks": 0.0}
+
+    def timed(account: str, call):
+        def run(*args, **kwargs):
+            started = time.process_time()
+            try:
+                return call(*args, **kwargs)
+            finally:
+                spent[account] += time.process_time() - started
+        return run
+
+    per_layout = Domain.per_layout
+    Domain.per_layout = lambda self, layout, name, build, tag=None: per_layout(
+        self, layout, name, timed("blocks", build), tag)
+    shaped = ShapedWindows(domain, stepper.policy, room) if kind == "shaped" else None
+    refit = shaped.refit if shaped else domain.refit
+    layouts = [0]
+
+    def counted(layout, *args):
+        out = refit(layout, *args)
+        layouts[0] += out[0] is not layout
+        return out
+
+    object.__setattr__(domain, "refit", timed("refit", counted))  # the domain is a frozen dataclass
+    started = time.process_time()
+    stepper.step(state, flowing.n_steps)
+    cpu = time.process_time() - started
+    layout, phi = state.flat()
+    area, centroids, _ = domain.shape_moments(layout, phi)
+    record = {"kind": kind, "room": room if shaped else None, "corrections": corrections, "flow_cpu_s": cpu,
+              **{f"{k}_cpu_s": v for k, v in spent.items()},
+              "floor_cpu_s": cpu - spent["refit"] - spent["blocks"], "positions": int(phi.size), "layouts": layouts[0],
+              "cg_iterations": int(getattr(stepper, "krylov_iterations", 0)), "period": float(domain.period),
+              "areas": area.tolist(), "centroids": centroids.tolist()}
+    if shaped:
+        record.update(windows_made=shaped.windows_made, shaping_cpu_s=shaped.shaping,
+                      concatenated_layout_ms=concatenated_layout_ms(domain, layout))
+    return record
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--relax", type=float, default=400.0, help="time units of relaxation (default 400)")
+    parser.add_argument("--flow", type=float, default=800.0, help="time units of flow (default 800)")
+    parser.add_argument("--velocity", type=float, default=0.1, help="centre-line velocity U (default 0.1)")
+    parser.add_argument("--room", type=float, nargs="+", default=[1.0], help="rooms of the shaped windows (default 1)")
+    parser.add_argument("--repeats", type=int, default=2, help="alternations of the kinds (default 2)")
+    parser.add_argument("--corrections", type=int, nargs="+", default=[2],
+                        help="the shaped windows' advection corrections K (default 2, the default's)")
+    parser.add_argument("--child", choices=("grid", "box", "shaped"), help=argparse.SUPPRESS)
+    parser.add_argument("--output", type=Path, default=RESULT)
+    args = parser.parse_args()
+    if args.child:
+        print(json.dumps(child(args.child, args.relax, args.flow, args.velocity, args.room[0], args.corrections[0])))
+        return
+    kinds = [("grid", 0.0, 2), ("box", 0.0, 2)] + [("shaped", room, k) for room in args.room for k in args.corrections]
+    runs = []
+    for repeat in range(args.repeats):
+        for kind, room, corrections in kinds:
+            command = [sys.executable, __file__, "--child", kind, "--relax", str(args.relax), "--flow", str(args.flow),
+                       "--velocity", str(args.velocity), "--room", str(room), "--corrections", str(corrections)]
+            out = subprocess.run(command, env={**os.environ, **THREADS}, capture_output=True, text=True, cwd=ROOT)
+            if out.returncode != 0:
+                raise SystemExit(f"{kind} failed:\n{out.stderr[-3000:]}")
+            run = {**json.loads(out.stdout.strip().splitlines()[-1]), "repeat": repeat}
+            grid = next(r for r in runs if r["kind"] == "grid" and r["repeat"] == repeat) if kind != "grid" else run
+            for part in ("flow", "floor"):
+                run[f"{part}_to_grid_flow"] = run[f"{part}_cpu_s"] / grid["flow_cpu_s"]
+            # the shaped windows made for free, everything else (refits, layouts, blocks) as today
+            run["layouts_as_today_to_grid_flow"] = ((run["flow_cpu_s"] - run.get("shaping_cpu_s", 0.0))
+                                                    / grid["flow_cpu_s"])
+            if kind == "shaped":
+                box = next(r for r in runs if r["kind"] == "box" and r["repeat"] == repeat)
+                shift = np.subtract(run["centroids"], box["centroids"])
+                shift[:, 0] -= run["period"] * np.round(shift[:, 0] / run["period"])  # x periodic: the nearest image
+                run["largest_centroid_difference"] = float(np.max(np.abs(shift)))
+                run["largest_relative_area_difference"] = float(np.max(np.abs(
+                    np.divide(run["areas"], box["areas"]) - 1.0)))
+            runs.append(run)
+            summary = {k: v for k, v in run.items() if k not in ("areas", "centroids")}
+            print(json.dumps(summary), flush=True)
+    result = {"relax": args.relax, "flow": args.flow, "velocity": args.velocity, "runs": runs}
+    args.output.parent.mkdir(parents=True, exist_ok=True)
+    args.output.write_text(json.dumps(result, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
