@@ -29,7 +29,8 @@ corrections, :data:`~femphase.domains.mesh.advection.MASS_CORRECTIONS`: 2, the d
 fewer products per substep), alternated ``--repeats`` times; ratios are to the grid run of
 the same repeat. Each mesh run also records every particle's centroid and area at the end,
 and the shaped runs their largest differences from the box run of the same repeat and what a
-layout concatenated from pieces kept per window would cost (:func:`concatenated_layout_ms`).
+layout built from pieces kept per window would cost, concatenated or updated in place
+(:func:`layout_from_pieces_ms`).
 Writes ``results/mesh_window_floor.json``.
 """
 
@@ -125,11 +126,16 @@ class ShapedWindows:
         return refitted, refitted.gather(fields)
 
 
-def concatenated_layout_ms(domain, layout, matrices: int = 4, repeats: int = 50) -> float:
-    """Milliseconds to build ``layout``'s flat arrays from pieces kept per window, the least
-    any layout built anew can cost: its dofs, its block pattern's rows and columns (shifted
-    to each window's place) and the entries of ``matrices`` single-precision block matrices,
-    each concatenated from its windows' pieces (best of ``repeats``)."""
+def layout_from_pieces_ms(domain, layout, changed: int, matrices: int = 4, repeats: int = 50) -> dict:
+    """Milliseconds to build ``layout``'s flat arrays from pieces kept per window: its dofs,
+    its block pattern's rows and columns (shifted to each window's place) and the entries of
+    ``matrices`` single-precision block matrices (best of ``repeats`` each).
+
+    * ``concatenated``: every array concatenated from its windows' pieces, the least any
+      layout built anew can cost;
+    * ``in_place``: ``changed`` windows' slices rewritten in arrays that stay (every window a
+      slot of its own), the least a layout updated in place can cost (slots of the same size:
+      a changed window's capacity and its place in the products are left out)."""
     pattern = domain.window_blocks(layout)
     offsets = layout.offsets
     entries = pattern.indptr[offsets].astype(np.int64)
@@ -141,19 +147,34 @@ def concatenated_layout_ms(domain, layout, matrices: int = 4, repeats: int = 50)
     values = [[data[entries[w]:entries[w + 1]].copy() for w in windows] for _ in range(matrices)]
     sizes, counts = np.diff(offsets), np.diff(entries)
 
-    def build():
+    def concatenate():
         index = np.concatenate(columns)
         index += np.repeat(offsets[:-1], counts).astype(index.dtype)
         starts = np.concatenate(rows)
         starts += np.repeat(entries[:-1], sizes).astype(starts.dtype)
         return np.concatenate(nodes), index, starts, [np.concatenate(pieces) for pieces in values]
 
-    best = np.inf
-    for _ in range(repeats):
-        started = time.perf_counter()
-        build()
-        best = min(best, time.perf_counter() - started)
-    return 1e3 * best
+    node_index, index, starts, arrays = concatenate()
+    rewritten = np.linspace(0, len(windows) - 1, min(changed, len(windows))).round().astype(int)
+
+    def rewrite():
+        for w in rewritten:
+            positions, stored = slice(offsets[w], offsets[w + 1]), slice(entries[w], entries[w + 1])
+            node_index[positions] = nodes[w]
+            np.add(columns[w], offsets[w], out=index[stored], casting="unsafe")
+            np.add(rows[w], entries[w], out=starts[positions], casting="unsafe")
+            for array, pieces in zip(arrays, values):
+                array[stored] = pieces[w]
+
+    def best(build) -> float:
+        fastest = np.inf
+        for _ in range(repeats):
+            started = time.perf_counter()
+            build()
+            fastest = min(fastest, time.perf_counter() - started)
+        return 1e3 * fastest
+
+    return {"concatenated": best(concatenate), "in_place": best(rewrite), "windows_rewritten": int(rewritten.size)}
 
 
 def child(kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> dict:
@@ -216,8 +237,10 @@ def child(kind: str, relax: float, flow: float, velocity: float, room: float, co
               "cg_iterations": int(getattr(stepper, "krylov_iterations", 0)), "period": float(domain.period),
               "areas": area.tolist(), "centroids": centroids.tolist()}
     if shaped:
+        pieces = layout_from_pieces_ms(domain, layout, changed=round(shaped.windows_made / max(layouts[0], 1)))
         record.update(windows_made=shaped.windows_made, shaping_cpu_s=shaped.shaping,
-                      concatenated_layout_ms=concatenated_layout_ms(domain, layout))
+                      concatenated_layout_ms=pieces["concatenated"], in_place_layout_ms=pieces["in_place"],
+                      windows_rewritten=pieces["windows_rewritten"])
     return record
 
 
