@@ -16,8 +16,7 @@ Each run is its own process, relaxed ``--relax`` time units in today's boxes and
 ``--flow`` time units of flow, timed on the process clock. Its flow CPU is split into:
 
 * **refit**: the refits, the new layouts and the transfer of the fields to them (for the
-  shaped windows also the making of them, by a k-d tree, recorded apart as **shaping**:
-  not a design's cost);
+  shaped windows also the making of them, compiled, recorded apart as **shaping**);
 * **blocks**: what is built once per layout (block patterns and block-diagonal matrices,
   Jacobi diagonals: :meth:`~femphase.domains.base.Domain.per_layout`);
 * **floor**: the rest, the work of the substeps themselves.
@@ -31,6 +30,9 @@ the same repeat. Each mesh run also records every particle's centroid and area a
 and the shaped runs their largest differences from the box run of the same repeat and what a
 layout built from pieces kept per window would cost, concatenated or updated in place
 (:func:`layout_from_pieces_ms`).
+The design's cost, windows made as here and layouts updated in place, is (floor + shaping +
+layouts × ``in_place_layout_ms``) over the grid's flow CPU
+(docs/decisions/0054-shaped-mesh-windows-floor.md).
 Writes ``results/mesh_window_floor.json``.
 """
 
@@ -45,11 +47,40 @@ import time
 from pathlib import Path
 
 import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import numba
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "mesh_window_floor.json"
 THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@numba.njit(cache=True)
+def set_edge(inside: np.ndarray, indptr: np.ndarray, indices: np.ndarray, member: np.ndarray) -> np.ndarray:
+    """Which dofs of ``inside`` have a neighbour (in the CSR pattern ``indptr``, ``indices``)
+    that is not a ``member``."""
+    out = np.zeros(inside.size, dtype=np.bool_)
+    for i in range(inside.size):
+        for k in range(indptr[inside[i]], indptr[inside[i] + 1]):
+            if not member[indices[k]]:
+                out[i] = True
+                break
+    return out
+
+
+@numba.njit(cache=True)
+def set_distances(x: np.ndarray, y: np.ndarray, member: np.ndarray, edge_x: np.ndarray,
+                  edge_y: np.ndarray) -> np.ndarray:
+    """Each point's distance to the nearest edge point, 0 for members of the set."""
+    out = np.zeros(x.size)
+    for i in range(x.size):
+        if member[i]:
+            continue
+        nearest = np.inf
+        for j in range(edge_x.size):
+            nearest = min(nearest, (x[i] - edge_x[j]) ** 2 + (y[i] - edge_y[j]) ** 2)
+        out[i] = np.sqrt(nearest)
+    return out
 
 
 class ShapedWindows:
@@ -64,14 +95,15 @@ class ShapedWindows:
         self.made: dict = {}
         self.serial = 0
         self.x, self.y = domain.coordinates
+        self.pattern = domain.block_pattern
         self.windows_made = 0
-        #: CPU seconds spent making windows (a k-d tree each: a prototype's, not a design's cost)
+        #: CPU seconds spent making windows (:meth:`dilation`)
         self.shaping = 0.0
 
     def dilation(self, inside: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-        """The dofs within ``reach`` of the dofs ``inside`` (sorted) and their distances."""
-        from scipy.spatial import cKDTree
-
+        """The dofs within ``reach`` of the dofs ``inside`` (sorted) and their distances: the
+        candidates in the box around them (as the refits find box dofs), each measured to the
+        nearest dof of the set's edge (a dof of the set with a neighbour outside it), compiled."""
         from femphase.domains.mesh.boxes import Box, circular_extent, local_x
 
         domain, x, y = self.domain, self.x, self.y
@@ -84,9 +116,11 @@ class ShapedWindows:
             box = Box(domain.x0 + float(np.mod(start - reach - domain.x0, domain.period)), end - start + 2 * reach,
                       y0, y1)
         candidates = domain._dofs_inside([box])[0]
-        tree = cKDTree(np.c_[local_x(x[inside], box.x0, domain.period), y[inside]])
-        distance, _ = tree.query(np.c_[local_x(x[candidates], box.x0, domain.period), y[candidates]],
-                                 distance_upper_bound=reach + 1e-9)
+        member = np.zeros(domain.n_dofs, dtype=bool)
+        member[inside] = True
+        edge = inside[set_edge(inside, self.pattern.indptr, self.pattern.indices, member)]
+        distance = set_distances(local_x(x[candidates], box.x0, domain.period), y[candidates], member[candidates],
+                                 local_x(x[edge], box.x0, domain.period), y[edge])
         keep = distance <= reach + 1e-9
         return candidates[keep], distance[keep]
 
@@ -272,7 +306,7 @@ def main() -> None:
             grid = next(r for r in runs if r["kind"] == "grid" and r["repeat"] == repeat) if kind != "grid" else run
             for part in ("flow", "floor"):
                 run[f"{part}_to_grid_flow"] = run[f"{part}_cpu_s"] / grid["flow_cpu_s"]
-            # the shaped windows made for free, everything else (refits, layouts, blocks) as today
+            # the whole flow less the making of shaped windows: refits, layouts and blocks as today
             run["layouts_as_today_to_grid_flow"] = ((run["flow_cpu_s"] - run.get("shaping_cpu_s", 0.0))
                                                     / grid["flow_cpu_s"])
             if kind == "shaped":
