@@ -15,8 +15,9 @@ matrices per layout).
 Each run is its own process, relaxed ``--relax`` time units in today's boxes and then run
 ``--flow`` time units of flow, timed on the process clock. Its flow CPU is split into:
 
-* **refit**: the refits, the new layouts and the transfer of the fields to them (for the
-  shaped windows also the making of them, compiled, recorded apart as **shaping**);
+* **refit**: the refits, the new layouts and the transfer of the fields to them; for the
+  shaped windows, recorded apart within it, **checking** (a compiled pass over the positions
+  for windows to remake, :func:`outgrown`) and **shaping** (their making, :meth:`dilation`);
 * **blocks**: what is built once per layout (block patterns and block-diagonal matrices,
   Jacobi diagonals: :meth:`~femphase.domains.base.Domain.per_layout`);
 * **floor**: the rest, the work of the substeps themselves.
@@ -30,8 +31,8 @@ the same repeat. Each mesh run also records every particle's centroid and area a
 and the shaped runs their largest differences from the box run of the same repeat and what a
 layout built from pieces kept per window would cost, concatenated or updated in place
 (:func:`layout_from_pieces_ms`).
-The design's cost, windows made as here and layouts updated in place, is (floor + shaping +
-layouts × ``in_place_layout_ms``) over the grid's flow CPU
+The design's cost, windows checked and made as here and layouts updated in place, is (floor +
+checking + shaping + layouts × ``in_place_layout_ms``) over the grid's flow CPU
 (docs/decisions/0054-shaped-mesh-windows-floor.md).
 Writes ``results/mesh_window_floor.json``.
 """
@@ -83,6 +84,19 @@ def set_distances(x: np.ndarray, y: np.ndarray, member: np.ndarray, edge_x: np.n
     return out
 
 
+@numba.njit(cache=True)
+def outgrown(phi: np.ndarray, made: np.ndarray, offsets: np.ndarray, threshold: float, room: float) -> np.ndarray:
+    """Per window (``offsets``): whether a position with φ > ``threshold`` lies farther than
+    ``room`` from the set its window was made for (``made``, per position)."""
+    out = np.zeros(offsets.size - 1, dtype=np.bool_)
+    for w in range(offsets.size - 1):
+        for p in range(offsets[w], offsets[w + 1]):
+            if phi[p] > threshold and made[p] > room:
+                out[w] = True
+                break
+    return out
+
+
 class ShapedWindows:
     """The refit of shaped windows (module docstring), replacing a mesh domain's, with CPU
     accounts. A shaped window is a :class:`Box` used as a tag (x0 = −serial), whose dofs are
@@ -99,6 +113,18 @@ class ShapedWindows:
         self.windows_made = 0
         #: CPU seconds spent making windows (:meth:`dilation`)
         self.shaping = 0.0
+        #: CPU seconds spent finding the windows to remake (:func:`outgrown`)
+        self.checking = 0.0
+        self._made_positions: tuple = (None, None)
+
+    def made_positions(self, layout) -> np.ndarray:
+        """Every position's distance to the set its window was made for (inf in windows not
+        made here), in layout order; kept for the last layout."""
+        if self._made_positions[0] is not layout:
+            self._made_positions = (layout, np.concatenate([
+                self.made.get(layout.windows[i], np.full(layout.sizes[slot], np.inf))
+                for slot, i in enumerate(layout.order)]))
+        return self._made_positions[1]
 
     def dilation(self, inside: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
         """The dofs within ``reach`` of the dofs ``inside`` (sorted) and their distances: the
@@ -128,15 +154,16 @@ class ShapedWindows:
         from femphase.domains.mesh.boxes import Box
 
         domain = self.domain
+        started = time.process_time()
+        slots = np.flatnonzero(outgrown(phi, self.made_positions(layout), layout.offsets, self.threshold, self.room))
+        self.checking += time.process_time() - started
+        if not slots.size:
+            return layout, phi
         boxes, fields = list(layout.windows), layout.scatter(phi)
         changed = {}
-        for i, box in enumerate(boxes):
+        for i in layout.order[slots]:
+            box = boxes[i]
             occupied = fields[i] > self.threshold
-            if not occupied.any():
-                continue
-            made = self.made.get(box)
-            if made is not None and float(made[occupied].max()) <= self.room:
-                continue
             started = time.process_time()
             dofs, distance = self.dilation(domain.window_dofs(box)[occupied], self.margin + self.room)
             self.shaping += time.process_time() - started
@@ -272,7 +299,7 @@ def child(kind: str, relax: float, flow: float, velocity: float, room: float, co
               "areas": area.tolist(), "centroids": centroids.tolist()}
     if shaped:
         pieces = layout_from_pieces_ms(domain, layout, changed=round(shaped.windows_made / max(layouts[0], 1)))
-        record.update(windows_made=shaped.windows_made, shaping_cpu_s=shaped.shaping,
+        record.update(windows_made=shaped.windows_made, shaping_cpu_s=shaped.shaping, checking_cpu_s=shaped.checking,
                       concatenated_layout_ms=pieces["concatenated"], in_place_layout_ms=pieces["in_place"],
                       windows_rewritten=pieces["windows_rewritten"])
     return record
