@@ -6,9 +6,9 @@
 A design study, not a femphase option: it replaces ``MeshDomain.refit`` in its own process.
 A mesh window today is the dofs inside a box (margin 4 around the φ > 0.01 set, room and
 slack, :class:`~femphase.domains.mesh.boxes.BoxPolicy`); here a **shaped** window is the
-dofs within ``margin + room`` of the set (Euclidean, periodic in x, cut at the walls), made
-at a refit and kept while every dof of the set lies within ``room`` of the set it was made
-for (so the margin holds). A window that fails this is made anew at the next refit; any new
+dofs within ``margin + room`` of the set (distances along the mesh's edges, :func:`dilate`),
+made at a refit and kept while every dof of the set lies within ``room`` of the set it was
+made for (so the margin holds). A window that fails this is made anew at the next refit; any new
 window makes a new layout, built as today (:class:`~femphase.domains.layout.Layout`, block
 matrices per layout).
 
@@ -57,31 +57,77 @@ THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREA
 
 
 @numba.njit(cache=True)
-def set_edge(inside: np.ndarray, indptr: np.ndarray, indices: np.ndarray, member: np.ndarray) -> np.ndarray:
-    """Which dofs of ``inside`` have a neighbour (in the CSR pattern ``indptr``, ``indices``)
-    that is not a ``member``."""
-    out = np.zeros(inside.size, dtype=np.bool_)
-    for i in range(inside.size):
-        for k in range(indptr[inside[i]], indptr[inside[i] + 1]):
-            if not member[indices[k]]:
-                out[i] = True
-                break
-    return out
+def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indices: np.ndarray, x: np.ndarray,
+           y: np.ndarray, period: float, reach: float, scratch: tuple, dofs: np.ndarray, distances: np.ndarray,
+           offsets: np.ndarray) -> int:
+    """For each set of dofs (``sets[set_offsets[w]:set_offsets[w + 1]]``), the dofs within
+    ``reach`` of it, sorted, and their distances (0 in the set), written to ``dofs``,
+    ``distances`` and ``offsets``; returns how many, or −1 if ``dofs`` is too short.
 
-
-@numba.njit(cache=True)
-def set_distances(x: np.ndarray, y: np.ndarray, member: np.ndarray, edge_x: np.ndarray,
-                  edge_y: np.ndarray) -> np.ndarray:
-    """Each point's distance to the nearest edge point, 0 for members of the set."""
-    out = np.zeros(x.size)
-    for i in range(x.size):
-        if member[i]:
-            continue
-        nearest = np.inf
-        for j in range(edge_x.size):
-            nearest = min(nearest, (x[i] - edge_x[j]) ** 2 + (y[i] - edge_y[j]) ** 2)
-        out[i] = np.sqrt(nearest)
-    return out
+    Distances grow ring by ring from the set's edge along the mesh's edges (the CSR pattern
+    ``indptr``, ``indices``): each dof is measured to the edge dof nearest one of its
+    neighbours, and revisited when a later ring finds a nearer one (x periodic). So a dof's
+    distance is never below its Euclidean one (on examples/straight_mesh.toml at most 0.3
+    above, with the same dofs within reach), and on a mesh with holes it goes around them.
+    ``scratch`` is (best, nearest, queued, ring, following), arrays of the dofs' size;
+    best (inf) is left as found. Arrays are never reassigned inside the loops: numba then
+    counts references at every use, and such a kernel ran 5× slower."""
+    best, nearest, queued, ring, following = scratch
+    queued[:] = 0  # the pass that last queued each dof: counted from 1 in every call
+    limit, half = reach * reach, 0.5 * period
+    total = passes = 0
+    for w in range(set_offsets.size - 1):
+        start, size = total, 0
+        for s in sets[set_offsets[w]:set_offsets[w + 1]]:
+            best[s] = 0.0
+            nearest[s] = s
+        for s in sets[set_offsets[w]:set_offsets[w + 1]]:
+            if total >= dofs.size:
+                return -1
+            dofs[total] = s
+            total += 1
+            for k in range(indptr[s], indptr[s + 1]):
+                if best[indices[k]] == np.inf:  # an edge dof: the first ring
+                    ring[size] = s
+                    size += 1
+                    break
+        current, upcoming = ring, following
+        while size:
+            passes += 1
+            next_size = 0
+            for r in range(size):
+                u = current[r]
+                source = nearest[u]
+                for k in range(indptr[u], indptr[u + 1]):
+                    v = indices[k]
+                    if best[v] == 0.0:
+                        continue
+                    dx = x[v] - x[source]
+                    if dx > half:
+                        dx -= period
+                    elif dx < -half:
+                        dx += period
+                    squared = dx * dx + (y[v] - y[source]) ** 2
+                    if squared <= limit and squared < best[v]:
+                        if best[v] == np.inf:
+                            if total >= dofs.size:
+                                return -1
+                            dofs[total] = v
+                            total += 1
+                        best[v] = squared
+                        nearest[v] = source
+                        if queued[v] != passes:
+                            queued[v] = passes
+                            upcoming[next_size] = v
+                            next_size += 1
+            current, upcoming = upcoming, current
+            size = next_size
+        dofs[start:total].sort()
+        for i in range(start, total):
+            distances[i] = np.sqrt(best[dofs[i]])
+            best[dofs[i]] = np.inf
+        offsets[w + 1] = total
+    return total
 
 
 @numba.njit(cache=True)
@@ -108,10 +154,13 @@ class ShapedWindows:
         self.threshold, self.margin = policy.threshold, policy.margin
         self.made: dict = {}
         self.serial = 0
-        self.x, self.y = domain.coordinates
+        self.x, self.y = (np.ascontiguousarray(c) for c in domain.coordinates)
         self.pattern = domain.block_pattern
+        n = domain.n_dofs
+        self.scratch = (np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                        np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
         self.windows_made = 0
-        #: CPU seconds spent making windows (:meth:`dilation`)
+        #: CPU seconds spent making windows (:meth:`dilation`, the sets' gathering included)
         self.shaping = 0.0
         #: CPU seconds spent finding the windows to remake (:func:`outgrown`)
         self.checking = 0.0
@@ -126,29 +175,21 @@ class ShapedWindows:
                 for slot, i in enumerate(layout.order)]))
         return self._made_positions[1]
 
-    def dilation(self, inside: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
-        """The dofs within ``reach`` of the dofs ``inside`` (sorted) and their distances: the
-        candidates in the box around them (as the refits find box dofs), each measured to the
-        nearest dof of the set's edge (a dof of the set with a neighbour outside it), compiled."""
-        from femphase.domains.mesh.boxes import Box, circular_extent, local_x
-
-        domain, x, y = self.domain, self.x, self.y
-        low, high = domain.y_range
-        start, end = circular_extent(x[inside], domain.period)
-        y0, y1 = max(float(y[inside].min()) - reach, low), min(float(y[inside].max()) + reach, high)
-        if end - start + 2 * reach >= domain.period:
-            box = Box(domain.x0, domain.period, y0, y1)
-        else:
-            box = Box(domain.x0 + float(np.mod(start - reach - domain.x0, domain.period)), end - start + 2 * reach,
-                      y0, y1)
-        candidates = domain._dofs_inside([box])[0]
-        member = np.zeros(domain.n_dofs, dtype=bool)
-        member[inside] = True
-        edge = inside[set_edge(inside, self.pattern.indptr, self.pattern.indices, member)]
-        distance = set_distances(local_x(x[candidates], box.x0, domain.period), y[candidates], member[candidates],
-                                 local_x(x[edge], box.x0, domain.period), y[edge])
-        keep = distance <= reach + 1e-9
-        return candidates[keep], distance[keep]
+    def dilation(self, sets: list[np.ndarray], reach: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """For each set of dofs, the dofs within ``reach`` of it and their distances
+        (:func:`dilate`, all sets in one call)."""
+        starts = np.concatenate([[0], np.cumsum([len(members) for members in sets])]).astype(np.int64)
+        capacity = 4 * int(starts[-1]) + 16
+        while True:
+            dofs, distances = np.empty(capacity, dtype=np.int64), np.empty(capacity)
+            offsets = np.zeros(len(sets) + 1, dtype=np.int64)
+            total = dilate(np.concatenate(sets).astype(np.int64), starts, self.pattern.indptr, self.pattern.indices,
+                           self.x, self.y, float(self.domain.period), reach, self.scratch, dofs, distances, offsets)
+            if total >= 0:
+                return [(dofs[offsets[k]:offsets[k + 1]].copy(), distances[offsets[k]:offsets[k + 1]].copy())
+                        for k in range(len(sets))]
+            self.scratch[0][:] = np.inf  # a call cut short leaves its window's distances
+            capacity *= 2
 
     def refit(self, layout, phi, policy, motion):
         from femphase.domains.mesh.boxes import Box
@@ -160,20 +201,18 @@ class ShapedWindows:
         if not slots.size:
             return layout, phi
         boxes, fields = list(layout.windows), layout.scatter(phi)
+        particles = layout.order[slots]
+        started = time.process_time()
+        made = self.dilation([domain.window_dofs(boxes[i])[fields[i] > self.threshold] for i in particles],
+                             self.margin + self.room)
+        self.shaping += time.process_time() - started
         changed = {}
-        for i in layout.order[slots]:
-            box = boxes[i]
-            occupied = fields[i] > self.threshold
-            started = time.process_time()
-            dofs, distance = self.dilation(domain.window_dofs(box)[occupied], self.margin + self.room)
-            self.shaping += time.process_time() - started
+        for i, (dofs, distance) in zip(particles, made):
             self.serial += 1
             tag = Box(-float(self.serial), 0.0, 0.0, 0.0)
             domain._dofs.put(tag, dofs)
             self.made[tag] = distance
             changed[i] = tag
-        if not changed:
-            return layout, phi
         scratch = np.zeros(domain.n_dofs, dtype=phi.dtype)
         for i, tag in changed.items():
             old, new = domain.window_dofs(boxes[i]), domain.window_dofs(tag)
