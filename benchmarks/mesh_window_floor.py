@@ -71,7 +71,7 @@ def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indice
     above, with the same dofs within reach), and on a mesh with holes it goes around them.
     ``scratch`` is (best, nearest, queued, ring, following), arrays of the dofs' size;
     best (inf) is left as found. Arrays are never reassigned inside the loops: numba then
-    counts references at every use, and such a kernel ran 5× slower."""
+    counts references at every use, and such a kernel ran 3–6× slower."""
     best, nearest, queued, ring, following = scratch
     queued[:] = 0  # the pass that last queued each dof: counted from 1 in every call
     limit, half = reach * reach, 0.5 * period
