@@ -50,10 +50,10 @@ from pathlib import Path
 import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numba
 import numpy as np
+from mesh_parity import THREADS
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "mesh_window_floor.json"
-THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
 
 @numba.njit(cache=True)
@@ -206,22 +206,19 @@ class ShapedWindows:
         made = self.dilation([domain.window_dofs(boxes[i])[fields[i] > self.threshold] for i in particles],
                              self.margin + self.room)
         self.shaping += time.process_time() - started
-        changed = {}
+        scratch = np.zeros(domain.n_dofs, dtype=phi.dtype)
         for i, (dofs, distance) in zip(particles, made):
             self.serial += 1
             tag = Box(-float(self.serial), 0.0, 0.0, 0.0)
             domain._dofs.put(tag, dofs)
             self.made[tag] = distance
-            changed[i] = tag
-        scratch = np.zeros(domain.n_dofs, dtype=phi.dtype)
-        for i, tag in changed.items():
-            old, new = domain.window_dofs(boxes[i]), domain.window_dofs(tag)
+            old = domain.window_dofs(boxes[i])
             scratch[old] = fields[i]
-            fields[i] = scratch[new]
+            fields[i] = scratch[dofs]
             scratch[old] = 0.0
             self.made.pop(boxes[i], None)
             boxes[i] = tag
-        self.windows_made += len(changed)
+        self.windows_made += len(particles)
         refitted = domain.layout(boxes)
         return refitted, refitted.gather(fields)
 
@@ -281,11 +278,10 @@ def child(kind: str, relax: float, flow: float, velocity: float, room: float, co
     """Run one kind in this process (module docstring)."""
     from femphase.domains.base import Domain
     from femphase.domains.mesh import advection
-
-    advection.MASS_CORRECTIONS = corrections
     from femphase.run.simulation import Simulation
     from femphase.scene import load_scene
 
+    advection.MASS_CORRECTIONS = corrections  # read when an advection is built
     if kind == "grid":
         scene = load_scene(ROOT / "examples/random.toml", [
             'phases.1.name="flow"', f"phases.0.duration={relax}", f"phases.1.duration={flow}",
