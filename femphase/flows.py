@@ -24,7 +24,8 @@ from femphase.errors import FlowError, SceneError
 from femphase.registry import Registry, import_module
 
 __all__ = ["FLOWS", "SHEAR_SCALES", "Flow", "FlowDomain", "check_keys", "flow_from_spec", "largest_speed",
-           "linear_shear", "no_flow", "number", "poiseuille", "python_flow", "row_flow", "time_mean", "velocity_at"]
+           "linear_shear", "no_flow", "number", "poiseuille", "python_flow", "row_flow", "separable_row_flow",
+           "time_mean", "velocity_at"]
 
 
 SHEAR_SCALES = ("wall_velocity", "shear_rate")
@@ -44,6 +45,10 @@ class Flow:
     speed_bound   for a flow that changes in time, max|u| + max|v| over all times where the flow knows it
                   (lattice units per time unit), else None: an explicit scheme checks its step against it
                   before the run, not only at the step that would break it
+    amplitude     for a flow v(x, y, t) = f(t) w(x, y) of fixed direction field (an oscillating shear): f,
+                  dimensionless, else None
+    profile       with ``amplitude``: the steady flow w. Operators linear in v are then w's, built once and
+                  scaled by f's mean over each step (:func:`time_mean`), instead of built anew at every step
     ============= =======================================================================================
     """
 
@@ -53,6 +58,21 @@ class Flow:
     steady: bool = True
     stokes: object = None
     speed_bound: float | None = None
+    amplitude: Callable[[float], float] | None = None
+    profile: "Flow | None" = None
+
+    def __post_init__(self) -> None:
+        if (self.amplitude is None) != (self.profile is None) or (self.profile is not None and not self.profile.steady):
+            raise ValueError("a flow of fixed direction field needs both its amplitude f(t) and its steady profile "
+                             "w(x, y)")
+
+    def mean_amplitude(self, time: float, span: float) -> float:
+        """f's mean over [time, time + span] (:func:`time_mean`), for a flow with an
+        ``amplitude``: the factor by which the step's mean velocity is the ``profile``."""
+        if self.amplitude is None:
+            raise ValueError(f"the flow {self.name!r} has no amplitude: its direction field changes in time")
+        amplitude = self.amplitude
+        return float(time_mean(lambda t: np.array([amplitude(t)], dtype=float), time, span)[0])
 
     @property
     def is_still(self) -> bool:
@@ -134,6 +154,14 @@ def row_flow(name: str, u: Callable[[np.ndarray, float], np.ndarray], steady: bo
         x, y = np.broadcast_arrays(np.asarray(x, float), np.asarray(y, float))
         return row(y, t), np.zeros_like(x)
     return Flow(name, velocity, row, steady, speed_bound=speed_bound)
+
+
+def separable_row_flow(name: str, amplitude: Callable[[float], float], profile: Callable[[np.ndarray], np.ndarray],
+                       speed_bound: float | None = None) -> Flow:
+    """The row flow u(y, t) = amplitude(t) · profile(y), which changes in time along a fixed
+    direction field (its operators scale with the amplitude, :attr:`Flow.profile`)."""
+    flow = row_flow(name, lambda y, t: amplitude(t) * profile(y), steady=False, speed_bound=speed_bound)
+    return replace(flow, amplitude=amplitude, profile=row_flow(f"{name} profile", lambda y, t: profile(y)))
 
 
 def linear_shear(rate: float, width: float, scale: str = "wall_velocity", y0: float = 0.0) -> Flow:
@@ -235,14 +263,16 @@ def _poiseuille(spec: dict, domain: FlowDomain) -> Flow:
 def _oscillating_shear(spec: dict, domain: FlowDomain) -> Flow:
     """Oscillatory linear shear u = γ̇ sin(ωt + φ0) y/Ly, t the run's time, not the phase's
     (keys: `rate` = γ̇, `frequency` = ω in radians per time unit, `phase` = φ0 in radians,
-    default 0; after phases of total duration T, φ0 = −ωT starts it from rest)."""
+    default 0; after phases of total duration T, φ0 = −ωT starts it from rest). On a mesh it
+    costs what a steady shear does: its advection operators are built once and scaled by the
+    oscillation's mean over each step."""
     check_keys(spec, {"type", "rate", "frequency", "phase"})
     y0, width = _walls(domain)
     rate = number(spec, "rate", "the velocity amplitude γ̇")
     omega = number(spec, "frequency", "ω, radians per time unit")
     phase = number(spec, "phase", "radians", default=0.0)
-    return row_flow("oscillating_shear", lambda y, t: rate * np.sin(omega * t + phase) * (y - y0) / width,
-                    steady=False, speed_bound=abs(rate))
+    return separable_row_flow("oscillating_shear", lambda t: np.sin(omega * t + phase),
+                              lambda y: rate * (y - y0) / width, speed_bound=abs(rate))
 
 
 @FLOWS.register("python")
@@ -362,5 +392,7 @@ def flow_from_spec(spec: dict, domain: FlowDomain) -> Flow:
         raise SceneError("flow.type", name, f"a flow type whose builder returns a femphase.flows.Flow: {origin} "
                          f"returned {type(flow).__name__}")
     # its velocities are the user's code too: a NaN or a raise is named, not taken for a blow-up of φ
-    return replace(flow, velocity=None if flow.velocity is None else _checked(flow.velocity, origin, False),
-                   row_velocity=None if flow.row_velocity is None else _checked(flow.row_velocity, origin, True))
+    def checked(flow: Flow) -> Flow:
+        return replace(flow, velocity=None if flow.velocity is None else _checked(flow.velocity, origin, False),
+                       row_velocity=None if flow.row_velocity is None else _checked(flow.row_velocity, origin, True))
+    return replace(checked(flow), profile=None if flow.profile is None else checked(flow.profile))

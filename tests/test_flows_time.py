@@ -39,7 +39,7 @@ def test_oscillating_shear_moves_a_particle_there_and_back_on_the_grid():
     assert abs(moved[2]) < 1e-2 * half
 
 
-def test_oscillating_shear_on_a_mesh_reassembles_its_advection_every_step(tmp_path):
+def test_oscillating_shear_moves_a_particle_there_and_back_on_a_mesh(tmp_path):
     mesh, boundaries = structured_channel(LX, LY, 1.0)
     write_domain(tmp_path / "channel.vtu", mesh, boundaries)
     half = 2 * RATE * 20.0 / (LY * 2 * np.pi / PERIOD)
@@ -154,3 +154,29 @@ def test_the_grid_semi_lagrangian_step_traces_the_mean_velocity_of_a_changing_fl
     moved, _ = SemiLagrangian(domain, changing, span).advect(phi, layout, start)
     expected, _ = SemiLagrangian(domain, steady, span).advect(phi, layout, start)
     np.testing.assert_allclose(moved, expected, atol=1e-6)
+
+
+def test_an_oscillating_shear_is_its_profile_times_its_amplitude():
+    # the meshes' advection builds C from the profile once and scales it by the amplitude's
+    # mean over each step: the flow's velocity must be that product at every time
+    from femphase.domains.grid.domain import GridDomain
+    from femphase.domains.grid.lattice import channel_grid
+    from femphase.flows import Flow, time_mean
+
+    domain = GridDomain(channel_grid(40.0, 30.0, 1.0))
+    flow = _oscillation(domain)
+    x, y = domain.coordinates
+    assert flow.profile.steady and not flow.steady
+    for t in (0.0, 1.3, 7.9):
+        np.testing.assert_allclose(flow.velocity(x, y, t)[0], flow.amplitude(t) * flow.profile.velocity(x, y, 0.0)[0],
+                                   rtol=1e-14, atol=1e-13)
+    start, span = 101.0, 10.0 / 3.0
+    exact = (np.cos(2 * np.pi / 10.0 * start + 0.3) - np.cos(2 * np.pi / 10.0 * (start + span) + 0.3)) / (
+        2 * np.pi / 10.0 * span)
+    assert flow.mean_amplitude(start, span) == pytest.approx(exact, rel=1e-6)
+    np.testing.assert_allclose(flow.mean_amplitude(start, span) * flow.profile.velocity(x, y, 0.0)[0],
+                               time_mean(lambda t: flow.velocity(x, y, t)[0], start, span), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="amplitude f\\(t\\) and its steady profile"):
+        Flow("half", flow.velocity, amplitude=flow.amplitude)
+    with pytest.raises(ValueError, match="'shear' has no amplitude"):
+        Flow("shear", flow.velocity).mean_amplitude(0.0, 1.0)

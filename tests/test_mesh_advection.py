@@ -3,6 +3,7 @@ its order in time, its corrected mass inverse, its frequency estimate, its agree
 replaces in batched runs, and its stability at large steps."""
 
 import itertools
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -23,7 +24,7 @@ from femphase.domains.mesh.advection import (
     corrected_inverse,
     spectral_radius,
 )
-from femphase.flows import poiseuille
+from femphase.flows import poiseuille, row_flow, separable_row_flow
 from femphase.timestepping.stepper import Stepper
 
 
@@ -163,3 +164,31 @@ def test_the_pade_step_keeps_solvers_for_the_current_boxes_only(sheared):
     moved = domain.layout([Box(b.x0 + 1.0, b.width, b.y0, b.y1) for b in layout.windows])
     pade.advect(np.zeros(moved.offsets[-1]), moved, 0.0)
     assert set(pade._solvers._values) == {key for key, *_ in moved.groups}
+
+
+@pytest.mark.parametrize("kind", [GalerkinRungeKutta, GalerkinPade])
+def test_a_flow_of_fixed_direction_field_scales_its_profiles_operators(sheared, kind):
+    """An oscillating shear u = f(t) w(y) advects as the same flow given as u(y, t) alone,
+    whose C is assembled at every step from the mean velocity: C is linear in v, so its mean
+    is w's C times f's mean. Over steps where f changes sign and vanishes on average."""
+    domain, layout, phi, _ = sheared
+    omega, phase, dt = 2 * np.pi / 10.0, 0.3, 10.0 / 3.0
+    separable = separable_row_flow("oscillating", lambda t: np.sin(omega * t + phase), lambda y: 2.0 * y / 40.0)
+    general = row_flow("oscillating", lambda y, t: np.sin(omega * t + phase) * 2.0 * y / 40.0, steady=False)
+    numerics = Numerics(solver="direct") if kind is GalerkinPade else Numerics()
+    steps = {flow.name: kind(domain, flow, dt, numerics) for flow in (replace(separable, name="separable"), general)}
+    fields = {name: phi for name in steps}
+    for time in (0.0, dt, 2 * dt, 3 * dt, 3 * dt + 2.0):
+        if kind is GalerkinRungeKutta:
+            for step in steps.values():
+                step._step_from(time)
+            assert steps["separable"].substeps == steps["oscillating"].substeps
+        for name, step in steps.items():
+            fields[name], _ = step.advect(fields[name], layout, time)
+    moved = np.abs(fields["oscillating"] - phi).max()
+    assert moved > 0.05
+    assert np.abs(fields["separable"] - fields["oscillating"]).max() < 1e-9 * moved
+    # and it assembled C once: the step's factor is f's mean, the matrix the profile's
+    assert steps["separable"]._when is None and steps["oscillating"]._when == (3 * dt + 2.0, dt)
+    mean = (np.cos(omega * (3 * dt + 2.0) + phase) - np.cos(omega * (4 * dt + 2.0) + phase)) / (omega * dt)
+    assert steps["separable"]._scale == pytest.approx(mean, rel=1e-6)

@@ -57,6 +57,8 @@ class StepAdvection:
         it where the flow changes, as the advection takes it)."""
         if self.flow.steady:
             return nodal_velocity(self.domain, self.flow, time)
+        if self.flow.profile is not None:  # v = f(t) w(x): f's mean times w, one evaluation of w
+            return self.flow.mean_amplitude(time, self.dt) * nodal_velocity(self.domain, self.flow.profile)
         return time_mean(lambda t: nodal_velocity(self.domain, self.flow, t), time, self.dt)
 
 
