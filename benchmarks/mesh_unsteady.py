@@ -34,10 +34,13 @@ RATE, FREQUENCY = 0.1, 2 * math.pi / 200.0
 def child(variant: str, relax: float, flow: float, output: Path) -> dict:
     """Run ``variant`` in this process; its fields, centroids and areas go to ``output`` (.npz)."""
     if variant == "assembled":  # the flow without its amplitude and profile: C built at every step
+        from dataclasses import replace
+
         from femphase import flows
 
-        flows.separable_row_flow = lambda name, amplitude, profile, speed_bound=None: flows.row_flow(
-            name, lambda y, t: amplitude(t) * profile(y), steady=False, speed_bound=speed_bound)
+        separable = flows.separable_row_flow
+        flows.separable_row_flow = lambda *arguments, **keywords: replace(
+            separable(*arguments, **keywords), amplitude=None, profile=None)
     table = (f'{{type = "shear", rate = {RATE}}}' if variant == "steady" else
              f'{{type = "oscillating_shear", rate = {RATE}, frequency = {FREQUENCY!r}}}')
     return common.straight_mesh_variant(variant, relax, flow, output, sets=(f"phases.1.flow={table}",))
