@@ -317,10 +317,10 @@ class Domain(ABC):
         return self.window_matrix(layout, (name, dtype), self._operator_data[name, dtype])
 
     def window_diagonal(self, layout: Layout, name: Hashable, diagonal: np.ndarray) -> np.ndarray:
-        """The diagonal of :meth:`window_matrix` from the full matrix's ``diagonal``: a
-        principal submatrix's diagonal is the full matrix's at its dofs, so one gather (kept
-        under ``name`` with the layout's blocks: a Krylov solve's Jacobi preconditioner
-        needs it at every call)."""
+        """The diagonal of :meth:`window_matrix` from the full matrix's ``diagonal`` (or any
+        entrywise function of it, such as its inverse): a principal submatrix's diagonal is
+        the full matrix's at its dofs, so one gather (kept under ``name`` with the layout's
+        blocks: a Krylov solve's Jacobi preconditioner needs it at every call)."""
         return self.per_layout(layout, name, lambda: diagonal[layout.node_index], tag=diagonal)
 
     @cached_property
