@@ -61,10 +61,11 @@ def dofs_in_boxes(order: np.ndarray, keys: np.ndarray, span: float, y_low: float
                   y: np.ndarray, boxes: np.ndarray, period: float, x_origin: float, strip_width: float,
                   count: int) -> tuple[np.ndarray, np.ndarray]:
     """(dofs, offsets): the dofs inside each box (rows of ``boxes``: x0, width, y0, y1; x0 +
-    [0, width] mod ``period`` × [y0, y1]), sorted (a radix sort), box b's in ``dofs[offsets[b]:offsets[b +
-    1]]``. Tested among the dofs of the strips each box crosses, one more on each side (dofs
-    on a strip's edge, rounding), all ``count`` strips for a box within one strip of the
-    whole period: ``order`` holds the dofs sorted by ``keys`` = strip · span + (y − y_low)
+    [0, width] mod ``period`` × [y0, y1]), sorted (a radix sort), box b's in
+    ``dofs[offsets[b]:offsets[b + 1]]``. Tested among the dofs of the strips each box
+    crosses, one more on each side (dofs on a strip's edge, rounding), all ``count`` strips
+    for a box within one strip of the whole period: ``order`` holds the dofs sorted by
+    ``keys`` = strip · span + (y − y_low)
     (:meth:`~femphase.domains.mesh.domain.MeshDomain._dofs_inside`), strips of
     ``strip_width`` from ``x_origin``, ``pad`` the keys' rounding. The test is
     :meth:`~femphase.domains.mesh.boxes.Box.contains`'s, to the bit."""
