@@ -108,21 +108,3 @@ def test_the_radix_sort_of_a_boxs_dofs_is_numpys_sort(passes, digit_bits):
     _sort_indices(values, scratch, counts, passes, digit_bits)
     np.testing.assert_array_equal(values, expected)
 
-
-@pytest.mark.parametrize("dtype", [np.float32, np.float64])
-def test_a_cg_start_is_numpys_expressions_and_keeps_a_nan(dtype):
-    from femphase.fem import kernels as block_kernels
-
-    rng = np.random.default_rng(6)
-    rhs, product = (rng.standard_normal(1000).astype(dtype) for _ in range(2))
-    inverse = rng.uniform(0.5, 2.0, 1000).astype(dtype)
-    r, z, scale, largest = block_kernels.cg_start(rhs, product, inverse)
-    assert r.dtype == z.dtype == dtype
-    np.testing.assert_array_equal(r, rhs - product)
-    np.testing.assert_array_equal(z, inverse * (rhs - product))
-    assert scale == np.abs(inverse * rhs).max() and largest == np.abs(z).max()
-    for at in (0, 500, 999):  # first, inside, last: a NaN anywhere makes both maxima NaN, as numpy's max
-        spoiled = rhs.copy()
-        spoiled[at] = np.nan
-        _, _, scale, largest = block_kernels.cg_start(spoiled, product, inverse)
-        assert np.isnan(scale) and np.isnan(largest)

@@ -118,19 +118,19 @@ def conjugate_gradient(apply: Callable[[np.ndarray], np.ndarray], inverse_diagon
     where the caller knows it without a product). Stops when the preconditioned residual's
     max-norm, max|D⁻¹ r|, is at most ``tolerance`` times max|D⁻¹ rhs| and at most
     :data:`RESIDUAL_REDUCTION` times its value at the start: for a mass-dominated A, D⁻¹r is
-    the solution's error up to the condition number, in the solution's units. Vectors are
-    in the precision of ``rhs`` and ``guess`` together; the start and the vector updates
-    run compiled, one pass each (:func:`femphase.fem.kernels.cg_start`,
-    :func:`~femphase.fem.kernels.cg_update`). Returns (x, iterations, r), r the final
-    residual rhs − A x as CG updated it; raises KrylovError after ``maxiter``."""
+    the solution's error up to the condition number, in the solution's units. The
+    vector updates run compiled, one pass each (:func:`femphase.fem.kernels.cg_update`).
+    Returns (x, iterations, r), r the final residual rhs − A x as CG updated it; raises
+    KrylovError after ``maxiter``."""
     from femphase.fem import kernels  # numba loads only where windows are solved at once
 
     x = np.array(guess, dtype=np.result_type(rhs, guess), copy=True)
     inverse = np.asarray(inverse_diagonal).astype(x.dtype, copy=False)
-    product = apply(x) if guess_product is None else guess_product
-    r, z, scale, largest = kernels.cg_start(np.asarray(rhs).astype(x.dtype, copy=False),
-                                            np.asarray(product).astype(x.dtype, copy=False), inverse)
+    scale = float(np.max(np.abs(inverse * rhs), initial=0.0))
     goal = tolerance * scale if scale > 0.0 else np.inf  # a zero rhs: the reduction alone sets the goal
+    r = (rhs - (apply(x) if guess_product is None else guess_product)).astype(x.dtype, copy=False)
+    z = inverse * r
+    largest = float(np.max(np.abs(z), initial=0.0))
     goal = min(goal, RESIDUAL_REDUCTION * largest)
     if largest <= goal:
         return x, 0, r
