@@ -192,3 +192,32 @@ def test_a_flow_of_fixed_direction_field_scales_its_profiles_operators(sheared, 
     assert steps["separable"]._when is None and steps["oscillating"]._when == (3 * dt + 2.0, dt)
     mean = (np.cos(omega * (3 * dt + 2.0) + phase) - np.cos(omega * (4 * dt + 2.0) + phase)) / (omega * dt)
     assert steps["separable"]._scale == pytest.approx(mean, rel=1e-6)
+
+
+def test_the_quadrature_map_is_the_assembled_skew_form():
+    """An analytic flow's C from its velocities at the quadrature points
+    (:class:`QuadratureAdvection`) is skfem's assembly of the skew form, folded onto the
+    periodic dofs, to rounding: for a velocity varying in both directions and in time, at a
+    time and as a mean over a step, and its entries as stored are those aligned to the block
+    pattern the slow way."""
+    from skfem import Basis, ElementTriP1
+
+    from femphase.fem.blocks import aligned_data
+    from femphase.fem.operators import nodes_to_dofs
+    from femphase.flows import Flow, time_mean, velocity_at
+
+    domain = straight(30.0, 20.0)
+    flow = Flow(name="swirl", steady=False, velocity=lambda x, y, t: (
+        0.3 * np.sin(y / 3.0 + t) + 0.05 * np.cos(2 * np.pi * x / 30.0), 0.04 * np.sin(2 * np.pi * x / 30.0) * y))
+    basis = Basis(domain.mesh, ElementTriP1(), intorder=4)
+    x, y = basis.mapping.F(basis.X)
+    fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
+    for time, span in ((0.7, 0.0), (2.0, 3.5)):
+        velocity = (velocity_at(flow, x, y, time) if span == 0.0
+                    else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
+        expected = (fold.T @ advection_module.skew_advection.assemble(basis, velocity=velocity) @ fold).tocsr()
+        matrix = advection_matrix(domain, flow, time, span)
+        assert abs(matrix - expected).max() <= 1e-14 * abs(expected).max()
+        assert abs(expected).max() > 0.01 and abs(matrix + matrix.T).max() <= 1e-15  # skew, not zero
+        slow = aligned_data(matrix + sp.csr_matrix(matrix.shape), domain.block_pattern)  # a copy off the pattern
+        np.testing.assert_array_equal(domain.aligned(matrix), slow)

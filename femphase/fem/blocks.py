@@ -39,6 +39,9 @@ def aligned_data(matrix: sp.spmatrix, pattern: sp.csr_matrix) -> np.ndarray:
     """``matrix``'s entries at the stored entries of ``pattern`` (canonical CSR), zeros where
     ``matrix`` has none; raises ValueError if ``matrix`` has an entry outside the pattern."""
     matrix = sp.csr_matrix(matrix)
+    if (matrix.shape == pattern.shape and np.array_equal(matrix.indptr, pattern.indptr)
+            and np.array_equal(matrix.indices, pattern.indices)):  # built on the pattern: aligned as stored
+        return np.array(matrix.data, dtype=np.result_type(matrix.dtype, np.float64))
     matrix.sum_duplicates()
     n = pattern.shape[1]
     rows = np.repeat(np.arange(pattern.shape[0], dtype=np.int64), np.diff(pattern.indptr))

@@ -55,8 +55,8 @@ from femphase.fem.solvers import make_solver
 from femphase.flows import Flow, time_mean, velocity_at
 
 __all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "GalerkinAdvection",
-           "GalerkinPade", "GalerkinRungeKutta", "advection_matrix", "corrected_inverse", "skew_advection",
-           "spectral_radius"]
+           "GalerkinPade", "GalerkinRungeKutta", "QuadratureAdvection", "advection_matrix", "corrected_inverse",
+           "skew_advection", "spectral_radius"]
 
 
 @BilinearForm
@@ -75,18 +75,61 @@ def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float 
     the quadrature points (the P2 Stokes field exactly, analytic flows by evaluation): at
     ``time``, or with ``span`` > 0 its mean over [time, time + span]
     (:func:`~femphase.flows.time_mean`; C is linear in v, so this is the mean of C over the
-    step)."""
+    step). An analytic flow's C comes from its velocities by :class:`QuadratureAdvection`,
+    the domain's, kept with the flows' operators."""
     if flow.stokes is not None:
         basis = flow.stokes.pressure_basis  # P1 on the velocity basis' quadrature points
         velocity = np.asarray(flow.stokes.velocity_basis.interpolate(flow.stokes.velocity))
-    else:
+        fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
+        return (fold.T @ skew_advection.assemble(basis, velocity=velocity) @ fold).tocsr()
+    assembly = domain.advection_operators.setdefault("quadrature advection", lambda: QuadratureAdvection(domain))
+    x, y = assembly.points
+    velocity = (velocity_at(flow, x, y, time) if span == 0.0
+                else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
+    return assembly.matrix(velocity)
+
+
+class QuadratureAdvection:
+    """C (:func:`advection_matrix`) of any velocity given at the quadrature points of the P1
+    basis of degree 4, as one linear map: on element e, with ∇φ_a constant and S_a =
+    Σ_q w_q det(J_e) φ_a(x_q) v(x_q) (J_e the element map's Jacobian),
+
+        C^e_ab = ½ (S_a·∇φ_b − S_b·∇φ_a),
+
+    summed into the entries of the domain's block pattern on the periodic dofs. The same
+    matrix as :data:`skew_advection` assembled by skfem and folded onto the dofs, to rounding,
+    in 3 ms instead of 70 on examples/straight_mesh.toml (33 480 elements): what a flow that
+    changes in time and has no fixed direction field (:attr:`~femphase.flows.Flow.profile`)
+    pays at every step."""
+
+    def __init__(self, domain: Domain) -> None:
         basis = Basis(domain.mesh, ElementTriP1(), intorder=4)
-        x, y = basis.mapping.F(basis.X)
-        velocity = (velocity_at(flow, x, y, time) if span == 0.0
-                    else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
-    fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
-    matrix = skew_advection.assemble(basis, velocity=velocity)
-    return (fold.T @ matrix @ fold).tocsr()
+        #: (x, y) of the quadrature points, each (elements, points per element)
+        self.points = tuple(basis.mapping.F(basis.X))
+        hats = [basis.basis[a][0] for a in range(3)]
+        self._weighted = np.stack([np.asarray(hat) * basis.dx for hat in hats])  # (3, elements, points)
+        self._gradients = np.stack([hat.grad[:, :, 0] for hat in hats])  # (3, 2, elements): P1's are constant
+        pattern = domain.block_pattern
+        n = pattern.shape[1]
+        keys = np.repeat(np.arange(pattern.shape[0], dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
+        dofs = np.asarray(domain.dof_map)[domain.mesh.t].astype(np.int64)  # (3, elements)
+        #: the pattern's entry of every (a, b, element), a the row's corner
+        self._entries = np.searchsorted(keys, (dofs[:, None, :] * n + dofs[None, :, :]).ravel())
+        self._pattern = pattern
+
+    @property
+    def nbytes(self) -> int:
+        return int(sum(a.nbytes for a in (*self.points, self._weighted, self._gradients, self._entries)))
+
+    def matrix(self, velocity: np.ndarray) -> sp.csr_matrix:
+        """C of the velocity (2, elements, points per element) at :attr:`points`."""
+        moments = np.einsum("aeq,ceq->ace", self._weighted, velocity)  # S_a, (3, 2, elements)
+        products = np.einsum("ace,bce->abe", moments, self._gradients)  # S_a·∇φ_b
+        local = 0.5 * (products - products.transpose(1, 0, 2))
+        data = np.bincount(self._entries, weights=local.ravel(), minlength=self._pattern.nnz)
+        # the pattern's own index arrays copied: a caller may reorder a matrix's in place
+        return sp.csr_matrix((data, self._pattern.indices.copy(), self._pattern.indptr.copy()),
+                             shape=self._pattern.shape)
 
 
 #: The pole r of the (2,2) Padé approximant R(z) = 1 + 2 Re[−2i√3/(1 − z/r)] of exp(−z).
@@ -102,9 +145,9 @@ class GalerkinAdvection(StepAdvection):
     A flow of fixed direction field, v = f(t) w(x) (:attr:`~femphase.flows.Flow.profile`), is
     the exception: C is linear in v, so the step's C is w's, assembled once, times f's mean
     over the step (:attr:`_scale`), and so are ω and everything else derived from C.
-    Assembled at every step, an oscillating shear on examples/straight_mesh.toml took 6.5×
-    the CPU under flow of these scaled operators, and 5.1× a steady shear's
-    (benchmarks/mesh_unsteady.py)."""
+    Built at every step (C by :class:`QuadratureAdvection`, ω by power iteration), an
+    oscillating shear on examples/straight_mesh.toml takes 3.8× the CPU under flow of these
+    scaled operators, and 2.9× a steady shear's (benchmarks/mesh_unsteady.py)."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)

@@ -388,7 +388,9 @@ class MeshDomain(Domain):
     @cached_property
     def advection_operators(self):
         """Per flow: its advection matrix and what is derived from it, shared by the flow's
-        advections over every dt (:class:`~femphase.domains.mesh.advection.GalerkinAdvection`)."""
+        advections over every dt (:class:`~femphase.domains.mesh.advection.GalerkinAdvection`);
+        and the map from any velocity at the quadrature points to the advection matrix
+        (:class:`~femphase.domains.mesh.advection.QuadratureAdvection`)."""
         return self.caches.cache("advection operators")
 
     @cached_property
