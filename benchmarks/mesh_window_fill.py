@@ -26,7 +26,7 @@ import time
 import warnings
 from pathlib import Path
 
-import common  # pins BLAS threads before numpy loads
+import common  # noqa: F401  (pins BLAS threads before numpy loads)
 import numpy as np
 from scipy.spatial import cKDTree
 
