@@ -28,11 +28,22 @@ import scipy.sparse as sp
 
 from femphase.errors import FemphaseError
 
-__all__ = ["RESIDUAL_REDUCTION", "BlockPattern", "KrylovError", "aligned_data", "conjugate_gradient"]
+__all__ = ["RESIDUAL_REDUCTION", "BlockPattern", "KrylovError", "aligned_data", "conjugate_gradient",
+           "pattern_entries"]
 
 
 class KrylovError(FemphaseError, ArithmeticError):
     """A batched Krylov solve did not reach its tolerance."""
+
+
+def pattern_entries(pattern: sp.csr_matrix, rows: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Where each (row, column) pair is stored among the entries of ``pattern`` (canonical
+    CSR), and whether it is stored there at all (where not, the place is meaningless)."""
+    n = pattern.shape[1]
+    keys = np.repeat(np.arange(pattern.shape[0], dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
+    wanted = np.asarray(rows, dtype=np.int64) * n + columns
+    found = np.searchsorted(keys, wanted)
+    return found, (found < keys.size) & (keys[np.minimum(found, keys.size - 1)] == wanted)
 
 
 def aligned_data(matrix: sp.spmatrix, pattern: sp.csr_matrix) -> np.ndarray:
@@ -43,12 +54,8 @@ def aligned_data(matrix: sp.spmatrix, pattern: sp.csr_matrix) -> np.ndarray:
             and np.array_equal(matrix.indices, pattern.indices)):  # built on the pattern: aligned as stored
         return np.array(matrix.data, dtype=np.result_type(matrix.dtype, np.float64))
     matrix.sum_duplicates()
-    n = pattern.shape[1]
-    rows = np.repeat(np.arange(pattern.shape[0], dtype=np.int64), np.diff(pattern.indptr))
-    keys = rows * n + pattern.indices
     coo = matrix.tocoo()
-    found = np.searchsorted(keys, coo.row.astype(np.int64) * n + coo.col)
-    inside = (found < keys.size) & (keys[np.minimum(found, keys.size - 1)] == coo.row.astype(np.int64) * n + coo.col)
+    found, inside = pattern_entries(pattern, coo.row, coo.col)
     if not np.all(inside | (coo.data == 0)):
         raise ValueError("the matrix has entries outside the block pattern")
     data = np.zeros(pattern.nnz, dtype=np.result_type(matrix.dtype, np.float64))

@@ -50,6 +50,7 @@ from femphase.config import Numerics
 from femphase.domains.advection import StepAdvection
 from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
+from femphase.fem.blocks import pattern_entries
 from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow, time_mean, velocity_at
@@ -110,11 +111,12 @@ class QuadratureAdvection:
         self._weighted = np.stack([np.asarray(hat) * basis.dx for hat in hats])  # (3, elements, points)
         self._gradients = np.stack([hat.grad[:, :, 0] for hat in hats])  # (3, 2, elements): P1's are constant
         pattern = domain.block_pattern
-        n = pattern.shape[1]
-        keys = np.repeat(np.arange(pattern.shape[0], dtype=np.int64), np.diff(pattern.indptr)) * n + pattern.indices
         dofs = np.asarray(domain.dof_map)[domain.mesh.t].astype(np.int64)  # (3, elements)
+        rows, columns = np.broadcast_arrays(dofs[:, None, :], dofs[None, :, :])
         #: the pattern's entry of every (a, b, element), a the row's corner
-        self._entries = np.searchsorted(keys, (dofs[:, None, :] * n + dofs[None, :, :]).ravel())
+        self._entries, stored = pattern_entries(pattern, rows.ravel(), columns.ravel())
+        if not stored.all():  # the pattern is the dofs' element connectivity: a mesh broken
+            raise ValueError("the block pattern lacks pairs of dofs that share an element")
         self._pattern = pattern
 
     @property
