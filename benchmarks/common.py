@@ -60,7 +60,8 @@ def phase_substeps(memory: dict, phase: int, duration: float) -> dict:
 
 
 def run_phases(scene):
-    """(state, CPU seconds per phase, batched CG iterations per phase, the last phase's
+    """(state, CPU seconds per phase, batched CG iterations per phase (in products with the whole
+    layout's matrix, :attr:`~femphase.timestepping.stepper.Stepper.krylov_iterations`), the last phase's
     stepper): every phase of ``scene`` from its initial state, each in one stepper call
     (the adaptive scheme merges its steps) with its scheme started as ``Simulation.run``
     starts a phase; CPU is the process clock around the call."""
@@ -73,7 +74,7 @@ def run_phases(scene):
         started = time.process_time()
         stepper.step(state, phase.n_steps)
         cpu.append(time.process_time() - started)
-        iterations.append(int(getattr(stepper, "krylov_iterations", 0)))
+        iterations.append(round(float(getattr(stepper, "krylov_iterations", 0)), 1))
     return state, cpu, iterations, stepper
 
 

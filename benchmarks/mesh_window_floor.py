@@ -330,7 +330,8 @@ def child(kind: str, relax: float, flow: float, velocity: float, room: float, co
     record = {"kind": kind, "room": room if shaped else None, "corrections": corrections, "flow_cpu_s": cpu,
               **{f"{k}_cpu_s": v for k, v in spent.items()},
               "floor_cpu_s": cpu - spent["refit"] - spent["blocks"], "positions": int(phi.size), "layouts": layouts[0],
-              "cg_iterations": int(getattr(stepper, "krylov_iterations", 0)), "period": float(domain.period),
+              "cg_iterations": round(float(getattr(stepper, "krylov_iterations", 0)), 1),
+              "period": float(domain.period),
               "areas": area.tolist(), "centroids": centroids.tolist()}
     if shaped:
         pieces = layout_from_pieces_ms(domain, layout, changed=round(shaped.windows_made / max(layouts[0], 1)))

@@ -1,4 +1,4 @@
-"""The compiled kernels (the channel's window scans, the overlap sums, the batched CG's vector updates,
+"""The compiled kernels (the channel's window scans, the overlap sums, the Jacobi correction,
 the radix sort of a box's dofs) against numpy."""
 
 import numpy as np
@@ -63,25 +63,6 @@ def test_others_squared_is_bincount_through_the_dof_table(dtype):
     result = any_layouts(squares, dofs, lattice_ny * lattice_nx)
     assert result.dtype == dtype and np.array_equal(result, expected)
     assert (np.bincount(dofs) > 1).any() and (corners[:, 2] + corners[:, 3] > lattice_nx).any()
-
-
-def test_the_cg_updates_are_the_numpy_expressions_they_replace():
-    from femphase.fem import kernels as block_kernels
-
-    rng = np.random.default_rng(3)
-    x, r, p, q = (rng.standard_normal(1000) for _ in range(4))
-    inverse = rng.uniform(0.5, 2.0, 1000)
-    alpha, beta = 0.37, 0.81
-    x_new, r_new = x + alpha * p, r - alpha * q
-    z = inverse * r_new
-    largest, rz = block_kernels.cg_update(x, r, p, q, inverse, alpha)
-    np.testing.assert_allclose(x, x_new, rtol=0, atol=1e-15)
-    np.testing.assert_allclose(r, r_new, rtol=0, atol=1e-15)
-    assert largest == np.abs(z).max()
-    assert rz == pytest.approx(float(r_new @ z), rel=1e-13)
-    expected = z + beta * p
-    block_kernels.cg_direction(p, r, inverse, beta)
-    np.testing.assert_allclose(p, expected, rtol=0, atol=1e-15)
 
 
 def test_a_jacobi_correction_is_numpys_expression_to_the_bit():

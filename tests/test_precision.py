@@ -79,12 +79,20 @@ def test_single_precision_only_where_it_applies():
 
 
 def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
+    from femphase.fem import kernels
+
     products = []
     original = sp.csr_matrix.__matmul__
 
     def counted(matrix, vector):
         products.append((matrix.dtype, vector.dtype))
         return original(matrix, vector)
+
+    cg_pass = kernels.window_conjugate_gradient
+
+    def counted_cg(*args):  # the CG's compiled pass: its matrix's entries and its solution
+        products.append((args[2].dtype, args[5].dtype))
+        return cg_pass(*args)
 
     runs = {}
     for precision in ("mixed", "double"):
@@ -95,6 +103,7 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         stepper.step(state)  # the first call estimates the advection's frequency, in double
         products.clear()
         monkeypatch.setattr(sp.csr_matrix, "__matmul__", counted)
+        monkeypatch.setattr(kernels, "window_conjugate_gradient", counted_cg)
         for _ in range(4):
             stepper.step(state)
         monkeypatch.undo()

@@ -1,7 +1,7 @@
 """Compiled loops for the block-diagonal window matrices (numba), built as boxes follow
-their particles on a mesh, for the vector updates of the CG that solves them and of the
-explicit advection that applies them, for the windows' shape tensors, and for the
-repulsion's sums over the windows that share a dof.
+their particles on a mesh, for the CG that solves them and the explicit advection that
+applies them, for the windows' shape tensors, and for the repulsion's sums over the
+windows that share a dof.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the domains' kernels;
 imported only where windows are solved all at once (:mod:`femphase.fem.blocks`), their
@@ -14,7 +14,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["cg_direction", "cg_update", "jacobi_correction", "others_squared", "principal_blocks",
+__all__ = ["jacobi_correction", "others_squared", "principal_blocks", "window_conjugate_gradient",
            "window_gradient_moments"]
 
 
@@ -65,34 +65,67 @@ def principal_blocks(indptr: np.ndarray, indices: np.ndarray, node_index: np.nda
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
-def cg_update(x: np.ndarray, r: np.ndarray, p: np.ndarray, q: np.ndarray, inverse: np.ndarray,
-              alpha: float) -> tuple[float, float]:
-    """One CG iteration's updates in one pass, in place: x += α p, r −= α q; returns
-    (``max |D⁻¹r|``, ``rᵀD⁻¹r``) of the new r (``inverse`` = D⁻¹, the Jacobi preconditioner; real
-    vectors; the updates in the vectors' precision, sums in double). numpy took seven passes
-    and two temporaries for these, as long as the sparse product itself (0.5 against 0.6 ms
-    on 10⁵ positions)."""
-    # α in the vectors' precision: a double α made every float32 update a double one,
-    # converted there and back (0.21 against 0.11 ms on 10⁵ positions)
-    a = x.dtype.type(alpha)
-    largest = x.dtype.type(0.0)
-    rz = 0.0
-    for i in range(x.size):
-        x[i] += a * p[i]
-        residual = r[i] - a * q[i]
-        r[i] = residual
-        z = inverse[i] * residual
-        rz += np.float64(residual * z)
-        largest = max(largest, abs(z))
-    return float(largest), rz
+def window_conjugate_gradient(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, offsets: np.ndarray,
+                              inverse: np.ndarray, x: np.ndarray, r: np.ndarray, goal: float, maxiter: int,
+                              iterations: np.ndarray) -> int:
+    """Jacobi-preconditioned CG on each diagonal block of a block-diagonal CSR matrix (block
+    w the rows and columns ``offsets[w]:offsets[w + 1]``), one block after the other, in
+    place: ``x`` the start in and the solution out, ``r`` the start's residual in and the
+    final one out. A block stops once its max |D⁻¹r| is at most ``goal`` (``inverse`` =
+    D⁻¹); ``iterations[w]`` its iterations. Returns −1, or the first block w that did not
+    stop in ``maxiter`` iterations, or −2 − w for one whose pᵀAp was not positive. Vectors
+    in x's precision, sums of products in double.
 
-
-@numba.njit(cache=True, nogil=True, boundscheck=False)
-def cg_direction(p: np.ndarray, r: np.ndarray, inverse: np.ndarray, beta: float) -> None:
-    """The next CG search direction in place: p ← D⁻¹r + β p, in p's precision."""
-    b = p.dtype.type(beta)  # as in cg_update: 0.017 against 0.029 ms on 10⁵ float32 positions
-    for i in range(p.size):
-        p[i] = inverse[i] * r[i] + b * p[i]
+    The index arrays and ``offsets`` are unsigned (views of scipy's int32 arrays): numba
+    guards every signed index against wrapping around from the end, and with scipy's
+    arrays as they are the product loop took 1.2–1.6× as long (10⁵ rows)."""
+    dtype = x.dtype.type
+    zero = dtype(0.0)
+    p = np.zeros_like(x)
+    q = np.empty_like(x)
+    for w in range(offsets.size - 1):
+        start, stop = offsets[w], offsets[w + 1]
+        largest = zero
+        rz = 0.0
+        for i in range(start, stop):
+            z = inverse[i] * r[i]
+            p[i] = z
+            rz += np.float64(r[i] * z)
+            largest = max(largest, abs(z))
+        count = 0
+        while largest > goal:
+            if count == maxiter:
+                return w
+            count += 1
+            curvature = 0.0
+            for i in range(start, stop):
+                total = zero
+                for k in range(indptr[i], indptr[i + 1]):
+                    total += data[k] * p[indices[k]]
+                q[i] = total
+                curvature += np.float64(p[i] * total)
+            if not curvature > 0.0:
+                return -2 - w
+            # α and β in the vectors' precision: a double one made every float32 update a
+            # double one, converted there and back (0.21 against 0.11 ms on 10⁵ positions)
+            alpha = dtype(rz / curvature)
+            largest = zero
+            next_rz = 0.0
+            for i in range(start, stop):
+                x[i] += alpha * p[i]
+                residual = r[i] - alpha * q[i]
+                r[i] = residual
+                z = inverse[i] * residual
+                next_rz += np.float64(residual * z)
+                largest = max(largest, abs(z))
+            if largest <= goal:
+                break
+            beta = dtype(next_rz / rz)
+            for i in range(start, stop):
+                p[i] = inverse[i] * r[i] + beta * p[i]
+            rz = next_rz
+        iterations[w] = count
+    return -1
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
