@@ -59,6 +59,20 @@ def phase_substeps(memory: dict, phase: int, duration: float) -> dict:
     return {"substeps": accepted, "mean_substep": duration / accepted}
 
 
+def machine() -> str:
+    """This machine as the results record it: cores, CPU model and memory (Linux)."""
+    model, memory = "unknown CPU", None
+    try:
+        cpuinfo = Path("/proc/cpuinfo").read_text()
+        model = next(line.split(":", 1)[1].strip() for line in cpuinfo.splitlines() if line.startswith("model name"))
+        kib = next(int(line.split()[1]) for line in Path("/proc/meminfo").read_text().splitlines()
+                   if line.startswith("MemTotal"))
+        memory = round(kib / 2**20)
+    except (OSError, StopIteration, ValueError):
+        pass
+    return f"{os.cpu_count()}-core {model}" + (f", {memory} GiB" if memory else "") + ", shared"
+
+
 def run_phases(scene):
     """(state, CPU seconds per phase, batched CG iterations per phase (in products with the whole
     layout's matrix, :attr:`~femphase.timestepping.stepper.Stepper.krylov_iterations`), the last phase's
