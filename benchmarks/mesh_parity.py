@@ -94,8 +94,8 @@ def main() -> None:
 
     ratios = {kind: {"flow_cpu_per_time_unit": ratio(kind, "flow_ms_per_time_unit"), "peak_memory": ratio(kind, "peak_mb")}
               for kind in kinds[1:]}
-    result = {"machine": common.machine(), "relax": args.relax, "flow": args.flow, "velocity": args.velocity, "runs": runs,
-              "ratios_to_grid": ratios, "targets": {"flow_cpu_per_time_unit": 3.0, "peak_memory": 2.0}}
+    result = {"machine": common.machine(), "relax": args.relax, "flow": args.flow, "velocity": args.velocity,
+              "runs": runs, "ratios_to_grid": ratios, "targets": {"flow_cpu_per_time_unit": 3.0, "peak_memory": 2.0}}
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=1) + "\n")
     for kind, values in ratios.items():

@@ -133,7 +133,8 @@ def main() -> None:
         stepper_module.conjugate_gradient = solvers["per_window"]
     ratios = [ours / theirs for ours, theirs in zip(cpu["per_window"][1:], cpu["whole_vector"][1:])]
     result = {
-        "machine": common.machine(), "relax": args.relax, "chunk": args.chunk, "chunks": args.chunks, "velocity": args.velocity,
+        "machine": common.machine(), "relax": args.relax, "chunk": args.chunk, "chunks": args.chunks,
+        "velocity": args.velocity,
         "flow_cpu_s": {kind: sum(values[1:]) for kind, values in cpu.items()},
         "chunk_ratios": ratios,
         "flow_cpu_ratio": sum(cpu["per_window"][1:]) / sum(cpu["whole_vector"][1:]),
