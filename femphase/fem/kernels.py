@@ -71,7 +71,7 @@ def window_conjugate_gradient(indptr: np.ndarray, indices: np.ndarray, data: np.
     """Jacobi-preconditioned CG on each diagonal block of a block-diagonal CSR matrix (block
     w the rows and columns ``offsets[w]:offsets[w + 1]``), one block after the other, in
     place: ``x`` the start in and the solution out, ``r`` the start's residual in and the
-    final one out. A block stops once its max |D⁻¹r| is at most ``goal`` (``inverse`` =
+    final one out. A block stops once its max|D⁻¹r| is at most ``goal`` (``inverse`` =
     D⁻¹); ``iterations[w]`` its iterations. Returns −1, or the first block w that did not
     stop in ``maxiter`` iterations, or −2 − w for one whose pᵀAp was not positive. Vectors
     in x's precision, sums of products in double.
