@@ -87,7 +87,10 @@ class BlockPattern:
         # scipy stores CSR indices as int32 where they fit and converts (copies) any other
         # kind at every construction, i.e. at every :meth:`block`
         index = np.int32 if max(size, bound) < np.iinfo(np.int32).max else np.int64
-        indices, source = np.empty(bound, dtype=index), np.empty(bound, dtype=np.int64)
+        # the sources unsigned and as narrow as the pattern allows: gathered by a compiled
+        # loop at every block (:func:`femphase.fem.kernels.gather`), and kept per layout
+        source_type = np.uint32 if pattern.nnz < np.iinfo(np.uint32).max else np.uint64
+        indices, source = np.empty(bound, dtype=index), np.empty(bound, dtype=source_type)
         indptr = kernels.principal_blocks(pattern.indptr, pattern.indices, node_index, offsets, slot, indices, source)
         # the entries as prefixes of the bound's arrays (3.7 % longer on examples/straight_mesh.toml),
         # not copied: views cost nothing, and nbytes counts the arrays whole
@@ -101,7 +104,11 @@ class BlockPattern:
     def block(self, data: np.ndarray) -> sp.csr_matrix:
         """The block-diagonal matrix whose entries come from ``data``, the full-domain
         matrix's entries aligned to the pattern (:func:`aligned_data`)."""
-        return sp.csr_matrix((data[self.source], self.indices, self.indptr), shape=self.shape)
+        from femphase.fem import kernels  # numba loads only where windows are solved at once
+
+        entries = np.empty(self.source.size, dtype=data.dtype)
+        kernels.gather(np.ascontiguousarray(data), self.source, entries)
+        return sp.csr_matrix((entries, self.indices, self.indptr), shape=self.shape)
 
 
 #: The least factor by which :func:`conjugate_gradient` reduces its starting residual. The
