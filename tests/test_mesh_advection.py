@@ -60,6 +60,33 @@ def test_the_explicit_step_has_the_order_of_its_stages(sheared, monkeypatch, sta
     assert np.log2(errors[0] / errors[1]) == pytest.approx(stages, abs=0.3)
 
 
+@pytest.mark.parametrize("dtype, substeps, rounding", [(np.float64, 1, 1e-13), (np.float32, 2, 1e-5)])
+def test_the_compiled_step_is_the_horner_polynomial(sheared, monkeypatch, dtype, substeps, rounding):
+    """The compiled step (femphase.fem.kernels.galerkin_runge_kutta) against the step
+    written out with scipy's products: Σ_{k≤s} (−hPC)^k/k! by Horner on the layout's
+    block-diagonal C and M, P the corrected lumped inverse; the same to the rounding of
+    the products' two partial sums a row, in the fields' precision."""
+    domain, layout, phi, flow = sheared
+    phi = phi.astype(dtype)
+    monkeypatch.setattr(GalerkinRungeKutta, "substeps", substeps)
+    explicit = GalerkinRungeKutta(domain, flow, 2.0, Numerics())
+    compiled = explicit.advect(phi, layout, 0.0)[0]
+    advection = domain.window_matrix(layout, ("advection", dtype), domain.aligned(explicit.advection).astype(dtype))
+    mass = domain.window_operator(layout, "mass", dtype)
+    inverse_lumped = (1.0 / layout.mass).astype(dtype)
+    h = 2.0 / substeps
+    x = phi
+    for _ in range(substeps):
+        y = x
+        for k in range(explicit.stages, 0, -1):
+            y = corrected_inverse(advection @ y, mass, inverse_lumped, explicit.corrections)
+            y *= -h / k
+            y += x
+        x = y
+    assert compiled.dtype == dtype and np.abs(compiled - phi).max() > 1e-3  # the flow moved the discs
+    np.testing.assert_allclose(compiled, x, rtol=0, atol=rounding)
+
+
 def test_each_correction_brings_the_inverse_closer_to_the_consistent_mass(sheared):
     domain, layout, phi, flow = sheared
     mass = domain.window_operator(layout, "mass")

@@ -88,11 +88,15 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         products.append((matrix.dtype, vector.dtype))
         return original(matrix, vector)
 
-    cg_pass = kernels.window_conjugate_gradient
+    cg_pass, advection_pass = kernels.window_conjugate_gradient, kernels.galerkin_runge_kutta
 
     def counted_cg(*args):  # the CG's compiled pass: its matrix's entries and its solution
         products.append((args[2].dtype, args[5].dtype))
         return cg_pass(*args)
+
+    def counted_advection(*args):  # the advection's: C's and M's entries, and φ
+        products.extend([(args[2].dtype, args[5].dtype), (args[3].dtype, args[5].dtype)])
+        return advection_pass(*args)
 
     runs = {}
     for precision in ("mixed", "double"):
@@ -104,6 +108,7 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         products.clear()
         monkeypatch.setattr(sp.csr_matrix, "__matmul__", counted)
         monkeypatch.setattr(kernels, "window_conjugate_gradient", counted_cg)
+        monkeypatch.setattr(kernels, "galerkin_runge_kutta", counted_advection)
         for _ in range(4):
             stepper.step(state)
         monkeypatch.undo()

@@ -50,7 +50,7 @@ from femphase.config import Numerics
 from femphase.domains.advection import StepAdvection
 from femphase.domains.base import Domain, window_block
 from femphase.domains.layout import Layout
-from femphase.fem.blocks import pattern_entries
+from femphase.fem.blocks import pattern_entries, unsigned
 from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow, time_mean, velocity_at
@@ -302,6 +302,8 @@ class GalerkinRungeKutta(GalerkinAdvection):
         return max(1, int(np.ceil(SPECTRAL_MARGIN * self.frequency * self.dt / COURANT)))
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
+        from femphase.fem import kernels  # numba loads only where windows are solved at once
+
         self._step_from(time)
         # in the fields' precision (float32 in single-precision steps): matrices and vectors
         # alike, so that no product is promoted to double
@@ -311,16 +313,12 @@ class GalerkinRungeKutta(GalerkinAdvection):
         mass = self.domain.window_operator(layout, "mass", dtype)
         inverse_lumped = (1.0 / layout.mass).astype(dtype)
 
+        # Σ_{k≤s} (−hPC)^k/k! x by Horner (on a linear, autonomous equation every Runge–Kutta
+        # method of s stages and order s is this polynomial) in one compiled pass per product,
+        # C and M sharing the layout's pattern
         substeps = self.substeps
-        h = self.dt / substeps
-        x = phi
-        for _ in range(substeps):
-            # Σ_{k≤s} (−hPC)^k/k! x by Horner: on a linear, autonomous equation every
-            # Runge–Kutta method of s stages and order s is this polynomial, at s products
-            y = x
-            for k in range(self.stages, 0, -1):
-                y = corrected_inverse(advection @ y, mass, inverse_lumped, self.corrections)
-                y *= -h * self._scale / k
-                y += x
-            x = y
-        return x, layout
+        pattern = self.domain.window_blocks(layout)
+        return kernels.galerkin_runge_kutta(
+            unsigned(pattern.indptr), unsigned(pattern.indices), advection.data, mass.data, inverse_lumped,
+            np.ascontiguousarray(phi), self.dt / substeps * self._scale, substeps, self.stages,
+            self.corrections), layout
