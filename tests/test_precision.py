@@ -88,7 +88,12 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         products.append((matrix.dtype, vector.dtype))
         return original(matrix, vector)
 
-    cg_pass, advection_pass = kernels.window_conjugate_gradient, kernels.galerkin_runge_kutta
+    cg_pass, advection_pass, start_pass = (kernels.window_conjugate_gradient, kernels.galerkin_runge_kutta,
+                                           kernels.residual_start)
+
+    def counted_start(*args):  # the CG's starting residual: its matrix's entries and the guess
+        products.append((args[2].dtype, args[5].dtype))
+        return start_pass(*args)
 
     def counted_cg(*args):  # the CG's compiled pass: its matrix's entries and its solution
         products.append((args[2].dtype, args[5].dtype))
@@ -109,6 +114,7 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         monkeypatch.setattr(sp.csr_matrix, "__matmul__", counted)
         monkeypatch.setattr(kernels, "window_conjugate_gradient", counted_cg)
         monkeypatch.setattr(kernels, "galerkin_runge_kutta", counted_advection)
+        monkeypatch.setattr(kernels, "residual_start", counted_start)
         for _ in range(4):
             stepper.step(state)
         monkeypatch.undo()

@@ -149,15 +149,17 @@ def conjugate_gradient(matrix: sp.csr_matrix, offsets: np.ndarray, inverse_diago
     if getattr(matrix, "format", None) != "csr":
         raise TypeError(f"conjugate_gradient takes a CSR matrix, not {type(matrix).__name__}")
     x = np.array(guess, dtype=np.result_type(rhs, guess), copy=True)
-    inverse = np.asarray(inverse_diagonal).astype(x.dtype, copy=False)
-    scale = float(np.max(np.abs(inverse * rhs), initial=0.0))
+    rhs = np.ascontiguousarray(rhs, dtype=x.dtype)
+    inverse = np.ascontiguousarray(inverse_diagonal, dtype=x.dtype)
+    indptr, indices = unsigned(matrix.indptr), unsigned(matrix.indices)
+    r = np.empty_like(x) if guess_product is None else (rhs - guess_product).astype(x.dtype, copy=False)
+    scale, largest = kernels.residual_start(indptr, indices, matrix.data, inverse, rhs, x, r, guess_product is None)
     goal = tolerance * scale if scale > 0.0 else np.inf  # a zero rhs: the reduction alone sets the goal
-    r = (rhs - (matrix @ x if guess_product is None else guess_product)).astype(x.dtype, copy=False)
-    goal = min(goal, RESIDUAL_REDUCTION * float(np.max(np.abs(inverse * r), initial=0.0)))
+    goal = min(goal, RESIDUAL_REDUCTION * largest)
     offsets = np.asarray(offsets).astype(np.uint64)
     iterations = np.zeros(offsets.size - 1, dtype=np.int64)
-    status = kernels.window_conjugate_gradient(unsigned(matrix.indptr), unsigned(matrix.indices), matrix.data,
-                                               offsets, inverse, x, r, goal, maxiter, iterations)
+    status = kernels.window_conjugate_gradient(indptr, indices, matrix.data, offsets, inverse, x, r, goal, maxiter,
+                                               iterations)
     if status <= -2:
         raise KrylovError(f"CG broke down in window {-2 - status} (pᵀAp ≤ 0, goal {goal:.3g}): the windows' "
                           "systems are not positive definite")

@@ -15,7 +15,7 @@ import numba
 import numpy as np
 
 __all__ = ["galerkin_runge_kutta", "gather", "jacobi_correction", "others_squared", "principal_blocks",
-           "window_conjugate_gradient", "window_gradient_moments"]
+           "residual_start", "window_conjugate_gradient", "window_gradient_moments"]
 
 
 @numba.njit(inline="always", boundscheck=False)
@@ -135,6 +135,24 @@ def galerkin_runge_kutta(indptr: np.ndarray, indices: np.ndarray, advection: np.
             for i in range(n):
                 y[i] = z[i] * factor + start[i]
     return y
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def residual_start(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, inverse: np.ndarray, rhs: np.ndarray,
+                   x: np.ndarray, r: np.ndarray, multiply: bool) -> tuple[float, float]:
+    """A CG's start on a CSR matrix (unsigned index arrays): r = rhs − A x if ``multiply``
+    (else ``r`` holds it already), in x's precision; returns (max|D⁻¹ rhs|, max|D⁻¹r|),
+    ``inverse`` = D⁻¹. In two passes instead of numpy's seven and a scipy product."""
+    n = np.uint64(x.size)
+    if multiply:
+        _block_rows(indptr, indices, data, x, r, 0, n, False)
+        for i in range(n):
+            r[i] = rhs[i] - r[i]
+    scale = largest = x.dtype.type(0.0)
+    for i in range(n):
+        scale = max(scale, abs(inverse[i] * rhs[i]))
+        largest = max(largest, abs(inverse[i] * r[i]))
+    return float(scale), float(largest)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
