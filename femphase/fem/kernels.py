@@ -150,8 +150,12 @@ def residual_start(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, in
             r[i] = rhs[i] - r[i]
     scale = largest = x.dtype.type(0.0)
     for i in range(n):
-        scale = max(scale, abs(inverse[i] * rhs[i]))
-        largest = max(largest, abs(inverse[i] * r[i]))
+        # a NaN stays, as in numpy's max: nothing compares above it
+        scaled, residual = abs(inverse[i] * rhs[i]), abs(inverse[i] * r[i])
+        if scaled > scale or scaled != scaled:
+            scale = scaled
+        if residual > largest or residual != residual:
+            largest = residual
     return float(scale), float(largest)
 
 
