@@ -32,9 +32,10 @@ and the shaped runs their largest differences from the box run of the same repea
 layout built from pieces kept per window would cost, concatenated or updated in place
 (:func:`layout_from_pieces_ms`).
 The design's cost, windows checked and made as here and layouts updated in place, is (floor +
-checking + shaping + layouts × ``in_place_layout_ms``) over the grid's flow CPU
-(docs/decisions/0054-shaped-mesh-windows-floor.md).
-Writes ``results/mesh_window_floor.json``.
+checking + shaping + layouts × ``in_place_layout_ms``) over the grid's flow CPU, each shaped
+run's ``design_to_grid_flow`` (docs/decisions/0054-shaped-mesh-windows-floor.md).
+Writes ``results/mesh_window_floor.json`` (``--output``: another path), with the command and
+the machine.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ import sys
 import time
 from pathlib import Path
 
-import common  # noqa: F401  (pins BLAS threads before numpy loads)
+import common  # pins BLAS threads before numpy loads
 import numba
 import numpy as np
 from mesh_parity import THREADS
@@ -373,6 +374,10 @@ def main() -> None:
             run["layouts_as_today_to_grid_flow"] = ((run["flow_cpu_s"] - run.get("shaping_cpu_s", 0.0))
                                                     / grid["flow_cpu_s"])
             if kind == "shaped":
+                # the design as costed in the module docstring: windows checked and made as
+                # here, each layout updated in place
+                run["design_to_grid_flow"] = (run["floor_cpu_s"] + run["checking_cpu_s"] + run["shaping_cpu_s"]
+                                              + run["layouts"] * run["in_place_layout_ms"] / 1e3) / grid["flow_cpu_s"]
                 box = next(r for r in runs if r["kind"] == "box" and r["repeat"] == repeat)
                 shift = np.subtract(run["centroids"], box["centroids"])
                 shift[:, 0] -= run["period"] * np.round(shift[:, 0] / run["period"])  # x periodic: the nearest image
@@ -382,7 +387,9 @@ def main() -> None:
             runs.append(run)
             summary = {k: v for k, v in run.items() if k not in ("areas", "centroids")}
             print(json.dumps(summary), flush=True)
-    result = {"relax": args.relax, "flow": args.flow, "velocity": args.velocity, "runs": runs}
+    result = {"command": " ".join(["python benchmarks/mesh_window_floor.py", *sys.argv[1:]]),
+              "machine": common.machine(), "relax": args.relax, "flow": args.flow, "velocity": args.velocity,
+              "runs": runs}
     args.output.parent.mkdir(parents=True, exist_ok=True)
     args.output.write_text(json.dumps(result, indent=1) + "\n")
 
