@@ -104,14 +104,15 @@ def _protocol_beside(data: dict) -> str:
 #: time moves by a few percent from run to run on the shared machine
 OBSTACLE_ALONE_EARLIER = ("protocol_obstacle_idle.json", "protocol_obstacle_idle_repeat.json",
                           "protocol_obstacle_shapes.json", "protocol_obstacle_residual.json",
-                          "protocol_obstacle_single_alone.json", "protocol_obstacle_box_dofs_alone.json")
+                          "protocol_obstacle_single_alone.json", "protocol_obstacle_box_dofs_alone.json",
+                          "protocol_obstacle_solves_alone.json", "protocol_obstacle_window_cg.json")
 
 
 def _protocol_alone(data: dict) -> str:
     run = data["runs"]["None"]["new"]
     earlier = [json.loads((ROOT / "benchmarks" / "results" / name).read_text()) for name in OBSTACLE_ALONE_EARLIER]
-    others = ", ".join(f"{d['runs']['None']['new']['cpu_s'] / 60:.1f} at {str(d['trees']['new']['commit'])[:7]}"
-                       for d in earlier)
+    others = ", ".join(f"{d['runs']['None']['new']['cpu_s'] / 60:.1f} at {str(d['trees']['new']['commit'])[:7]} "
+                       f"({d['runs']['None']['new']['peak_mb']:.0f} MiB)" for d in earlier)
     return f"{run['cpu_s'] / 60:.1f} CPU-min, peak {run['peak_mb']:.0f} MiB (earlier runs alone: {others})"
 
 
@@ -119,6 +120,11 @@ def _span(values: list[float], digits: int) -> str:
     """min–max of ``values`` to ``digits`` decimals, one number where they round alike."""
     low, high = f"{min(values):.{digits}f}", f"{max(values):.{digits}f}"
     return low if low == high else f"{low}–{high}"
+
+
+def _mesh_parity_interleaved(data: dict) -> str:
+    return (f"CPU under flow {data['flow_cpu_ratio']:.2f}× the grid's over {data['chunks'] - 1} chunks of "
+            f"{data['chunk']:g} time units (chunk pairs {_span(data['chunk_ratios'], 1)}×)")
 
 
 def _mesh_parity(data: dict) -> str:
@@ -155,15 +161,19 @@ ROWS = (
     Row("the random packing on the unstructured straight mesh against the structured channel (Poiseuille, "
         "N = 100, dt = 10), same run", "benchmarks/results/mesh_parity.json", _mesh_parity,
         "python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct"),
+    Row("the same two suspensions in one process, their flows in alternating chunks",
+        "benchmarks/results/mesh_parity_interleaved.json", _mesh_parity_interleaved,
+        "python benchmarks/mesh_parity.py --relax 400 --flow 100 --interleaved 33 "
+        "--output benchmarks/results/mesh_parity_interleaved.json"),
     Row("the paper's protocol on the meshed obstacle channel (examples/obstacle_mesh.toml: relax 2000 + Stokes "
         "flow 10⁵ time units, dt = 10), two trees at once on the 2 cores",
-        "benchmarks/results/protocol_obstacle_passes.json", _protocol_beside,
+        "benchmarks/results/protocol_obstacle_window_cg_both.json", _protocol_beside,
         "python benchmarks/protocol.py --old TREE --scene obstacle_mesh.toml --rates none "
-        "--output protocol_obstacle_passes.json"),
-    Row("the same protocol, one run alone on the machine", "benchmarks/results/protocol_obstacle_solves_alone.json",
+        "--output protocol_obstacle_window_cg_both.json"),
+    Row("the same protocol, one run alone on the machine", "benchmarks/results/protocol_obstacle_window_cg_alone.json",
         _protocol_alone,
         "python benchmarks/protocol.py --scene obstacle_mesh.toml --rates none "
-        "--output protocol_obstacle_solves_alone.json"),
+        "--output protocol_obstacle_window_cg_alone.json"),
     Row("meshed obstacle channel (examples/obstacle_mesh.toml, dt = 10, relaxed 200, then 10⁵ of Stokes flow), "
         "memory under flow; the flow's CPU from the end of the relaxation, its set-up included",
         "benchmarks/results/mesh_memory_protocol.json", _mesh_memory,
