@@ -36,6 +36,15 @@ checking + shaping + layouts × ``in_place_layout_ms``) over the grid's flow CPU
 run's ``design_to_grid_flow`` (docs/decisions/0054-shaped-mesh-windows-floor.md).
 Writes ``results/mesh_window_floor.json`` (``--output``: another path), with the command and
 the machine.
+
+Processes a minute apart see different spells of the shared machine (the grid's flow moved
+0.88–1.37 s between repeats). ``--interleaved N`` runs every kind in one process instead,
+relaxed one after the other, then their flows in N chunks of ``--flow`` time units, the
+kinds' order rotated each chunk; totals over the chunks after the first (compilation), with
+each shaped run's design also against the boxes' flow (``design_to_box_flow``):
+
+    python benchmarks/mesh_window_floor.py --room 2 --corrections 2 1 --flow 100 --interleaved 17 \\
+        --output benchmarks/results/mesh_window_floor_interleaved.json
 """
 
 from __future__ import annotations
@@ -275,71 +284,157 @@ def layout_from_pieces_ms(domain, layout, changed: int, matrices: int = 4, repea
     return {"concatenated": best(concatenate), "in_place": best(rewrite), "windows_rewritten": int(rewritten.size)}
 
 
-def child(kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> dict:
-    """Run one kind in this process (module docstring)."""
-    from femphase.domains.base import Domain
-    from femphase.domains.mesh import advection
-    from femphase.run.simulation import Simulation
-    from femphase.scene import load_scene
+class FlowRun:
+    """One kind (module docstring) relaxed in this process and ready for its flow, which
+    :meth:`advance` steps on: the refits and the per-layout blocks timed apart, and for the
+    shaped windows their check and their making."""
 
-    advection.MASS_CORRECTIONS = corrections  # read when an advection is built
-    if kind == "grid":
-        scene = load_scene(ROOT / "examples/random.toml", [
-            'phases.1.name="flow"', f"phases.0.duration={relax}", f"phases.1.duration={flow}",
-            f'phases.1.flow={{type = "poiseuille", rate = {velocity}}}', "output.fields=false"])
-    else:
-        scene = load_scene(ROOT / "examples/straight_mesh.toml", [
-            "phases.0.dt=10.0", "phases.1.dt=10.0", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
-            f'phases.1.flow={{type = "stokes", max_velocity = {velocity}}}', "output.fields=false"])
-    simulation, state = Simulation(scene), scene.initial_state()
-    relaxation, flowing = scene.phases
-    stepper = simulation.stepper(relaxation, state.radii)
-    stepper.scheme.start_phase(state)
-    stepper.step(state, relaxation.n_steps)
-    stepper = simulation.stepper(flowing, state.radii)
-    stepper.scheme.start_phase(state)
-    domain = stepper.domain
-    spent = {"refit": 0.0, "blocks": 0.0}
+    #: the run whose per-layout blocks are being built (:meth:`advance`)
+    current: "FlowRun | None" = None
 
-    def timed(account: str, call):
-        def run(*args, **kwargs):
+    def __init__(self, kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> None:
+        from femphase.run.simulation import Simulation
+        from femphase.scene import load_scene
+
+        self.kind, self.room, self.corrections = kind, room, corrections
+        if kind == "grid":
+            scene = load_scene(ROOT / "examples/random.toml", [
+                'phases.1.name="flow"', f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+                f'phases.1.flow={{type = "poiseuille", rate = {velocity}}}', "output.fields=false"])
+        else:
+            scene = load_scene(ROOT / "examples/straight_mesh.toml", [
+                "phases.0.dt=10.0", "phases.1.dt=10.0", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
+                f'phases.1.flow={{type = "stokes", max_velocity = {velocity}}}', "output.fields=false"])
+        FlowRun.current = None  # the relaxation's blocks are not the flow's
+        simulation, self.state = Simulation(scene), scene.initial_state()
+        relaxation, self.flowing = scene.phases
+        stepper = simulation.stepper(relaxation, self.state.radii)
+        stepper.scheme.start_phase(self.state)
+        stepper.step(self.state, relaxation.n_steps)
+        self.stepper = simulation.stepper(self.flowing, self.state.radii)
+        self.stepper.scheme.start_phase(self.state)
+        self.domain = self.stepper.domain
+        self.spent = {"flow": 0.0, "refit": 0.0, "blocks": 0.0}
+        self.layouts = 0
+        self.shaped = ShapedWindows(self.domain, self.stepper.policy, room) if kind == "shaped" else None
+        refit = self.shaped.refit if self.shaped else self.domain.refit
+
+        def counted(layout, *args):
             started = time.process_time()
             try:
-                return call(*args, **kwargs)
+                out = refit(layout, *args)
             finally:
-                spent[account] += time.process_time() - started
-        return run
+                self.spent["refit"] += time.process_time() - started
+            self.layouts += out[0] is not layout
+            return out
 
+        object.__setattr__(self.domain, "refit", counted)  # the domain is a frozen dataclass
+        _time_blocks()
+
+    def advance(self) -> None:
+        """One flow phase's worth of steps (``flow`` time units)."""
+        from femphase.domains.mesh import advection
+
+        advection.MASS_CORRECTIONS = self.corrections  # read when an advection is built
+        FlowRun.current = self
+        started = time.process_time()
+        self.stepper.step(self.state, self.flowing.n_steps)
+        self.spent["flow"] += time.process_time() - started
+
+    def counters(self) -> dict:
+        """CPU seconds so far: the flow, its refits, its blocks, and the shaped windows' check
+        and making; and the layouts."""
+        shaped = {"checking": self.shaped.checking, "shaping": self.shaped.shaping} if self.shaped else {}
+        return {**self.spent, **shaped, "layouts": self.layouts}
+
+    def record(self) -> dict:
+        """The run's totals and end state (module docstring)."""
+        layout, phi = self.state.flat()
+        area, centroids, _ = self.domain.shape_moments(layout, phi)
+        spent = self.spent
+        record = {"kind": self.kind, "room": self.room if self.shaped else None, "corrections": self.corrections,
+                  "flow_cpu_s": spent["flow"], "refit_cpu_s": spent["refit"], "blocks_cpu_s": spent["blocks"],
+                  "floor_cpu_s": spent["flow"] - spent["refit"] - spent["blocks"], "positions": int(phi.size),
+                  "layouts": self.layouts,
+                  "cg_iterations": round(float(getattr(self.stepper, "krylov_iterations", 0)), 1),
+                  "period": float(self.domain.period), "areas": area.tolist(), "centroids": centroids.tolist()}
+        if self.shaped:
+            pieces = layout_from_pieces_ms(self.domain, layout,
+                                           changed=round(self.shaped.windows_made / max(self.layouts, 1)))
+            record.update(windows_made=self.shaped.windows_made, shaping_cpu_s=self.shaped.shaping,
+                          checking_cpu_s=self.shaped.checking, concatenated_layout_ms=pieces["concatenated"],
+                          in_place_layout_ms=pieces["in_place"], windows_rewritten=pieces["windows_rewritten"])
+        return record
+
+
+def _time_blocks() -> None:
+    """Time every per-layout build into the current run's blocks (once per process)."""
+    from femphase.domains.base import Domain
+
+    if getattr(Domain.per_layout, "timed", False):
+        return
     per_layout = Domain.per_layout
-    Domain.per_layout = lambda self, layout, name, build, tag=None: per_layout(
-        self, layout, name, timed("blocks", build), tag)
-    shaped = ShapedWindows(domain, stepper.policy, room) if kind == "shaped" else None
-    refit = shaped.refit if shaped else domain.refit
-    layouts = [0]
 
-    def counted(layout, *args):
-        out = refit(layout, *args)
-        layouts[0] += out[0] is not layout
-        return out
+    def timed(self, layout, name, build, tag=None):
+        def run():
+            started = time.process_time()
+            try:
+                return build()
+            finally:
+                if FlowRun.current is not None:
+                    FlowRun.current.spent["blocks"] += time.process_time() - started
+        return per_layout(self, layout, name, run, tag)
 
-    object.__setattr__(domain, "refit", timed("refit", counted))  # the domain is a frozen dataclass
-    started = time.process_time()
-    stepper.step(state, flowing.n_steps)
-    cpu = time.process_time() - started
-    layout, phi = state.flat()
-    area, centroids, _ = domain.shape_moments(layout, phi)
-    record = {"kind": kind, "room": room if shaped else None, "corrections": corrections, "flow_cpu_s": cpu,
-              **{f"{k}_cpu_s": v for k, v in spent.items()},
-              "floor_cpu_s": cpu - spent["refit"] - spent["blocks"], "positions": int(phi.size), "layouts": layouts[0],
-              "cg_iterations": round(float(getattr(stepper, "krylov_iterations", 0)), 1),
-              "period": float(domain.period),
-              "areas": area.tolist(), "centroids": centroids.tolist()}
-    if shaped:
-        pieces = layout_from_pieces_ms(domain, layout, changed=round(shaped.windows_made / max(layouts[0], 1)))
-        record.update(windows_made=shaped.windows_made, shaping_cpu_s=shaped.shaping, checking_cpu_s=shaped.checking,
-                      concatenated_layout_ms=pieces["concatenated"], in_place_layout_ms=pieces["in_place"],
-                      windows_rewritten=pieces["windows_rewritten"])
-    return record
+    timed.timed = True
+    Domain.per_layout = timed
+
+
+def child(kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> dict:
+    """Run one kind in this process (module docstring)."""
+    run = FlowRun(kind, relax, flow, velocity, room, corrections)
+    run.advance()
+    return run.record()
+
+
+def design_seconds(floor: float, checking: float, shaping: float, layouts: int, in_place_ms: float) -> float:
+    """The shaped design's CPU seconds as costed in the module docstring: windows checked and
+    made as here, each layout updated in place."""
+    return floor + checking + shaping + layouts * in_place_ms / 1e3
+
+
+def interleaved(relax: float, chunk: float, chunks: int, velocity: float, room: float,
+                corrections: list[int]) -> dict:
+    """The grid, the boxes and the shaped windows at each K in ``corrections``, all in this
+    process: each relaxed, then their flows in ``chunks`` chunks of ``chunk`` time units, the
+    kinds' order rotated each chunk so that all see the machine's spells alike. Totals over
+    the chunks after the first (compilation), and the ratios to the grid's flow and to the
+    boxes' of the same chunks."""
+    runs = [FlowRun("grid", relax, chunk, velocity, 0.0, 2), FlowRun("box", relax, chunk, velocity, 0.0, 2)]
+    runs += [FlowRun("shaped", relax, chunk, velocity, room, k) for k in corrections]
+    totals = []
+    for index in range(chunks):
+        if index == 1:
+            totals = [run.counters() for run in runs]
+        turn = index % len(runs)
+        for run in runs[turn:] + runs[:turn]:
+            run.advance()
+    out = []
+    for run, before in zip(runs, totals):
+        record = run.record()
+        after = run.counters()
+        used = {key: after[key] - before[key] for key in after}
+        record.update({f"{key}_cpu_s": value for key, value in used.items() if key != "layouts"},
+                      layouts=used["layouts"])
+        record["floor_cpu_s"] = used["flow"] - used["refit"] - used["blocks"]
+        out.append(record)
+    grid, box = out[0]["flow_cpu_s"], out[1]["flow_cpu_s"]
+    for record in out[1:]:
+        record["flow_to_grid_flow"] = record["flow_cpu_s"] / grid
+        if record["kind"] == "shaped":
+            design = design_seconds(record["floor_cpu_s"], record["checking_cpu_s"], record["shaping_cpu_s"],
+                                    record["layouts"], record["in_place_layout_ms"])
+            record.update(design_cpu_s=design, design_to_grid_flow=design / grid, design_to_box_flow=design / box)
+    return {"mode": "interleaved", "chunk": chunk, "chunks": chunks, "runs": out}
 
 
 def main() -> None:
@@ -351,11 +446,26 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=2, help="alternations of the kinds (default 2)")
     parser.add_argument("--corrections", type=int, nargs="+", default=[2],
                         help="the shaped windows' advection corrections K (default 2, the default's)")
+    parser.add_argument("--interleaved", type=int, metavar="N",
+                        help="all kinds in one process, in N rotating chunks of --flow time units (one room)")
     parser.add_argument("--child", choices=("grid", "box", "shaped"), help=argparse.SUPPRESS)
     parser.add_argument("--output", type=Path, default=RESULT)
     args = parser.parse_args()
     if args.child:
         print(json.dumps(child(args.child, args.relax, args.flow, args.velocity, args.room[0], args.corrections[0])))
+        return
+    if args.interleaved is not None:
+        if args.interleaved < 2 or len(args.room) != 1:
+            raise SystemExit(f"--interleaved {args.interleaved} with rooms {args.room}: at least 2 chunks (the first "
+                             "is dropped) and one room")
+        result = {"command": " ".join(["python benchmarks/mesh_window_floor.py", *sys.argv[1:]]),
+                  "machine": common.machine(), "relax": args.relax, "velocity": args.velocity,
+                  **interleaved(args.relax, args.flow, args.interleaved, args.velocity, args.room[0],
+                                args.corrections)}
+        args.output.parent.mkdir(parents=True, exist_ok=True)
+        args.output.write_text(json.dumps(result, indent=1) + "\n")
+        for run in result["runs"]:
+            print(json.dumps({k: v for k, v in run.items() if k not in ("areas", "centroids")}), flush=True)
         return
     kinds = [("grid", 0.0, 2), ("box", 0.0, 2)] + [("shaped", room, k) for room in args.room for k in args.corrections]
     runs = []
@@ -374,10 +484,9 @@ def main() -> None:
             run["layouts_as_today_to_grid_flow"] = ((run["flow_cpu_s"] - run.get("shaping_cpu_s", 0.0))
                                                     / grid["flow_cpu_s"])
             if kind == "shaped":
-                # the design as costed in the module docstring: windows checked and made as
-                # here, each layout updated in place
-                run["design_to_grid_flow"] = (run["floor_cpu_s"] + run["checking_cpu_s"] + run["shaping_cpu_s"]
-                                              + run["layouts"] * run["in_place_layout_ms"] / 1e3) / grid["flow_cpu_s"]
+                run["design_to_grid_flow"] = design_seconds(
+                    run["floor_cpu_s"], run["checking_cpu_s"], run["shaping_cpu_s"], run["layouts"],
+                    run["in_place_layout_ms"]) / grid["flow_cpu_s"]
                 box = next(r for r in runs if r["kind"] == "box" and r["repeat"] == repeat)
                 shift = np.subtract(run["centroids"], box["centroids"])
                 shift[:, 0] -= run["period"] * np.round(shift[:, 0] / run["period"])  # x periodic: the nearest image
