@@ -92,6 +92,21 @@ def run_phases(scene):
     return state, cpu, iterations, stepper
 
 
+def relaxed_flow(scene):
+    """(state, stepper): ``scene``'s initial state relaxed through its first phase in one
+    stepper call, and the second phase's stepper with its scheme started, ready to step the
+    flow in chunks (``stepper.step(state, n)``), as the interleaved benchmarks do."""
+    simulation = Simulation(scene)
+    state = scene.initial_state()
+    relaxation, flowing = scene.phases[:2]
+    stepper = simulation.stepper(relaxation, state.radii)
+    stepper.scheme.start_phase(state)
+    stepper.step(state, relaxation.n_steps)
+    stepper = simulation.stepper(flowing, state.radii)
+    stepper.scheme.start_phase(state)
+    return state, stepper
+
+
 STRAIGHT_MESH_SCENE = Path(__file__).parents[1] / "examples" / "straight_mesh.toml"
 
 

@@ -82,17 +82,10 @@ def interleaved(relax: float, chunk: float, chunks: int, velocity: float) -> dic
     ``relax`` time units, then their flows in ``chunks`` alternating chunks of ``chunk`` time
     units (the grid first in even chunks); CPU per chunk on the process clock, and the mesh's
     over the grid's per chunk pair and over the chunks after the first."""
-    from femphase.run.simulation import Simulation
-
     scenes, states, steppers = {}, {}, {}
     for kind in ("grid", "mesh"):
         scenes[kind] = scene_of(kind, relax, chunk, velocity)
-        simulation, states[kind] = Simulation(scenes[kind]), scenes[kind].initial_state()
-        relaxation = simulation.stepper(scenes[kind].phases[0], states[kind].radii)
-        relaxation.scheme.start_phase(states[kind])
-        relaxation.step(states[kind], scenes[kind].phases[0].n_steps)
-        steppers[kind] = simulation.stepper(scenes[kind].phases[1], states[kind].radii)
-        steppers[kind].scheme.start_phase(states[kind])
+        states[kind], steppers[kind] = common.relaxed_flow(scenes[kind])
     cpu = {"grid": [], "mesh": []}
     for index in range(chunks):
         for kind in (("grid", "mesh") if index % 2 == 0 else ("mesh", "grid")):

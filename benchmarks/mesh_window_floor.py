@@ -60,7 +60,7 @@ from pathlib import Path
 import common  # pins BLAS threads before numpy loads
 import numba
 import numpy as np
-from mesh_parity import THREADS
+from mesh_parity import THREADS, scene_of
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "mesh_window_floor.json"
@@ -293,26 +293,12 @@ class FlowRun:
     current: "FlowRun | None" = None
 
     def __init__(self, kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> None:
-        from femphase.run.simulation import Simulation
-        from femphase.scene import load_scene
-
         self.kind, self.room, self.corrections = kind, room, corrections
-        if kind == "grid":
-            scene = load_scene(ROOT / "examples/random.toml", [
-                'phases.1.name="flow"', f"phases.0.duration={relax}", f"phases.1.duration={flow}",
-                f'phases.1.flow={{type = "poiseuille", rate = {velocity}}}', "output.fields=false"])
-        else:
-            scene = load_scene(ROOT / "examples/straight_mesh.toml", [
-                "phases.0.dt=10.0", "phases.1.dt=10.0", f"phases.0.duration={relax}", f"phases.1.duration={flow}",
-                f'phases.1.flow={{type = "stokes", max_velocity = {velocity}}}', "output.fields=false"])
+        # the box and shaped windows run mesh_parity.py's mesh scene, the grid its grid scene
+        scene = scene_of("grid" if kind == "grid" else "mesh", relax, flow, velocity)
+        self.flowing = scene.phases[1]
         FlowRun.current = None  # the relaxation's blocks are not the flow's
-        simulation, self.state = Simulation(scene), scene.initial_state()
-        relaxation, self.flowing = scene.phases
-        stepper = simulation.stepper(relaxation, self.state.radii)
-        stepper.scheme.start_phase(self.state)
-        stepper.step(self.state, relaxation.n_steps)
-        self.stepper = simulation.stepper(self.flowing, self.state.radii)
-        self.stepper.scheme.start_phase(self.state)
+        self.state, self.stepper = common.relaxed_flow(scene)
         self.domain = self.stepper.domain
         self.spent = {"flow": 0.0, "refit": 0.0, "blocks": 0.0}
         self.layouts = 0
