@@ -49,6 +49,8 @@ SCENES = {
     "mesh_direct": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0",
                                                     "numerics.solver=\"direct\""], "stokes"),
     "mesh_galerkin": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0"], "stokes"),
+    "mesh_boxes": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0",
+                                                   "numerics.mesh_windows=\"boxes\""], "stokes"),
 }
 THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
@@ -77,27 +79,31 @@ def child(kind: str, relax: float, flow: float, velocity: float) -> dict:
             "window_cg_iterations": iterations[-1], "positions": int(sum(f.size for f in state.fields))}
 
 
-def interleaved(relax: float, chunk: float, chunks: int, velocity: float) -> dict:
-    """The channel ("grid") and the straight mesh ("mesh") in this process: each relaxed
-    ``relax`` time units, then their flows in ``chunks`` alternating chunks of ``chunk`` time
-    units (the grid first in even chunks); CPU per chunk on the process clock, and the mesh's
-    over the grid's per chunk pair and over the chunks after the first."""
+def interleaved(relax: float, chunk: float, chunks: int, velocity: float, kinds: tuple[str, ...] = ("grid", "mesh")
+                ) -> dict:
+    """The channel ("grid") and the mesh kinds of ``kinds`` in this process: each relaxed
+    ``relax`` time units, then their flows in ``chunks`` chunks of ``chunk`` time units, the
+    kinds' order rotated every chunk; CPU per chunk on the process clock, and each mesh
+    kind's over the grid's per chunk and over the chunks after the first."""
     scenes, states, steppers = {}, {}, {}
-    for kind in ("grid", "mesh"):
+    for kind in kinds:
         scenes[kind] = scene_of(kind, relax, chunk, velocity)
         states[kind], steppers[kind] = common.relaxed_flow(scenes[kind])
-    cpu = {"grid": [], "mesh": []}
+    cpu = {kind: [] for kind in kinds}
     for index in range(chunks):
-        for kind in (("grid", "mesh") if index % 2 == 0 else ("mesh", "grid")):
+        turn = index % len(kinds)
+        for kind in kinds[turn:] + kinds[:turn]:
             started = time.process_time()
             steppers[kind].step(states[kind], scenes[kind].phases[1].n_steps)
             cpu[kind].append(time.process_time() - started)
-    ratios = [mesh / grid for mesh, grid in zip(cpu["mesh"][1:], cpu["grid"][1:])]
+    meshes = {}
+    for kind in kinds[1:]:
+        meshes[kind] = {"chunk_ratios": [mesh / grid for mesh, grid in zip(cpu[kind][1:], cpu["grid"][1:])],
+                        "flow_cpu_ratio": sum(cpu[kind][1:]) / sum(cpu["grid"][1:]),
+                        "window_cg_iterations": round(float(steppers[kind].krylov_iterations), 1),
+                        "positions": int(sum(f.size for f in states[kind].fields))}
     return {"mode": "interleaved", "relax": relax, "chunk": chunk, "chunks": chunks, "velocity": velocity,
-            "flow_cpu_s": cpu, "chunk_ratios": ratios,
-            "flow_cpu_ratio": sum(cpu["mesh"][1:]) / sum(cpu["grid"][1:]),
-            "window_cg_iterations": round(float(steppers["mesh"].krylov_iterations), 1),
-            "target": 3.0}
+            "flow_cpu_s": cpu, **meshes.get("mesh", {}), "meshes": meshes, "target": 3.0}
 
 
 def main() -> None:
@@ -109,6 +115,8 @@ def main() -> None:
     parser.add_argument("--direct", action="store_true", help="also the mesh with per-box LU solvers")
     parser.add_argument("--galerkin", action="store_true",
                         help="also the mesh with the Galerkin advection at every Courant number (no semi-Lagrangian)")
+    parser.add_argument("--boxes", action="store_true",
+                        help="also the mesh with box windows (numerics.mesh_windows = \"boxes\")")
     parser.add_argument("--interleaved", type=int, metavar="N",
                         help="both in one process, in N alternating chunks of --flow time units (no memory)")
     parser.add_argument("--child", choices=sorted(SCENES), help=argparse.SUPPRESS)
@@ -121,13 +129,17 @@ def main() -> None:
         if args.interleaved < 2:
             raise SystemExit(f"--interleaved {args.interleaved}: at least 2 chunks (the first is dropped)")
         result = {"machine": common.machine(),
-                  **interleaved(args.relax, args.flow, args.interleaved, args.velocity)}
+                  "command": " ".join(["python benchmarks/mesh_parity.py", *sys.argv[1:]]),
+                  **interleaved(args.relax, args.flow, args.interleaved, args.velocity,
+                                ("grid", "mesh") + ("mesh_boxes",) * args.boxes)}
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(result, indent=1) + "\n")
-        print(f"mesh/grid CPU under flow {result['flow_cpu_ratio']:.2f} over {args.interleaved - 1} chunks of "
-              f"{args.flow:g} (per chunk {min(result['chunk_ratios']):.2f}–{max(result['chunk_ratios']):.2f})")
+        for kind, ratios in result["meshes"].items():
+            print(f"{kind}/grid CPU under flow {ratios['flow_cpu_ratio']:.2f} over {args.interleaved - 1} chunks of "
+                  f"{args.flow:g} (per chunk {min(ratios['chunk_ratios']):.2f}–{max(ratios['chunk_ratios']):.2f})")
         return
-    kinds = ["grid", "mesh"] + ["mesh_direct"] * args.direct + ["mesh_galerkin"] * args.galerkin
+    kinds = (["grid", "mesh"] + ["mesh_boxes"] * args.boxes + ["mesh_direct"] * args.direct
+             + ["mesh_galerkin"] * args.galerkin)
     runs = []
     for repeat in range(args.repeats):
         for kind in kinds:

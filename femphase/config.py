@@ -30,6 +30,8 @@ FD_ADVECTION = ("upwind3", "upwind1")
 PRECISIONS = ("mixed", "double")
 #: ``numerics.mesh_advection``: see :class:`Numerics`.
 MESH_ADVECTIONS = ("auto", "galerkin", "semi-lagrangian")
+#: ``numerics.mesh_windows``: see :class:`Numerics`.
+MESH_WINDOWS = ("auto", "shapes", "boxes")
 #: ``numerics.estimate``: see :class:`Numerics`.
 ESTIMATES = ("embedded", "doubling")
 
@@ -137,6 +139,11 @@ class Numerics:
                     "galerkin": the Galerkin step at every Courant number; "semi-lagrangian":
                     semi-Lagrangian at every Courant number (steady flows only; below 2 its
                     interpolation errors exceed the Galerkin step's, docs/decisions/0042)
+    mesh_windows    meshes only: what a window is. "shapes": the dofs within a reach of the
+                    particle, along the mesh's edges (:mod:`femphase.domains.mesh.shapes`);
+                    "boxes": the dofs in an axis-aligned box around it
+                    (:mod:`femphase.domains.mesh.boxes`); "auto" (default): shapes with the
+                    batched solves, else boxes (docs/decisions/0057-shaped-mesh-windows.md)
     cache_mib       mebibytes (2²⁰ bytes) that everything a run keeps for reuse may hold
                     together: window dofs, per-window blocks and solvers, the current
                     layout's block-diagonal matrices, advections per substep size (the
@@ -166,6 +173,7 @@ class Numerics:
     precision: str = "mixed"
     strict: bool = False
     mesh_advection: str = "auto"
+    mesh_windows: str = "auto"
     cache_mib: float = 256.0
 
     #: The batched Krylov solves' tolerance under the adaptive scheme, as a fraction of the
@@ -268,6 +276,7 @@ class Numerics:
                                   ("diagonals", self.diagonals, DIAGONAL_PATTERNS),
                                   ("precision", self.precision, PRECISIONS),
                                   ("mesh_advection", self.mesh_advection, MESH_ADVECTIONS),
+                                  ("mesh_windows", self.mesh_windows, MESH_WINDOWS),
                                   ("estimate", self.estimate, ESTIMATES)):
             if value not in valid:
                 raise SceneError(f"numerics.{key}", value, f"one of {valid}")

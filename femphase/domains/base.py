@@ -164,9 +164,14 @@ class Domain(ABC):
     def windows_to_array(self, windows: Sequence[Hashable]) -> np.ndarray:
         """Windows as an (N, 4) array for checkpoints."""
 
+    def window_positions(self, windows: Sequence[Hashable]) -> dict[str, np.ndarray]:
+        """What a checkpoint stores of the windows beyond :meth:`windows_to_array`'s rows,
+        arrays by name (the dofs of windows described by their dofs); none here."""
+        return {}
+
     @abstractmethod
-    def windows_from_array(self, array: np.ndarray) -> list:
-        """The inverse of :meth:`windows_to_array`."""
+    def windows_from_array(self, array: np.ndarray, positions: dict[str, np.ndarray] | None = None) -> list:
+        """The inverse of :meth:`windows_to_array` and :meth:`window_positions`."""
 
     def window_coordinates(self, window: Hashable) -> tuple[np.ndarray, np.ndarray]:
         """x and y of a window's dofs, in storage order."""

@@ -35,7 +35,9 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
 
     Attributes: ``format`` = "femphase-checkpoint", ``version``, ``domain`` (JSON of
     :meth:`Domain.describe`, checked on resume), ``time``, ``step``, ``phase``, ``phase_step``.
-    Datasets: ``windows`` (N, 4, the domain's encoding), ``sizes`` (N,), ``values`` (all
+    Datasets: ``windows`` (N, 4, the domain's encoding), group ``window_positions``: what the
+    domain stores of windows beyond their rows (a shaped mesh window's dofs,
+    :meth:`Domain.window_positions`), ``sizes`` (N,), ``values`` (all
     fields concatenated in particle order), ``radii`` (N,); group ``observers``: the
     observables' running state (the T1 counter's); group ``memory``: what the time scheme
     carries from step to step (``State.memory``). ``metadata`` (JSON-able values) is kept
@@ -52,6 +54,9 @@ def save_checkpoint(path: Path, state: State, observers: dict[str, np.ndarray] |
             "time": state.time, "step": state.step, "phase": state.phase, "phase_step": state.phase_step,
         })
         handle["windows"] = state.domain.windows_to_array(state.windows)
+        positions = handle.create_group("window_positions")
+        for name, values in state.domain.window_positions(state.windows).items():
+            positions[name] = values
         handle["sizes"] = np.array([f.size for f in state.fields], dtype=np.int64)
         handle["values"] = np.concatenate(state.fields) if state.fields else np.zeros(0)
         handle["radii"] = state.radii
@@ -97,7 +102,8 @@ def load_checkpoint(path: Path, domain: Domain) -> tuple[State, dict[str, np.nda
                     raise SceneError("domain.mesh", domain.source, f"the mesh {path} was written on; the file's "
                                      f"content differs: {what}")
                 raise SceneError("--resume", str(path), f"a checkpoint of the scene's domain; it differs in {what}")
-            windows = domain.windows_from_array(handle["windows"][()])
+            positions = {name: handle["window_positions"][name][()] for name in handle.get("window_positions", {})}
+            windows = domain.windows_from_array(handle["windows"][()], positions)
             sizes = handle["sizes"][()]
             fields = [f.copy() for f in np.split(handle["values"][()], np.cumsum(sizes)[:-1])] if len(sizes) else []
             attrs = handle.attrs

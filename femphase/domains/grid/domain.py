@@ -286,7 +286,7 @@ class GridDomain(Domain):
     def windows_to_array(self, windows: Sequence[Window]) -> np.ndarray:
         return window_corners(windows)
 
-    def windows_from_array(self, array: np.ndarray) -> list[Window]:
+    def windows_from_array(self, array: np.ndarray, positions: dict[str, np.ndarray] | None = None) -> list[Window]:
         return [Window(*map(int, row)) for row in array]
 
     # -- fast paths -----------------------------------------------------------------------

@@ -45,6 +45,7 @@ from femphase.domains.mesh import semi_lagrangian
 from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
 from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
 from femphase.domains.mesh.location import locate
+from femphase.domains.mesh.shapes import Shape, ShapePolicy
 from femphase.errors import SceneError
 from femphase.fem.meshfiles import read_meshio
 from femphase.fem.operators import (
@@ -324,22 +325,64 @@ class MeshDomain(Domain):
         # (docs/decisions/0028-single-precision-mesh-steps.md)
         return self.solves_batched(numerics)
 
-    def window_policy(self, numerics: Numerics) -> BoxPolicy:
+    def window_policy(self, numerics: Numerics) -> BoxPolicy | ShapePolicy:
+        """Shapes (:mod:`~femphase.domains.mesh.shapes`) by ``numerics.mesh_windows``, else
+        boxes; a mesh without windows (``numerics.windows = false``) runs on the whole-domain
+        box."""
+        if numerics.windows and self.shaped_windows(numerics):
+            return ShapePolicy.for_spacing(self.median_edge, threshold=numerics.threshold, margin=numerics.margin)
         # boxes refitted together serve the windows solved all at once: a layout costs the
         # same however many boxes change, a factorisation per box does not
         return BoxPolicy.for_spacing(self.median_edge, threshold=numerics.threshold, margin=numerics.margin,
                                      enabled=numerics.windows, together=self.solves_batched(numerics))
 
+    def shaped_windows(self, numerics: Numerics) -> bool:
+        """Whether ``numerics.mesh_windows`` asks for shapes: "shapes", or "auto" with the
+        batched solves (a shape is its own window key: with a factorisation per key every
+        shape made anew would be factorised anew, docs/decisions/0057-shaped-mesh-windows.md)."""
+        return numerics.mesh_windows == "shapes" or (numerics.mesh_windows == "auto" and self.solves_batched(numerics))
+
     def full_window(self) -> Box:
         low, high = self.y_range
         return Box(self.x0, self.period, low, high)
 
-    def disc_window(self, centre, reach: float, policy: BoxPolicy) -> Box:
+    def disc_window(self, centre, reach: float, policy: BoxPolicy | ShapePolicy) -> Box | Shape:
         cx, cy = centre
+        if isinstance(policy, ShapePolicy):
+            return self._disc_shape(centre, reach, policy)
         return policy.cover((cx - reach, cx + reach), (cy - reach, cy + reach), self.extent)
 
-    def window_dofs(self, window: Box) -> np.ndarray:
-        """The dofs inside the box, sorted (kept in :attr:`caches`: boxes last many substeps)."""
+    def _disc_shape(self, centre: tuple[float, float], reach: float, policy: ShapePolicy) -> Shape:
+        """The shape made for the dofs within ``reach`` of ``centre``: the dofs within
+        ``reach + policy.reach`` of it, each at its distance beyond ``reach`` (x by the
+        minimum image)."""
+        cx, cy = centre
+        outer = reach + policy.reach()
+        low, high = self.y_range
+        box = Box(self.x0 + float(np.mod(cx - outer - self.x0, self.period)), min(2 * outer, self.period),
+                  max(cy - outer, low), min(cy + outer, high))
+        dofs = self._dofs_inside([box])[0]
+        x, y = self.coordinates[:, dofs]
+        distance = np.hypot(np.mod(x - cx + 0.5 * self.period, self.period) - 0.5 * self.period, y - cy)
+        inside = distance <= outer
+        return self._new_shape(dofs[inside].astype(np.int64), np.maximum(distance[inside] - reach, 0.0),
+                               policy.reach())
+
+    @cached_property
+    def _shape_serials(self) -> list[int]:
+        """[the serial of the next shape made] (:class:`Shape`: serials order shapes)."""
+        return [0]
+
+    def _new_shape(self, dofs: np.ndarray, distances: np.ndarray, reach: float) -> Shape:
+        serial = self._shape_serials[0]
+        self._shape_serials[0] += 1
+        return Shape(serial, dofs, distances, float(reach))
+
+    def window_dofs(self, window: Box | Shape) -> np.ndarray:
+        """A shape's dofs, or the dofs inside the box, sorted (kept in :attr:`caches`: boxes
+        last many substeps)."""
+        if isinstance(window, Shape):
+            return window.dofs
         return self._dofs.setdefault(window, lambda: self._dofs_inside([window])[0])
 
     def find_window_dofs(self, boxes: Sequence[Box]) -> None:
@@ -412,12 +455,21 @@ class MeshDomain(Domain):
             self._dofs.retain(set(last.windows))
         return last
 
-    def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
+    def refit(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy | ShapePolicy,
               motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
-        """Boxes refitted to the field and to the coming step's motion (see BoxPolicy)."""
+        """Boxes refitted to the field and to the coming step's motion (see BoxPolicy), or
+        shapes made anew where their particles outgrew them (see ShapePolicy)."""
+        if isinstance(policy, ShapePolicy):
+            return self._refit_shapes(layout, phi, policy, motion)
+        return self._refit_boxes(layout, phi, policy, motion)
+
+    def _refit_boxes(self, layout: Layout, phi: np.ndarray, policy: BoxPolicy,
+                     motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
         from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
 
-        boxes, fields = list(layout.windows), layout.scatter(phi)
+        # a shape (a run resumed with boxes) counts as the whole period: it is boxed anew
+        boxes = [w if isinstance(w, Box) else self.full_window() for w in layout.windows]
+        fields = layout.scatter(phi)
         steps = np.zeros((len(boxes), 2)) if motion is None else motion()
         extents = np.empty((len(boxes), 4))
         x, y = self.coordinates
@@ -426,7 +478,7 @@ class MeshDomain(Domain):
             float(self.period), float(policy.threshold))
         slot = np.empty(len(boxes), dtype=int)
         slot[layout.order] = np.arange(len(boxes))
-        fitted = {}
+        fitted = {i: self.full_window() for i, w in enumerate(layout.windows) if not isinstance(w, Box)}
         for i in np.flatnonzero(policy.misfits(extents, boxes, self.extent, steps)):
             box = boxes[i]
             if box.width >= self.period:
@@ -435,26 +487,151 @@ class MeshDomain(Domain):
             else:
                 x_range = (box.x0 + extents[i, 0], box.x0 + extents[i, 1])
             new_box = policy.cover(x_range, tuple(extents[i, 2:]), self.extent, tuple(steps[i]))
-            if new_box != box:
+            if new_box != layout.windows[i]:
                 fitted[i] = new_box
         if not fitted:
             return layout, phi
         self.find_window_dofs(list(fitted.values()))
-        scratch = np.zeros(self.n_dofs, dtype=phi.dtype)  # a single-precision step's fields stay so
-        for i, new_box in fitted.items():
-            old, new = self.window_dofs(boxes[i]), self.window_dofs(new_box)
+        return self._transferred(layout, fields, fitted, phi.dtype)
+
+    def _transferred(self, layout: Layout, fields: list[np.ndarray], replaced: dict,
+                     dtype) -> tuple[Layout, np.ndarray]:
+        """(layout, φ) with the windows of particles ``replaced`` ({particle: window}) in
+        place of ``layout``'s, each field carried over to its new window (zero where it
+        was not; ``fields`` are ``layout``'s, per particle)."""
+        windows = list(layout.windows)
+        scratch = np.zeros(self.n_dofs, dtype=dtype)  # a single-precision step's fields stay so
+        for i, window in replaced.items():
+            old, new = self.window_dofs(windows[i]), self.window_dofs(window)
             scratch[old] = fields[i]
             fields[i] = scratch[new]
             scratch[old] = 0.0
-            boxes[i] = new_box
-        refitted = self.layout(boxes)
+            windows[i] = window
+        refitted = self.layout(windows)
         return refitted, refitted.gather(fields)
 
-    def windows_to_array(self, windows: Sequence[Box]) -> np.ndarray:
-        return np.array([[b.x0, b.width, b.y0, b.y1] for b in windows], dtype=float).reshape(-1, 4)
+    def _refit_shapes(self, layout: Layout, phi: np.ndarray, policy: ShapePolicy,
+                      motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
+        """Shapes made anew for the particles :meth:`ShapePolicy.to_remake` names, each for
+        its dofs where φ > threshold and reaching past them by the length of its particle's
+        ``motion()`` too (a window that is no shape, as after a resume with boxes: made anew
+        at once; for a field that exceeds the threshold nowhere, its dofs kept), in
+        compiled passes over all of them at once."""
+        from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
 
-    def windows_from_array(self, array: np.ndarray) -> list[Box]:
-        return [Box(*map(float, row)) for row in array]
+        made = self.per_layout(layout, "shape distances", lambda: np.concatenate([
+            layout.windows[i].distances if isinstance(layout.windows[i], Shape)
+            else np.full(layout.sizes[slot], np.inf) for slot, i in enumerate(layout.order)]))
+        moved = np.empty(len(layout.windows))
+        moved[layout.order] = kernels.largest_made_distance(phi, made, layout.offsets, float(policy.threshold))
+        steps = 0.0 if motion is None else np.hypot(*motion().T)
+        reaches = np.array([w.reach if isinstance(w, Shape) else -np.inf for w in layout.windows])
+        remade = policy.to_remake(moved, reaches, steps)
+        if not remade.any():
+            return layout, phi
+        particles = np.flatnonzero(remade)
+        slot_of = np.empty(len(layout.windows), dtype=np.int64)
+        slot_of[layout.order] = np.arange(len(layout.windows))
+        slots = slot_of[particles]
+        members, set_offsets = kernels.occupied_dofs(phi, layout.node_index, layout.offsets, slots,
+                                                     float(policy.threshold))
+        new_reaches = np.broadcast_to(policy.reach(steps), remade.shape)[particles]
+        pieces = self._dilate(members, set_offsets, new_reaches)
+        for k in np.flatnonzero(np.diff(set_offsets) == 0):
+            dofs = self.window_dofs(layout.windows[particles[k]]).astype(np.int64)
+            pieces[k] = (dofs, np.zeros(dofs.size))
+        sizes = np.array([dofs.size for dofs, _ in pieces], dtype=np.int64)
+        dof_offsets = np.concatenate([[0], np.cumsum(sizes)])
+        carried = kernels.carry_over(phi, layout.node_index, layout.offsets, slots,
+                                     np.concatenate([dofs for dofs, _ in pieces]), dof_offsets,
+                                     self._carry_scratch(phi.dtype))
+        fields, windows = layout.scatter(phi), list(layout.windows)
+        for k, i in enumerate(particles):
+            windows[i] = self._new_shape(*pieces[k], new_reaches[k])
+            fields[i] = carried[dof_offsets[k]:dof_offsets[k + 1]]
+        refitted = self.layout(windows)
+        return refitted, refitted.gather(fields)
+
+    def _carry_scratch(self, dtype) -> np.ndarray:
+        """A zero array over the dofs in ``dtype``, kept (:func:`~femphase.domains.mesh.kernels.carry_over`
+        leaves it zero)."""
+        return self._carry_scratches.setdefault(np.dtype(dtype), np.zeros(self.n_dofs, dtype=dtype))
+
+    @cached_property
+    def _carry_scratches(self) -> dict:
+        return {}
+
+    @cached_property
+    def _dilation_scratch(self) -> tuple[np.ndarray, ...]:
+        """The scratch arrays of :func:`~femphase.domains.mesh.kernels.dilate`, kept: a
+        refit of shapes makes dozens at once."""
+        n = self.n_dofs
+        return (np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
+
+    def dilation(self, sets: Sequence[np.ndarray], reach: float) -> list[tuple[np.ndarray, np.ndarray]]:
+        """For each set of dofs, the dofs within ``reach`` of it (sorted) and their distances
+        to it, measured along the mesh's edges (:func:`~femphase.domains.mesh.kernels.dilate`),
+        all sets in one compiled call."""
+        starts = np.concatenate([[0], np.cumsum([len(members) for members in sets])]).astype(np.int64)
+        members = np.concatenate(sets).astype(np.int64) if sets else np.zeros(0, dtype=np.int64)
+        return self._dilate(members, starts, np.full(len(sets), float(reach)))
+
+    def _dilate(self, members: np.ndarray, starts: np.ndarray, reaches: np.ndarray
+                ) -> list[tuple[np.ndarray, np.ndarray]]:
+        """:meth:`dilation` of the sets ``members[starts[k]:starts[k + 1]]``, set k to ``reaches[k]``."""
+        from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
+
+        x, y = self._contiguous_coordinates
+        pattern = self.block_pattern
+        capacity = 4 * int(starts[-1]) + 16  # doubled while too short
+        while True:
+            dofs, distances = np.empty(capacity, dtype=np.int64), np.empty(capacity)
+            offsets = np.zeros(starts.size, dtype=np.int64)
+            total = kernels.dilate(members, starts, pattern.indptr, pattern.indices, x, y, float(self.period),
+                                   np.asarray(reaches, dtype=float), self._dilation_scratch, dofs, distances,
+                                   offsets)
+            if total >= 0:
+                return [(dofs[offsets[k]:offsets[k + 1]].copy(), distances[offsets[k]:offsets[k + 1]].copy())
+                        for k in range(starts.size - 1)]
+            self._dilation_scratch[0][:] = np.inf  # a call cut short leaves its window's distances
+            capacity *= 2
+
+    @cached_property
+    def _contiguous_coordinates(self) -> tuple[np.ndarray, np.ndarray]:
+        return tuple(np.ascontiguousarray(c) for c in self.coordinates)
+
+    def windows_to_array(self, windows: Sequence[Box | Shape]) -> np.ndarray:
+        """A box as (x0, width, y0, y1); a shape as (serial, −1, dofs, reach), its dofs and
+        distances in :meth:`window_positions`."""
+        return np.array([[w.x0, w.width, w.y0, w.y1] if isinstance(w, Box) else [w.serial, -1.0, w.dofs.size, w.reach]
+                         for w in windows], dtype=float).reshape(-1, 4)
+
+    def window_positions(self, windows: Sequence[Box | Shape]) -> dict[str, np.ndarray]:
+        """The shapes' dofs and distances, each concatenated in particle order."""
+        shapes = [w for w in windows if isinstance(w, Shape)]
+        if not shapes:
+            return {}
+        return {"shape_dofs": np.concatenate([w.dofs for w in shapes]),
+                "shape_distances": np.concatenate([w.distances for w in shapes])}
+
+    def windows_from_array(self, array: np.ndarray, positions: dict[str, np.ndarray] | None = None
+                           ) -> list[Box | Shape]:
+        rows = np.asarray(array, dtype=float).reshape(-1, 4)
+        shaped = rows[:, 1] < 0
+        if not shaped.any():
+            return [Box(*map(float, row)) for row in rows]
+        positions = positions or {}
+        if "shape_dofs" not in positions or "shape_distances" not in positions:
+            raise ValueError("shaped windows without their dofs and distances (shape_dofs, shape_distances)")
+        cuts = np.cumsum(rows[shaped, 2].astype(np.int64))[:-1]
+        pieces = zip(np.split(np.asarray(positions["shape_dofs"], dtype=np.int64), cuts),
+                     np.split(np.asarray(positions["shape_distances"], dtype=float), cuts))
+        windows = [Shape(int(row[0]), *next(pieces), float(row[3])) if row[1] < 0 else Box(*map(float, row))
+                   for row in rows]
+        serials = self._shape_serials
+        serials[0] = max(serials[0], int(rows[shaped, 0].max()) + 1)  # shapes made after these order after them
+        return windows
 
     # -- fast paths and flows ---------------------------------------------------------------
     def advection(self, flow: Flow, dt: float,

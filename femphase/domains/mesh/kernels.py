@@ -1,5 +1,5 @@
-"""Compiled loops over a mesh's window fields and boxes (numba), for the refits that come at
-every substep as boxes follow their particles.
+"""Compiled loops over a mesh's window fields, boxes and shapes (numba), for the refits that
+come at every substep as windows follow their particles.
 
 Compiled on first use and cached on disk (numba's ``cache=True``), as the structured
 channel's (:mod:`femphase.domains.grid.kernels`); imported only where a mesh scene refits.
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["dofs_in_boxes", "occupied_extents"]
+__all__ = ["carry_over", "dilate", "dofs_in_boxes", "largest_made_distance", "occupied_dofs", "occupied_extents"]
 
 
 @numba.njit(inline="always", boundscheck=False)
@@ -144,3 +144,142 @@ def _sort_indices(values: np.ndarray, scratch: np.ndarray, counts: np.ndarray, p
             _counting_pass(spare, values, counts, d * digit_bits, mask)
     if passes % 2 == 1:
         values[:] = spare
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def largest_made_distance(phi: np.ndarray, made: np.ndarray, offsets: np.ndarray, threshold: float) -> np.ndarray:
+    """Per window (layout order, window w the positions ``offsets[w]:offsets[w + 1]``): the
+    largest ``made`` (each position's distance to the set its shape was made for,
+    :class:`~femphase.domains.mesh.shapes.Shape`) over its positions where φ exceeds
+    ``threshold``; 0 where none does (a NaN φ counts as below, as in numpy's ``>``).
+    One pass over the positions at every substep's refit."""
+    out = np.zeros(offsets.size - 1)
+    for window in range(offsets.size - 1):
+        largest = 0.0
+        for position in range(offsets[window], offsets[window + 1]):
+            if phi[position] > threshold and made[position] > largest:
+                largest = made[position]
+        out[window] = largest
+    return out
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indices: np.ndarray, x: np.ndarray,
+           y: np.ndarray, period: float, reaches: np.ndarray, scratch: tuple, dofs: np.ndarray, distances: np.ndarray,
+           offsets: np.ndarray) -> int:
+    """For each set of dofs (``sets[set_offsets[w]:set_offsets[w + 1]]``), the dofs within
+    ``reaches[w]`` of it, sorted, and their distances to it (0 in the set), written to ``dofs``,
+    ``distances`` and ``offsets`` (set w's in ``[offsets[w], offsets[w + 1])``; ``offsets[0]``
+    is 0); returns how many, or −1 if ``dofs`` is too short.
+
+    Distances grow ring by ring from the set's edge along the mesh's edges (the CSR pattern
+    ``indptr``, ``indices``): each dof is measured, in a straight line (x periodic), to the
+    edge dof nearest one of its neighbours, and revisited when a later ring finds a nearer
+    one. So a dof's distance is never below its Euclidean one (on examples/straight_mesh.toml
+    at most 0.3 above, with the same dofs within reach), and on a mesh with holes it goes
+    around them. ``scratch`` is (best, nearest, queued, ring, following, sort scratch), int
+    and float arrays of the dofs' size, best all inf and left so. Arrays are never
+    reassigned inside the loops: numba then counts references at every use, and such a
+    kernel ran 3–6× slower."""
+    best, nearest, queued, ring, following, spare = scratch
+    queued[:] = 0  # the pass that last queued each dof: counted from 1 in every call
+    half = 0.5 * period
+    bits = 1
+    while (1 << bits) < best.size:
+        bits += 1
+    passes = (bits + 10) // 11
+    digit_bits = (bits + passes - 1) // passes
+    counts = np.empty((1 << digit_bits) + 1, dtype=np.int64)
+    total = rounds = 0
+    for w in range(set_offsets.size - 1):
+        start, size = total, 0
+        limit = reaches[w] * reaches[w]
+        for s in sets[set_offsets[w]:set_offsets[w + 1]]:
+            best[s] = 0.0
+            nearest[s] = s
+        for s in sets[set_offsets[w]:set_offsets[w + 1]]:
+            if total >= dofs.size:
+                return -1
+            dofs[total] = s
+            total += 1
+            for k in range(indptr[s], indptr[s + 1]):
+                if best[indices[k]] == np.inf:  # an edge dof: the first ring
+                    ring[size] = s
+                    size += 1
+                    break
+        current, upcoming = ring, following
+        while size:
+            rounds += 1
+            next_size = 0
+            for r in range(size):
+                u = current[r]
+                source = nearest[u]
+                for k in range(indptr[u], indptr[u + 1]):
+                    v = indices[k]
+                    if best[v] == 0.0:
+                        continue
+                    dx = x[v] - x[source]
+                    if dx > half:
+                        dx -= period
+                    elif dx < -half:
+                        dx += period
+                    squared = dx * dx + (y[v] - y[source]) ** 2
+                    if squared <= limit and squared < best[v]:
+                        if best[v] == np.inf:
+                            if total >= dofs.size:
+                                return -1
+                            dofs[total] = v
+                            total += 1
+                        best[v] = squared
+                        nearest[v] = source
+                        if queued[v] != rounds:
+                            queued[v] = rounds
+                            upcoming[next_size] = v
+                            next_size += 1
+            current, upcoming = upcoming, current
+            size = next_size
+        _sort_indices(dofs[start:total], spare, counts, passes, digit_bits)
+        for i in range(start, total):
+            distances[i] = np.sqrt(best[dofs[i]])
+            best[dofs[i]] = np.inf
+        offsets[w + 1] = total
+    return total
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def occupied_dofs(phi: np.ndarray, node_index: np.ndarray, offsets: np.ndarray, slots: np.ndarray,
+                  threshold: float) -> tuple[np.ndarray, np.ndarray]:
+    """(dofs, set offsets): the dofs where φ exceeds ``threshold`` in each window of
+    ``slots`` (layout order, window w the positions ``offsets[w]:offsets[w + 1]``), slot k's
+    in ``dofs[set_offsets[k]:set_offsets[k + 1]]`` in the window's order."""
+    total = 0
+    for slot in slots:
+        total += offsets[slot + 1] - offsets[slot]
+    dofs = np.empty(total, dtype=np.int64)
+    set_offsets = np.zeros(slots.size + 1, dtype=np.int64)
+    filled = 0
+    for k in range(slots.size):
+        for position in range(offsets[slots[k]], offsets[slots[k] + 1]):
+            if phi[position] > threshold:
+                dofs[filled] = node_index[position]
+                filled += 1
+        set_offsets[k + 1] = filled
+    return dofs[:filled], set_offsets
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
+def carry_over(phi: np.ndarray, node_index: np.ndarray, offsets: np.ndarray, slots: np.ndarray, dofs: np.ndarray,
+               dof_offsets: np.ndarray, scratch: np.ndarray) -> np.ndarray:
+    """The fields of the windows of ``slots`` (positions as in :func:`occupied_dofs`) on
+    new dofs, slot k's ``dofs[dof_offsets[k]:dof_offsets[k + 1]]``: its values where the
+    old window had the dof, zero elsewhere; concatenated. ``scratch`` (one entry per dof of
+    the mesh, zero) is left zero."""
+    out = np.empty(dof_offsets[-1], dtype=phi.dtype)
+    for k in range(slots.size):
+        for position in range(offsets[slots[k]], offsets[slots[k] + 1]):
+            scratch[node_index[position]] = phi[position]
+        for i in range(dof_offsets[k], dof_offsets[k + 1]):
+            out[i] = scratch[dofs[i]]
+        for position in range(offsets[slots[k]], offsets[slots[k] + 1]):
+            scratch[node_index[position]] = 0.0
+    return out
