@@ -3,34 +3,41 @@
     python benchmarks/mesh_window_floor.py [--relax 400] [--flow 800] [--room 1 2] [--repeats 2]
                                            [--corrections 2 1] [--output FILE]
 
-A design study, not a femphase option: it replaces ``MeshDomain.refit`` in its own process.
-A mesh window today is the dofs inside a box (margin 4 around the φ > 0.01 set, room and
-slack, :class:`~femphase.domains.mesh.boxes.BoxPolicy`); here a **shaped** window is the
-dofs within ``margin + room`` of the set (distances along the mesh's edges, :func:`dilate`),
-made at a refit and kept while every dof of the set lies within ``room`` of the set it was
-made for (so the margin holds). A window that fails this is made anew at the next refit; any new
-window makes a new layout, built as today (:class:`~femphase.domains.layout.Layout`, block
-matrices per layout).
+A design study: it replaces ``MeshDomain.refit`` in its own process. A box window is the
+dofs inside a box (margin 4 around the φ > 0.01 set, room and slack,
+:class:`~femphase.domains.mesh.boxes.BoxPolicy`, ``numerics.mesh_windows = "boxes"``); here a
+**shaped** window is the dofs within ``margin + room`` of the set (distances along the mesh's
+edges, :func:`~femphase.domains.mesh.kernels.dilate`), made at a refit and kept while every
+dof of the set lies within ``room`` of the set it was made for (so the margin holds). A
+window that fails this is made anew at the next refit, alone (femphase's own shapes,
+:mod:`femphase.domains.mesh.shapes`, make the windows near their room with it); any new
+window makes a new layout, built as femphase builds one (:class:`~femphase.domains.layout.Layout`,
+block matrices per layout), and costed as updated in place.
 
-Each run is its own process, relaxed ``--relax`` time units in today's boxes and then run
+Each run is its own process, relaxed ``--relax`` time units in boxes and then run
 ``--flow`` time units of flow, timed on the process clock. Its flow CPU is split into:
 
 * **refit**: the refits, the new layouts and the transfer of the fields to them; for the
   shaped windows, recorded apart within it, **checking** (a compiled pass over the positions
-  for windows to remake, :func:`outgrown`) and **shaping** (their making, :meth:`dilation`);
+  for windows to remake, :func:`~femphase.domains.mesh.kernels.largest_made_distance`) and
+  **shaping** (their making, :meth:`dilation`);
 * **blocks**: what is built once per layout (block patterns and block-diagonal matrices,
   Jacobi diagonals: :meth:`~femphase.domains.base.Domain.per_layout`);
 * **floor**: the rest, the work of the substeps themselves.
 
 Kinds: ``grid`` (examples/random.toml, Poiseuille of rate U, as ``mesh_parity.py``), ``box``
-(examples/straight_mesh.toml, Stokes flow of centre-line velocity U, today's windows) and
-``shaped`` at each ``--room`` and each ``--corrections`` K (the mesh advection's Jacobi
-corrections, :data:`~femphase.domains.mesh.advection.MASS_CORRECTIONS`: 2, the default, or
-fewer products per substep), alternated ``--repeats`` times; ratios are to the grid run of
-the same repeat. Each mesh run also records every particle's centroid and area at the end,
-and the shaped runs their largest differences from the box run of the same repeat and what a
+(examples/straight_mesh.toml, Stokes flow of centre-line velocity U, box windows),
+``shapes`` (the same on femphase's shaped windows) and ``shaped`` at each ``--room`` and
+each ``--corrections`` K (the mesh advection's Jacobi corrections,
+:data:`~femphase.domains.mesh.advection.MASS_CORRECTIONS`: 2, the default, or fewer
+products per substep), alternated ``--repeats`` times; ratios are to the grid run of the
+same repeat. Each mesh run also records every particle's centroid and area at the end, and
+the shaped runs their largest differences from the box run of the same repeat and what a
 layout built from pieces kept per window would cost, concatenated or updated in place
 (:func:`layout_from_pieces_ms`).
+Blocks are timed once each: a block matrix builds the block pattern on first use, inside
+its own build, and the pattern's time is counted with it only (counted twice, the floor
+reads short by the pattern's time at every layout: docs/decisions/0057-shaped-mesh-windows.md).
 The design's cost, windows checked and made as here and layouts updated in place, is (floor +
 checking + shaping + layouts × ``in_place_layout_ms``) over the grid's flow CPU, each shaped
 run's ``design_to_grid_flow`` (docs/decisions/0054-shaped-mesh-windows-floor.md).
@@ -41,7 +48,9 @@ Processes a minute apart see different spells of the shared machine (the grid's 
 0.88–1.37 s between repeats). ``--interleaved N`` runs every kind in one process instead,
 relaxed one after the other, then their flows in N chunks of ``--flow`` time units, the
 kinds' order rotated each chunk; totals over the chunks after the first (compilation), with
-each shaped run's design also against the boxes' flow (``design_to_box_flow``):
+each shaped run's design also against the boxes' flow (``design_to_box_flow``), and one
+more kind, ``shapes``: femphase's own shaped windows (``numerics.mesh_windows = "shapes"``,
+:mod:`femphase.domains.mesh.shapes`), timed as the others:
 
     python benchmarks/mesh_window_floor.py --room 2 --corrections 2 1 --flow 100 --interleaved 17 \\
         --output benchmarks/results/mesh_window_floor_interleaved.json
@@ -58,99 +67,11 @@ import time
 from pathlib import Path
 
 import common  # pins BLAS threads before numpy loads
-import numba
 import numpy as np
 from mesh_parity import THREADS, scene_of
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULT = Path(__file__).parent / "results" / "mesh_window_floor.json"
-
-
-@numba.njit(cache=True)
-def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indices: np.ndarray, x: np.ndarray,
-           y: np.ndarray, period: float, reach: float, scratch: tuple, dofs: np.ndarray, distances: np.ndarray,
-           offsets: np.ndarray) -> int:
-    """For each set of dofs (``sets[set_offsets[w]:set_offsets[w + 1]]``), the dofs within
-    ``reach`` of it, sorted, and their distances (0 in the set), written to ``dofs``,
-    ``distances`` and ``offsets``; returns how many, or −1 if ``dofs`` is too short.
-
-    Distances grow ring by ring from the set's edge along the mesh's edges (the CSR pattern
-    ``indptr``, ``indices``): each dof is measured to the edge dof nearest one of its
-    neighbours, and revisited when a later ring finds a nearer one (x periodic). So a dof's
-    distance is never below its Euclidean one (on examples/straight_mesh.toml at most 0.3
-    above, with the same dofs within reach), and on a mesh with holes it goes around them.
-    ``scratch`` is (best, nearest, queued, ring, following), arrays of the dofs' size;
-    best (inf) is left as found. Arrays are never reassigned inside the loops: numba then
-    counts references at every use, and such a kernel ran 3–6× slower."""
-    best, nearest, queued, ring, following = scratch
-    queued[:] = 0  # the pass that last queued each dof: counted from 1 in every call
-    limit, half = reach * reach, 0.5 * period
-    total = passes = 0
-    for w in range(set_offsets.size - 1):
-        start, size = total, 0
-        for s in sets[set_offsets[w]:set_offsets[w + 1]]:
-            best[s] = 0.0
-            nearest[s] = s
-        for s in sets[set_offsets[w]:set_offsets[w + 1]]:
-            if total >= dofs.size:
-                return -1
-            dofs[total] = s
-            total += 1
-            for k in range(indptr[s], indptr[s + 1]):
-                if best[indices[k]] == np.inf:  # an edge dof: the first ring
-                    ring[size] = s
-                    size += 1
-                    break
-        current, upcoming = ring, following
-        while size:
-            passes += 1
-            next_size = 0
-            for r in range(size):
-                u = current[r]
-                source = nearest[u]
-                for k in range(indptr[u], indptr[u + 1]):
-                    v = indices[k]
-                    if best[v] == 0.0:
-                        continue
-                    dx = x[v] - x[source]
-                    if dx > half:
-                        dx -= period
-                    elif dx < -half:
-                        dx += period
-                    squared = dx * dx + (y[v] - y[source]) ** 2
-                    if squared <= limit and squared < best[v]:
-                        if best[v] == np.inf:
-                            if total >= dofs.size:
-                                return -1
-                            dofs[total] = v
-                            total += 1
-                        best[v] = squared
-                        nearest[v] = source
-                        if queued[v] != passes:
-                            queued[v] = passes
-                            upcoming[next_size] = v
-                            next_size += 1
-            current, upcoming = upcoming, current
-            size = next_size
-        dofs[start:total].sort()
-        for i in range(start, total):
-            distances[i] = np.sqrt(best[dofs[i]])
-            best[dofs[i]] = np.inf
-        offsets[w + 1] = total
-    return total
-
-
-@numba.njit(cache=True)
-def outgrown(phi: np.ndarray, made: np.ndarray, offsets: np.ndarray, threshold: float, room: float) -> np.ndarray:
-    """Per window (``offsets``): whether a position with φ > ``threshold`` lies farther than
-    ``room`` from the set its window was made for (``made``, per position)."""
-    out = np.zeros(offsets.size - 1, dtype=np.bool_)
-    for w in range(offsets.size - 1):
-        for p in range(offsets[w], offsets[w + 1]):
-            if phi[p] > threshold and made[p] > room:
-                out[w] = True
-                break
-    return out
 
 
 class ShapedWindows:
@@ -168,11 +89,11 @@ class ShapedWindows:
         self.pattern = domain.block_pattern
         n = domain.n_dofs
         self.scratch = (np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
-                        np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
+                        np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
         self.windows_made = 0
         #: CPU seconds spent making windows (:meth:`dilation`, the sets' gathering included)
         self.shaping = 0.0
-        #: CPU seconds spent finding the windows to remake (:func:`outgrown`)
+        #: CPU seconds spent finding the windows to remake
         self.checking = 0.0
         self._made_positions: tuple = (None, None)
 
@@ -187,14 +108,17 @@ class ShapedWindows:
 
     def dilation(self, sets: list[np.ndarray], reach: float) -> list[tuple[np.ndarray, np.ndarray]]:
         """For each set of dofs, the dofs within ``reach`` of it and their distances
-        (:func:`dilate`, all sets in one call)."""
+        (:func:`~femphase.domains.mesh.kernels.dilate`, all sets in one call)."""
+        from femphase.domains.mesh.kernels import dilate
+
         starts = np.concatenate([[0], np.cumsum([len(members) for members in sets])]).astype(np.int64)
         capacity = 4 * int(starts[-1]) + 16
         while True:
             dofs, distances = np.empty(capacity, dtype=np.int64), np.empty(capacity)
             offsets = np.zeros(len(sets) + 1, dtype=np.int64)
             total = dilate(np.concatenate(sets).astype(np.int64), starts, self.pattern.indptr, self.pattern.indices,
-                           self.x, self.y, float(self.domain.period), reach, self.scratch, dofs, distances, offsets)
+                           self.x, self.y, float(self.domain.period), np.full(len(sets), float(reach)), self.scratch,
+                           dofs, distances, offsets)
             if total >= 0:
                 return [(dofs[offsets[k]:offsets[k + 1]].copy(), distances[offsets[k]:offsets[k + 1]].copy())
                         for k in range(len(sets))]
@@ -205,8 +129,11 @@ class ShapedWindows:
         from femphase.domains.mesh.boxes import Box
 
         domain = self.domain
+        from femphase.domains.mesh.kernels import largest_made_distance
+
         started = time.process_time()
-        slots = np.flatnonzero(outgrown(phi, self.made_positions(layout), layout.offsets, self.threshold, self.room))
+        slots = np.flatnonzero(largest_made_distance(phi, self.made_positions(layout), layout.offsets,
+                                                     self.threshold) > self.room)
         self.checking += time.process_time() - started
         if not slots.size:
             return layout, phi
@@ -294,8 +221,9 @@ class FlowRun:
 
     def __init__(self, kind: str, relax: float, flow: float, velocity: float, room: float, corrections: int) -> None:
         self.kind, self.room, self.corrections = kind, room, corrections
-        # the box and shaped windows run mesh_parity.py's mesh scene, the grid its grid scene
-        scene = scene_of("grid" if kind == "grid" else "mesh", relax, flow, velocity)
+        # the box and shaped windows run mesh_parity.py's mesh scene on boxes, femphase's shapes
+        # on its own, the grid its grid scene
+        scene = scene_of({"grid": "grid", "shapes": "mesh"}.get(kind, "mesh_boxes"), relax, flow, velocity)
         self.flowing = scene.phases[1]
         FlowRun.current = None  # the relaxation's blocks are not the flow's
         self.state, self.stepper = common.relaxed_flow(scene)
@@ -354,20 +282,25 @@ class FlowRun:
 
 
 def _time_blocks() -> None:
-    """Time every per-layout build into the current run's blocks (once per process)."""
+    """Time every per-layout build into the current run's blocks (once per process), each
+    once: a build that asks for another (a block matrix for the block pattern, built on
+    first use) holds the inner build's time already."""
     from femphase.domains.base import Domain
 
     if getattr(Domain.per_layout, "timed", False):
         return
     per_layout = Domain.per_layout
+    depth = [0]
 
     def timed(self, layout, name, build, tag=None):
         def run():
             started = time.process_time()
+            depth[0] += 1
             try:
                 return build()
             finally:
-                if FlowRun.current is not None:
+                depth[0] -= 1
+                if FlowRun.current is not None and depth[0] == 0:
                     FlowRun.current.spent["blocks"] += time.process_time() - started
         return per_layout(self, layout, name, run, tag)
 
@@ -390,12 +323,12 @@ def design_seconds(floor: float, checking: float, shaping: float, layouts: int, 
 
 def interleaved(relax: float, chunk: float, chunks: int, velocity: float, room: float,
                 corrections: list[int]) -> dict:
-    """The grid, the boxes and the shaped windows at each K in ``corrections``, all in this
-    process: each relaxed, then their flows in ``chunks`` chunks of ``chunk`` time units, the
-    kinds' order rotated each chunk so that all see the machine's spells alike. Totals over
-    the chunks after the first (compilation), and the ratios to the grid's flow and to the
-    boxes' of the same chunks."""
-    runs = [FlowRun("grid", relax, chunk, velocity, 0.0, 2), FlowRun("box", relax, chunk, velocity, 0.0, 2)]
+    """The grid, the boxes, femphase's shapes and the shaped windows at each K in
+    ``corrections``, all in this process: each relaxed, then their flows in ``chunks``
+    chunks of ``chunk`` time units, the kinds' order rotated each chunk so that all see the
+    machine's spells alike. Totals over the chunks after the first (compilation), and the
+    ratios to the grid's flow and to the boxes' of the same chunks."""
+    runs = [FlowRun(kind, relax, chunk, velocity, 0.0, 2) for kind in ("grid", "box", "shapes")]
     runs += [FlowRun("shaped", relax, chunk, velocity, room, k) for k in corrections]
     totals = []
     for index in range(chunks):
@@ -434,7 +367,7 @@ def main() -> None:
                         help="the shaped windows' advection corrections K (default 2, the default's)")
     parser.add_argument("--interleaved", type=int, metavar="N",
                         help="all kinds in one process, in N rotating chunks of --flow time units (one room)")
-    parser.add_argument("--child", choices=("grid", "box", "shaped"), help=argparse.SUPPRESS)
+    parser.add_argument("--child", choices=("grid", "box", "shapes", "shaped"), help=argparse.SUPPRESS)
     parser.add_argument("--output", type=Path, default=RESULT)
     args = parser.parse_args()
     if args.child:
@@ -453,7 +386,8 @@ def main() -> None:
         for run in result["runs"]:
             print(json.dumps({k: v for k, v in run.items() if k not in ("areas", "centroids")}), flush=True)
         return
-    kinds = [("grid", 0.0, 2), ("box", 0.0, 2)] + [("shaped", room, k) for room in args.room for k in args.corrections]
+    kinds = [("grid", 0.0, 2), ("box", 0.0, 2), ("shapes", 0.0, 2)]
+    kinds += [("shaped", room, k) for room in args.room for k in args.corrections]
     runs = []
     for repeat in range(args.repeats):
         for kind, room, corrections in kinds:
@@ -466,7 +400,7 @@ def main() -> None:
             grid = next(r for r in runs if r["kind"] == "grid" and r["repeat"] == repeat) if kind != "grid" else run
             for part in ("flow", "floor"):
                 run[f"{part}_to_grid_flow"] = run[f"{part}_cpu_s"] / grid["flow_cpu_s"]
-            # the whole flow less the making of shaped windows: refits, layouts and blocks as today
+            # the whole flow less the making of shaped windows: refits, layouts and blocks as femphase builds them
             run["layouts_as_today_to_grid_flow"] = ((run["flow_cpu_s"] - run.get("shaping_cpu_s", 0.0))
                                                     / grid["flow_cpu_s"])
             if kind == "shaped":
