@@ -12,20 +12,23 @@ alternate, ``--repeats`` times, and the ratios are mesh/grid within the same run
 * the mesh path with its previous solvers (``numerics.solver = "direct"``: an LU per box
   and a complex LU per window for the advection) as a third kind, with ``--direct``;
 * the mesh with the Galerkin advection at every Courant number (no semi-Lagrangian steps,
-  :mod:`femphase.domains.mesh.semi_lagrangian`) as a kind, with ``--galerkin``.
+  :mod:`femphase.domains.mesh.semi_lagrangian`) as a kind, with ``--galerkin``;
+* the mesh on box windows (``numerics.mesh_windows = "boxes"``; the default on meshes with
+  the batched solves is shaped windows, :mod:`femphase.domains.mesh.shapes`) as a kind,
+  with ``--boxes``.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \\
         python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct
 
 Processes a minute apart see different spells of the shared machine: between them the
 channel's flow alone moved by up to 1.5×, and the ratio with it. ``--interleaved N`` runs
-both suspensions in one process instead, relaxed one after the other, then their flow in N
-alternating chunks of ``--flow`` time units each (the order swapped every chunk), and
-reports the ratio per chunk pair and over all (the first pair dropped: compilation); no
-memory in this mode (one process holds both):
+the suspensions in one process instead (with ``--boxes`` the boxes too), relaxed one after
+the other, then their flows in N chunks of ``--flow`` time units each (the order rotated
+every chunk), and reports each mesh kind's ratio to the grid per chunk and over all (the
+first chunk dropped: compilation); no memory in this mode (one process holds all):
 
-    python benchmarks/mesh_parity.py --relax 400 --flow 100 --interleaved 17 \\
-        --output benchmarks/results/mesh_parity_interleaved.json
+    python benchmarks/mesh_parity.py --relax 400 --flow 100 --interleaved 25 --boxes \\
+        --output benchmarks/results/mesh_parity_shapes.json
 """
 
 from __future__ import annotations
