@@ -86,13 +86,7 @@ def dofs_in_boxes(order: np.ndarray, keys: np.ndarray, span: float, y_low: float
             ends[b, s] = max(np.searchsorted(keys, s * span + (y1 - y_low) + pad, side="right"), begins[b, s])
     dofs = np.empty(int((ends - begins).sum()), dtype=order.dtype)
     offsets = np.zeros(n + 1, dtype=np.int64)
-    # the radix sort's digits: as few passes as the dofs' bit length allows at ≤ 11 bits each
-    bits = 1
-    while (1 << bits) < order.size:
-        bits += 1
-    passes = (bits + 10) // 11
-    digit_bits = (bits + passes - 1) // passes
-    counts = np.empty((1 << digit_bits) + 1, dtype=np.int64)
+    passes, digit_bits, counts = _radix_digits(order.size)
     largest = 0
     for b in range(n):
         size = 0
@@ -112,6 +106,18 @@ def dofs_in_boxes(order: np.ndarray, keys: np.ndarray, span: float, y_low: float
         _sort_indices(dofs[offsets[b]:filled], scratch, counts, passes, digit_bits)
         offsets[b + 1] = filled
     return dofs[:filled], offsets
+
+
+@numba.njit(inline="always", boundscheck=False)
+def _radix_digits(size: int) -> tuple[int, int, np.ndarray]:
+    """(passes, digit bits, counts) of :func:`_sort_indices` for values below ``size``: as few
+    passes as their bit length allows at ≤ 11 bits each, and the counts array they need."""
+    bits = 1
+    while (1 << bits) < size:
+        bits += 1
+    passes = (bits + 10) // 11
+    digit_bits = (bits + passes - 1) // passes
+    return passes, digit_bits, np.empty((1 << digit_bits) + 1, dtype=np.int64)
 
 
 @numba.njit(inline="always", boundscheck=False)
@@ -184,12 +190,7 @@ def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indice
     best, nearest, queued, ring, following, spare = scratch
     queued[:] = 0  # the pass that last queued each dof: counted from 1 in every call
     half = 0.5 * period
-    bits = 1
-    while (1 << bits) < best.size:
-        bits += 1
-    passes = (bits + 10) // 11
-    digit_bits = (bits + passes - 1) // passes
-    counts = np.empty((1 << digit_bits) + 1, dtype=np.int64)
+    passes, digit_bits, counts = _radix_digits(best.size)
     total = rounds = 0
     for w in range(set_offsets.size - 1):
         start, size = total, 0
