@@ -10,7 +10,8 @@ artificial edges, natural Neumann on the walls).
 
 A window is a hashable description that its :class:`~femphase.domains.base.Domain` turns
 into dofs: a rectangular block of the structured channel's lattice
-(:class:`femphase.domains.grid.windows.Window`) or the dofs of a mesh inside a box
+(:class:`femphase.domains.grid.windows.Window`), the dofs of a mesh within a reach of its
+particle (:class:`femphase.domains.mesh.shapes.Shape`) or inside a box
 (:class:`femphase.domains.mesh.boxes.Box`). Windows with one key share one system matrix.
 :class:`Layout` concatenates all windows' fields into one flat vector, grouped by key.
 """
