@@ -65,6 +65,27 @@ def test_a_dilation_holds_the_dofs_within_its_reach_at_no_less_than_their_distan
         assert np.isin(np.flatnonzero(every <= reach - 1.0), dofs).all()
 
 
+def test_a_dilation_along_a_motion_holds_the_swept_set():
+    # a fast flow's particle: the set swept along its motion, each dof standing for the
+    # segment from it to it moved, and the dofs within reach of that
+    domain = straight(40.0, 30.0)
+    x, y = domain.coordinates
+    members = np.flatnonzero(np.hypot(x - 12.0, y - 15.0) <= 5.0)
+    motion = np.array([[6.0, 2.0]])
+    starts = np.array([0, members.size])
+    (dofs, distances), = domain._dilate(members, starts, np.array([3.0]), motion)
+    (still, _), = domain._dilate(members, starts, np.array([3.0]), np.zeros((1, 2)))
+    moved = np.flatnonzero(np.hypot(x - 18.0, y - 17.0) <= 5.0)  # the set at the motion's end
+    assert np.isin(moved, dofs).all() and not np.isin(moved, still).all()
+    # the segments start at the set's edge dofs, and a dof is measured to the segment of the
+    # dof that reached it, not the nearest: where the set moves to lies within the room (2),
+    # so the margin around it stays inside (1.5 at most here)
+    assert np.all(distances[np.isin(dofs, moved)] <= 2.0)
+    # and no farther than the reach from the swept discs (a capsule of radius 5 + 3)
+    t = np.clip(((x[dofs] - 12.0) * 6.0 + (y[dofs] - 15.0) * 2.0) / 40.0, 0.0, 1.0)
+    assert np.all(np.hypot(x[dofs] - 12.0 - 6.0 * t, y[dofs] - 15.0 - 2.0 * t) <= 8.0 + 1e-9)
+
+
 def test_a_disc_shape_reaches_past_the_disc_by_margin_and_room():
     domain = straight(40.0, 30.0)
     policy = ShapePolicy.for_spacing(1.0)
@@ -86,7 +107,8 @@ def test_shapes_are_made_anew_only_when_a_particle_leaves_their_room_and_then_to
     # the room a shape leaves is its own reach less the margin and the coming motion
     assert policy.to_remake(np.array([0.5, 0.5, 0.5]), reaches, np.array([0.0, 1.0, 1.6])).tolist() == [
         False, True, True]
-    assert not policy.to_remake(np.array([3.0]), np.array([policy.reach(2.0)]), 0.5).any()
+    # a shape made to reach farther (for a margin widened by a changing flow's motion) has more room
+    assert not policy.to_remake(np.array([3.0]), np.array([policy.reach() + 2.0]), 0.5).any()
 
 
 def test_a_refit_leaves_a_moving_particle_its_margin_inside_its_shape():

@@ -513,10 +513,10 @@ class MeshDomain(Domain):
     def _refit_shapes(self, layout: Layout, phi: np.ndarray, policy: ShapePolicy,
                       motion: Callable[[], np.ndarray] | None) -> tuple[Layout, np.ndarray]:
         """Shapes made anew for the particles :meth:`ShapePolicy.to_remake` names, each for
-        its dofs where φ > threshold and reaching past them by the length of its particle's
-        ``motion()`` too (a window that is no shape, as after a resume with boxes: made anew
-        at once; for a field that exceeds the threshold nowhere, its dofs kept), in
-        compiled passes over all of them at once."""
+        its dofs where φ > threshold swept along its particle's ``motion()`` over the coming
+        span (a window that is no shape, as after a resume with boxes: made anew at once;
+        for a field that exceeds the threshold nowhere, its dofs kept), in compiled passes
+        over all of them at once."""
         from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
 
         made = self.per_layout(layout, "shape distances", lambda: np.concatenate([
@@ -524,9 +524,9 @@ class MeshDomain(Domain):
             else np.full(layout.sizes[slot], np.inf) for slot, i in enumerate(layout.order)]))
         moved = np.empty(len(layout.windows))
         moved[layout.order] = kernels.largest_made_distance(phi, made, layout.offsets, float(policy.threshold))
-        steps = 0.0 if motion is None else np.hypot(*motion().T)
+        steps = np.zeros((len(layout.windows), 2)) if motion is None else motion()
         reaches = np.array([w.reach if isinstance(w, Shape) else -np.inf for w in layout.windows])
-        remade = policy.to_remake(moved, reaches, steps)
+        remade = policy.to_remake(moved, reaches, np.hypot(*steps.T))
         if not remade.any():
             return layout, phi
         particles = np.flatnonzero(remade)
@@ -535,8 +535,7 @@ class MeshDomain(Domain):
         slots = slot_of[particles]
         members, set_offsets = kernels.occupied_dofs(phi, layout.node_index, layout.offsets, slots,
                                                      float(policy.threshold))
-        new_reaches = np.broadcast_to(policy.reach(steps), remade.shape)[particles]
-        pieces = self._dilate(members, set_offsets, new_reaches)
+        pieces = self._dilate(members, set_offsets, np.full(particles.size, policy.reach()), steps[particles])
         for k in np.flatnonzero(np.diff(set_offsets) == 0):
             dofs = self.window_dofs(layout.windows[particles[k]]).astype(np.int64)
             pieces[k] = (dofs, np.zeros(dofs.size))
@@ -547,7 +546,7 @@ class MeshDomain(Domain):
                                      self._carry_scratch(phi.dtype))
         fields, windows = layout.scatter(phi), list(layout.windows)
         for k, i in enumerate(particles):
-            windows[i] = self._new_shape(*pieces[k], new_reaches[k])
+            windows[i] = self._new_shape(*pieces[k], policy.reach())
             fields[i] = carried[dof_offsets[k]:dof_offsets[k + 1]]
         refitted = self.layout(windows)
         return refitted, refitted.gather(fields)
@@ -575,11 +574,12 @@ class MeshDomain(Domain):
         all sets in one compiled call."""
         starts = np.concatenate([[0], np.cumsum([len(members) for members in sets])]).astype(np.int64)
         members = np.concatenate(sets).astype(np.int64) if sets else np.zeros(0, dtype=np.int64)
-        return self._dilate(members, starts, np.full(len(sets), float(reach)))
+        return self._dilate(members, starts, np.full(len(sets), float(reach)), np.zeros((len(sets), 2)))
 
-    def _dilate(self, members: np.ndarray, starts: np.ndarray, reaches: np.ndarray
+    def _dilate(self, members: np.ndarray, starts: np.ndarray, reaches: np.ndarray, motions: np.ndarray
                 ) -> list[tuple[np.ndarray, np.ndarray]]:
-        """:meth:`dilation` of the sets ``members[starts[k]:starts[k + 1]]``, set k to ``reaches[k]``."""
+        """:meth:`dilation` of the sets ``members[starts[k]:starts[k + 1]]``, set k swept
+        along ``motions[k]`` and to ``reaches[k]``."""
         from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
 
         x, y = self._contiguous_coordinates
@@ -589,8 +589,8 @@ class MeshDomain(Domain):
             dofs, distances = np.empty(capacity, dtype=np.int64), np.empty(capacity)
             offsets = np.zeros(starts.size, dtype=np.int64)
             total = kernels.dilate(members, starts, pattern.indptr, pattern.indices, x, y, float(self.period),
-                                   np.asarray(reaches, dtype=float), self._dilation_scratch, dofs, distances,
-                                   offsets)
+                                   np.asarray(reaches, dtype=float), np.ascontiguousarray(motions, dtype=float),
+                                   self._dilation_scratch, dofs, distances, offsets)
             if total >= 0:
                 return [(dofs[offsets[k]:offsets[k + 1]].copy(), distances[offsets[k]:offsets[k + 1]].copy())
                         for k in range(starts.size - 1)]

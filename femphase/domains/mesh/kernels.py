@@ -171,12 +171,16 @@ def largest_made_distance(phi: np.ndarray, made: np.ndarray, offsets: np.ndarray
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
 def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indices: np.ndarray, x: np.ndarray,
-           y: np.ndarray, period: float, reaches: np.ndarray, scratch: tuple, dofs: np.ndarray, distances: np.ndarray,
-           offsets: np.ndarray) -> int:
-    """For each set of dofs (``sets[set_offsets[w]:set_offsets[w + 1]]``), the dofs within
-    ``reaches[w]`` of it, sorted, and their distances to it (0 in the set), written to ``dofs``,
-    ``distances`` and ``offsets`` (set w's in ``[offsets[w], offsets[w + 1])``; ``offsets[0]``
-    is 0); returns how many, or −1 if ``dofs`` is too short.
+           y: np.ndarray, period: float, reaches: np.ndarray, motions: np.ndarray, scratch: tuple, dofs: np.ndarray,
+           distances: np.ndarray, offsets: np.ndarray) -> int:
+    """For each set of dofs (``sets[set_offsets[w]:set_offsets[w + 1]]``) swept along
+    ``motions[w]`` (a length vector; each edge dof of the set then stands for the segment
+    from it to it moved so), the dofs within ``reaches[w]`` of it, sorted, and their
+    distances to it (0 in the set; where the set moves to, within 1.5 spacings on a
+    Delaunay mesh: every point the set sweeps lies on the segment of the edge point its path
+    crosses, and a dof is measured to the segment of the dof that reached it), written to
+    ``dofs``, ``distances`` and ``offsets`` (set w's in ``[offsets[w], offsets[w + 1])``;
+    ``offsets[0]`` is 0); returns how many, or −1 if ``dofs`` is too short.
 
     Distances grow ring by ring from the set's edge along the mesh's edges (the CSR pattern
     ``indptr``, ``indices``): each dof is measured, in a straight line (x periodic), to the
@@ -195,6 +199,8 @@ def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indice
     for w in range(set_offsets.size - 1):
         start, size = total, 0
         limit = reaches[w] * reaches[w]
+        mx, my = motions[w, 0], motions[w, 1]
+        swept = mx * mx + my * my
         for s in sets[set_offsets[w]:set_offsets[w + 1]]:
             best[s] = 0.0
             nearest[s] = s
@@ -224,7 +230,12 @@ def dilate(sets: np.ndarray, set_offsets: np.ndarray, indptr: np.ndarray, indice
                         dx -= period
                     elif dx < -half:
                         dx += period
-                    squared = dx * dx + (y[v] - y[source]) ** 2
+                    dy = y[v] - y[source]
+                    if swept > 0.0:  # to the nearest point of the source's segment
+                        along = min(max((dx * mx + dy * my) / swept, 0.0), 1.0)
+                        dx -= along * mx
+                        dy -= along * my
+                    squared = dx * dx + dy * dy
                     if squared <= limit and squared < best[v]:
                         if best[v] == np.inf:
                             if total >= dofs.size:

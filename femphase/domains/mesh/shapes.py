@@ -92,19 +92,19 @@ class ShapePolicy:
         margin = h * math.ceil(margin / h - 1e-9)
         return cls(threshold=threshold, margin=margin, room=cls.ROOM_SPACINGS * h, early=cls.EARLY_SPACINGS * h)
 
-    def reach(self, motion: np.ndarray | float = 0.0) -> np.ndarray | float:
-        """How far a shape made now reaches beyond its set: ``margin + room``, and the length
-        of the particle's ``motion`` over the coming span where a fast flow asks for it (on
-        every side: a shape has no direction)."""
-        return self.margin + self.room + motion
+    def reach(self) -> float:
+        """How far a shape made now reaches beyond its set (the set swept along the particle's
+        motion over the coming span, where a fast flow asks for it): ``margin + room``."""
+        return self.margin + self.room
 
     def to_remake(self, moved: np.ndarray, reaches: np.ndarray, motion: np.ndarray | float = 0.0) -> np.ndarray:
         """Which shapes to make anew, given how far each particle's set has ``moved`` from
         the set its shape was made for (the largest distance of a dof where φ > threshold,
         :func:`~femphase.domains.mesh.kernels.largest_made_distance`), the shapes' ``reaches``
-        and the particles' ``motion`` (lengths) over the coming span: none while every one
-        has moved less than its room, ``reach − margin − motion``, else every one within
-        ``early`` of it."""
+        and the lengths of the particles' ``motion`` over the coming span: none while every
+        one has moved less than its room, ``reach − margin − motion``, else every one within
+        ``early`` of it (a particle that the flow carries past its room within the span
+        gets a shape swept along that motion)."""
         room = reaches - self.margin - motion
         if not (moved > room).any():
             return np.zeros(moved.shape, dtype=bool)
