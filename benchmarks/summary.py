@@ -176,6 +176,11 @@ ROWS = (
         "benchmarks/results/mesh_parity_shapes.json", _mesh_parity_interleaved,
         "python benchmarks/mesh_parity.py --relax 400 --flow 100 --interleaved 25 --boxes "
         "--output benchmarks/results/mesh_parity_shapes.json"),
+    Row("the same at centre-line velocity 1 (Poiseuille rate 1; on the mesh 3.3 lengths a substep, semi-Lagrangian "
+        "steps, shapes swept along the motion)",
+        "benchmarks/results/mesh_parity_shapes_velocity1.json", _mesh_parity_interleaved,
+        "python benchmarks/mesh_parity.py --relax 400 --flow 100 --interleaved 13 --boxes --velocity 1 "
+        "--output benchmarks/results/mesh_parity_shapes_velocity1.json"),
     Row("the paper's protocol on the meshed obstacle channel (examples/obstacle_mesh.toml: relax 2000 + Stokes "
         "flow 10⁵ time units, dt = 10), box windows, two trees at once on the 2 cores",
         "benchmarks/results/protocol_obstacle_window_cg_both.json", _protocol_beside,
