@@ -20,7 +20,7 @@ Each run is its own process, relaxed ``--relax`` time units in boxes and then ru
 * **refit**: the refits, the new layouts and the transfer of the fields to them; for the
   shaped windows, recorded apart within it, **checking** (a compiled pass over the positions
   for windows to remake, :func:`~femphase.domains.mesh.kernels.largest_made_distance`) and
-  **shaping** (their making, :meth:`dilation`);
+  **shaping** (their making, :meth:`~femphase.domains.mesh.domain.MeshDomain.dilation`);
 * **blocks**: what is built once per layout (block patterns and block-diagonal matrices,
   Jacobi diagonals: :meth:`~femphase.domains.base.Domain.per_layout`);
 * **floor**: the rest, the work of the substeps themselves.
@@ -85,13 +85,8 @@ class ShapedWindows:
         self.threshold, self.margin = policy.threshold, policy.margin
         self.made: dict = {}
         self.serial = 0
-        self.x, self.y = (np.ascontiguousarray(c) for c in domain.coordinates)
-        self.pattern = domain.block_pattern
-        n = domain.n_dofs
-        self.scratch = (np.full(n, np.inf), np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
-                        np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64))
         self.windows_made = 0
-        #: CPU seconds spent making windows (:meth:`dilation`, the sets' gathering included)
+        #: CPU seconds spent making windows (``MeshDomain.dilation``, the sets' gathering included)
         self.shaping = 0.0
         #: CPU seconds spent finding the windows to remake
         self.checking = 0.0
@@ -106,25 +101,6 @@ class ShapedWindows:
                 for slot, i in enumerate(layout.order)]))
         return self._made_positions[1]
 
-    def dilation(self, sets: list[np.ndarray], reach: float) -> list[tuple[np.ndarray, np.ndarray]]:
-        """For each set of dofs, the dofs within ``reach`` of it and their distances
-        (:func:`~femphase.domains.mesh.kernels.dilate`, all sets in one call)."""
-        from femphase.domains.mesh.kernels import dilate
-
-        starts = np.concatenate([[0], np.cumsum([len(members) for members in sets])]).astype(np.int64)
-        capacity = 4 * int(starts[-1]) + 16
-        while True:
-            dofs, distances = np.empty(capacity, dtype=np.int64), np.empty(capacity)
-            offsets = np.zeros(len(sets) + 1, dtype=np.int64)
-            total = dilate(np.concatenate(sets).astype(np.int64), starts, self.pattern.indptr, self.pattern.indices,
-                           self.x, self.y, float(self.domain.period), np.full(len(sets), float(reach)), self.scratch,
-                           dofs, distances, offsets)
-            if total >= 0:
-                return [(dofs[offsets[k]:offsets[k + 1]].copy(), distances[offsets[k]:offsets[k + 1]].copy())
-                        for k in range(len(sets))]
-            self.scratch[0][:] = np.inf  # a call cut short leaves its window's distances
-            capacity *= 2
-
     def refit(self, layout, phi, policy, motion):
         from femphase.domains.mesh.boxes import Box
 
@@ -137,27 +113,22 @@ class ShapedWindows:
         self.checking += time.process_time() - started
         if not slots.size:
             return layout, phi
-        boxes, fields = list(layout.windows), layout.scatter(phi)
+        boxes, fields = layout.windows, layout.scatter(phi)
         particles = layout.order[slots]
         started = time.process_time()
-        made = self.dilation([domain.window_dofs(boxes[i])[fields[i] > self.threshold] for i in particles],
-                             self.margin + self.room)
+        made = domain.dilation([domain.window_dofs(boxes[i])[fields[i] > self.threshold] for i in particles],
+                               self.margin + self.room)
         self.shaping += time.process_time() - started
-        scratch = np.zeros(domain.n_dofs, dtype=phi.dtype)
+        replaced = {}
         for i, (dofs, distance) in zip(particles, made):
             self.serial += 1
             tag = Box(-float(self.serial), 0.0, 0.0, 0.0)
             domain._dofs.put(tag, dofs)
             self.made[tag] = distance
-            old = domain.window_dofs(boxes[i])
-            scratch[old] = fields[i]
-            fields[i] = scratch[dofs]
-            scratch[old] = 0.0
             self.made.pop(boxes[i], None)
-            boxes[i] = tag
+            replaced[i] = tag
         self.windows_made += len(particles)
-        refitted = domain.layout(boxes)
-        return refitted, refitted.gather(fields)
+        return domain._transferred(layout, phi, replaced)
 
 
 def layout_from_pieces_ms(domain, layout, changed: int, matrices: int = 4, repeats: int = 50) -> dict:

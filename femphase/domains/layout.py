@@ -200,6 +200,13 @@ class Layout:
     def representative(self, group: int) -> Hashable:
         return self.windows[self.groups[group][1][0]]
 
+    @cached_property
+    def slots(self) -> np.ndarray:
+        """The slot of every particle (particle order): the inverse of :attr:`order`."""
+        slots = np.empty(len(self.order), dtype=np.int64)
+        slots[self.order] = np.arange(len(self.order))
+        return slots
+
     def per_slot(self, values: np.ndarray) -> np.ndarray:
         """Per-particle values (particle order) in layout order."""
         return np.asarray(values)[self.order]

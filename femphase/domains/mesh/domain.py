@@ -469,15 +469,13 @@ class MeshDomain(Domain):
 
         # a shape (a run resumed with boxes) counts as the whole period: it is boxed anew
         boxes = [w if isinstance(w, Box) else self.full_window() for w in layout.windows]
-        fields = layout.scatter(phi)
         steps = np.zeros((len(boxes), 2)) if motion is None else motion()
         extents = np.empty((len(boxes), 4))
         x, y = self.coordinates
         extents[layout.order] = kernels.occupied_extents(
             phi, layout.node_index, layout.offsets, x, y, np.array([boxes[i].x0 for i in layout.order]),
             float(self.period), float(policy.threshold))
-        slot = np.empty(len(boxes), dtype=int)
-        slot[layout.order] = np.arange(len(boxes))
+        slot = layout.slots
         fitted = {i: self.full_window() for i, w in enumerate(layout.windows) if not isinstance(w, Box)}
         for i in np.flatnonzero(policy.misfits(extents, boxes, self.extent, steps)):
             box = boxes[i]
@@ -492,21 +490,25 @@ class MeshDomain(Domain):
         if not fitted:
             return layout, phi
         self.find_window_dofs(list(fitted.values()))
-        return self._transferred(layout, fields, fitted, phi.dtype)
+        return self._transferred(layout, phi, fitted)
 
-    def _transferred(self, layout: Layout, fields: list[np.ndarray], replaced: dict,
-                     dtype) -> tuple[Layout, np.ndarray]:
+    def _transferred(self, layout: Layout, phi: np.ndarray, replaced: dict) -> tuple[Layout, np.ndarray]:
         """(layout, φ) with the windows of particles ``replaced`` ({particle: window}) in
-        place of ``layout``'s, each field carried over to its new window (zero where it
-        was not; ``fields`` are ``layout``'s, per particle)."""
-        windows = list(layout.windows)
-        scratch = np.zeros(self.n_dofs, dtype=dtype)  # a single-precision step's fields stay so
-        for i, window in replaced.items():
-            old, new = self.window_dofs(windows[i]), self.window_dofs(window)
-            scratch[old] = fields[i]
-            fields[i] = scratch[new]
-            scratch[old] = 0.0
+        place of ``layout``'s, each field carried over to its new window (zero where it was
+        not) in one compiled pass (:func:`~femphase.domains.mesh.kernels.carry_over`); φ keeps
+        its precision."""
+        from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
+
+        particles = np.fromiter(replaced, dtype=np.int64, count=len(replaced))
+        new_dofs = [self.window_dofs(window) for window in replaced.values()]
+        dof_offsets = np.concatenate([[0], np.cumsum([dofs.size for dofs in new_dofs])]).astype(np.int64)
+        carried = kernels.carry_over(phi, layout.node_index, layout.offsets, layout.slots[particles],
+                                     np.concatenate(new_dofs).astype(np.int64), dof_offsets,
+                                     self._carry_scratch(phi.dtype))
+        fields, windows = layout.scatter(phi), list(layout.windows)
+        for k, (i, window) in enumerate(replaced.items()):
             windows[i] = window
+            fields[i] = carried[dof_offsets[k]:dof_offsets[k + 1]]
         refitted = self.layout(windows)
         return refitted, refitted.gather(fields)
 
@@ -519,37 +521,27 @@ class MeshDomain(Domain):
         over all of them at once."""
         from femphase.domains.mesh import kernels  # numba loads only where a mesh refits
 
-        made = self.per_layout(layout, "shape distances", lambda: np.concatenate([
+        # each position's distance to the set its shape was made for, and each shape's reach:
+        # kept with the layout's blocks, asked at every substep (inf and −inf for a box)
+        made, reaches = self.per_layout(layout, "shape distances", lambda: (np.concatenate([
             layout.windows[i].distances if isinstance(layout.windows[i], Shape)
-            else np.full(layout.sizes[slot], np.inf) for slot, i in enumerate(layout.order)]))
+            else np.full(layout.sizes[slot], np.inf) for slot, i in enumerate(layout.order)]),
+            np.array([w.reach if isinstance(w, Shape) else -np.inf for w in layout.windows])))
         moved = np.empty(len(layout.windows))
         moved[layout.order] = kernels.largest_made_distance(phi, made, layout.offsets, float(policy.threshold))
         steps = np.zeros((len(layout.windows), 2)) if motion is None else motion()
-        reaches = np.array([w.reach if isinstance(w, Shape) else -np.inf for w in layout.windows])
         remade = policy.to_remake(moved, reaches, np.hypot(*steps.T))
         if not remade.any():
             return layout, phi
         particles = np.flatnonzero(remade)
-        slot_of = np.empty(len(layout.windows), dtype=np.int64)
-        slot_of[layout.order] = np.arange(len(layout.windows))
-        slots = slot_of[particles]
-        members, set_offsets = kernels.occupied_dofs(phi, layout.node_index, layout.offsets, slots,
+        members, set_offsets = kernels.occupied_dofs(phi, layout.node_index, layout.offsets, layout.slots[particles],
                                                      float(policy.threshold))
         pieces = self._dilate(members, set_offsets, np.full(particles.size, policy.reach()), steps[particles])
         for k in np.flatnonzero(np.diff(set_offsets) == 0):
             dofs = self.window_dofs(layout.windows[particles[k]]).astype(np.int64)
             pieces[k] = (dofs, np.zeros(dofs.size))
-        sizes = np.array([dofs.size for dofs, _ in pieces], dtype=np.int64)
-        dof_offsets = np.concatenate([[0], np.cumsum(sizes)])
-        carried = kernels.carry_over(phi, layout.node_index, layout.offsets, slots,
-                                     np.concatenate([dofs for dofs, _ in pieces]), dof_offsets,
-                                     self._carry_scratch(phi.dtype))
-        fields, windows = layout.scatter(phi), list(layout.windows)
-        for k, i in enumerate(particles):
-            windows[i] = self._new_shape(*pieces[k], policy.reach())
-            fields[i] = carried[dof_offsets[k]:dof_offsets[k + 1]]
-        refitted = self.layout(windows)
-        return refitted, refitted.gather(fields)
+        return self._transferred(layout, phi, {i: self._new_shape(dofs, distances, policy.reach())
+                                               for i, (dofs, distances) in zip(particles, pieces)})
 
     def _carry_scratch(self, dtype) -> np.ndarray:
         """A zero array over the dofs in ``dtype``, kept (:func:`~femphase.domains.mesh.kernels.carry_over`
