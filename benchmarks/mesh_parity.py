@@ -15,14 +15,18 @@ alternate, ``--repeats`` times, and the ratios are mesh/grid within the same run
   :mod:`femphase.domains.mesh.semi_lagrangian`) as a kind, with ``--galerkin``;
 * the mesh on box windows (``numerics.mesh_windows = "boxes"``; the default on meshes with
   the batched solves is shaped windows, :mod:`femphase.domains.mesh.shapes`) as a kind,
-  with ``--boxes``.
+  with ``--boxes``;
+* the mesh with the Runge–Kutta advection (``numerics.mesh_advection = "runge-kutta"``; the
+  default below Courant number 2 is the Taylor–Galerkin step,
+  :mod:`femphase.domains.mesh.advection`) as a kind, with ``--runge-kutta``.
 
     OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 NUMBA_NUM_THREADS=1 \\
         python benchmarks/mesh_parity.py --relax 400 --flow 1600 --repeats 4 --direct
 
 Processes a minute apart see different spells of the shared machine: between them the
 channel's flow alone moved by up to 1.5×, and the ratio with it. ``--interleaved N`` runs
-the suspensions in one process instead (with ``--boxes`` the boxes too), relaxed one after
+the suspensions in one process instead (with ``--boxes`` and ``--runge-kutta`` those kinds
+too), relaxed one after
 the other, then their flows in N chunks of ``--flow`` time units each (the order rotated
 every chunk), and reports each mesh kind's ratio to the grid per chunk and over all (the
 first chunk dropped: compilation); no memory in this mode (one process holds all):
@@ -54,6 +58,8 @@ SCENES = {
     "mesh_galerkin": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0"], "stokes"),
     "mesh_boxes": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0",
                                                    "numerics.mesh_windows=\"boxes\""], "stokes"),
+    "mesh_runge_kutta": ("examples/straight_mesh.toml", ["phases.0.dt=10.0", "phases.1.dt=10.0",
+                                                         "numerics.mesh_advection=\"runge-kutta\""], "stokes"),
 }
 THREADS = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "NUMBA_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
 
@@ -120,6 +126,8 @@ def main() -> None:
                         help="also the mesh with the Galerkin advection at every Courant number (no semi-Lagrangian)")
     parser.add_argument("--boxes", action="store_true",
                         help="also the mesh with box windows (numerics.mesh_windows = \"boxes\")")
+    parser.add_argument("--runge-kutta", action="store_true",
+                        help="also the mesh with the Runge–Kutta advection (numerics.mesh_advection = \"runge-kutta\")")
     parser.add_argument("--interleaved", type=int, metavar="N",
                         help="both in one process, in N alternating chunks of --flow time units (no memory)")
     parser.add_argument("--child", choices=sorted(SCENES), help=argparse.SUPPRESS)
@@ -134,7 +142,8 @@ def main() -> None:
         result = {"machine": common.machine(),
                   "command": " ".join(["python benchmarks/mesh_parity.py", *sys.argv[1:]]),
                   **interleaved(args.relax, args.flow, args.interleaved, args.velocity,
-                                ("grid", "mesh") + ("mesh_boxes",) * args.boxes)}
+                                ("grid", "mesh") + ("mesh_boxes",) * args.boxes
+                                + ("mesh_runge_kutta",) * args.runge_kutta)}
         args.output.parent.mkdir(parents=True, exist_ok=True)
         args.output.write_text(json.dumps(result, indent=1) + "\n")
         for kind, ratios in result["meshes"].items():
@@ -142,7 +151,7 @@ def main() -> None:
                   f"{args.flow:g} (per chunk {min(ratios['chunk_ratios']):.2f}–{max(ratios['chunk_ratios']):.2f})")
         return
     kinds = (["grid", "mesh"] + ["mesh_boxes"] * args.boxes + ["mesh_direct"] * args.direct
-             + ["mesh_galerkin"] * args.galerkin)
+             + ["mesh_galerkin"] * args.galerkin + ["mesh_runge_kutta"] * args.runge_kutta)
     runs = []
     for repeat in range(args.repeats):
         for kind in kinds:

@@ -29,7 +29,7 @@ FD_ADVECTION = ("upwind3", "upwind1")
 #: ``numerics.precision``.
 PRECISIONS = ("mixed", "double")
 #: ``numerics.mesh_advection``: see :class:`Numerics`.
-MESH_ADVECTIONS = ("auto", "galerkin", "semi-lagrangian")
+MESH_ADVECTIONS = ("auto", "galerkin", "runge-kutta", "semi-lagrangian")
 #: ``numerics.mesh_windows``: see :class:`Numerics`.
 MESH_WINDOWS = ("auto", "shapes", "boxes")
 #: ``numerics.estimate``: see :class:`Numerics`.
@@ -136,9 +136,14 @@ class Numerics:
                     semi-Lagrangian for every advection of Courant number max|v| dt/h ≥ 2 (h
                     the median edge), Galerkin below (:mod:`femphase.domains.mesh.semi_lagrangian`;
                     docs/decisions/0043);
-                    "galerkin": the Galerkin step at every Courant number; "semi-lagrangian":
-                    semi-Lagrangian at every Courant number (steady flows only; below 2 its
-                    interpolation errors exceed the Galerkin step's, docs/decisions/0042)
+                    "galerkin": the Galerkin step at every Courant number (the explicit
+                    Taylor–Galerkin step with the batched solves, Galerkin–Padé with
+                    per-window solvers; docs/decisions/0058); "runge-kutta": the explicit
+                    three-stage Runge–Kutta step at every Courant number (K + 1 products per
+                    stage instead of per substep; kept for discretisation studies);
+                    "semi-lagrangian": semi-Lagrangian at every Courant number (steady flows
+                    only; below 2 its interpolation errors exceed the Galerkin step's,
+                    docs/decisions/0042)
     mesh_windows    meshes only: what a window is. "shapes": the dofs within a reach of the
                     particle, along the mesh's edges (:mod:`femphase.domains.mesh.shapes`);
                     "boxes": the dofs in an axis-aligned box around it

@@ -11,7 +11,7 @@ from test_unstructured import PARAMS, discs, python_flow, straight
 from femphase.analysis.shape import shape_observables
 from femphase.config import Numerics
 from femphase.domains.mesh import semi_lagrangian
-from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
+from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta, TaylorGalerkin
 from femphase.domains.mesh.domain import write_domain
 from femphase.domains.mesh.generation import structured_channel
 from femphase.errors import SceneError
@@ -72,14 +72,17 @@ def test_meshes_choose_it_for_steady_flows_by_the_courant_threshold_and_the_scen
     slow = semi_lagrangian.COURANT * edge * 0.9
     fast = semi_lagrangian.COURANT * edge * 1.1
     assert courant_number(channel, np.stack([np.ones(3), np.zeros(3)]), fast) > semi_lagrangian.COURANT
-    assert isinstance(channel.advection(uniform, slow, Numerics()), GalerkinRungeKutta)
+    assert isinstance(channel.advection(uniform, slow, Numerics()), TaylorGalerkin)
     assert isinstance(channel.advection(uniform, fast, Numerics()), SemiLagrangian)
-    assert isinstance(channel.advection(uniform, fast, Numerics(mesh_advection="galerkin")), GalerkinRungeKutta)
+    assert isinstance(channel.advection(uniform, fast, Numerics(mesh_advection="galerkin")), TaylorGalerkin)
+    # the Runge–Kutta step at every Courant number, whatever the solver
+    for numerics in (Numerics(mesh_advection="runge-kutta"), Numerics(mesh_advection="runge-kutta", solver="direct")):
+        assert isinstance(channel.advection(uniform, fast, numerics), GalerkinRungeKutta)
     assert isinstance(channel.advection(uniform, slow, Numerics(mesh_advection="semi-lagrangian")), SemiLagrangian)
     # per-window solvers keep their exact-solve reference, the Padé step, unless asked
     assert isinstance(channel.advection(uniform, fast, Numerics(solver="direct")), GalerkinPade)
     changing = Flow("python", lambda x, y, t: (np.ones_like(x), np.zeros_like(y)), steady=False)
-    assert isinstance(channel.advection(changing, fast, Numerics()), GalerkinRungeKutta)
+    assert isinstance(channel.advection(changing, fast, Numerics()), TaylorGalerkin)
     with pytest.raises(ValueError, match="steady flow"):
         SemiLagrangian(channel, changing, fast)
 

@@ -88,7 +88,7 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         products.append((matrix.dtype, vector.dtype))
         return original(matrix, vector)
 
-    cg_pass, advection_pass, start_pass = (kernels.window_conjugate_gradient, kernels.galerkin_runge_kutta,
+    cg_pass, advection_pass, start_pass = (kernels.window_conjugate_gradient, kernels.taylor_galerkin,
                                            kernels.residual_start)
 
     def counted_start(*args):  # the CG's starting residual: its matrix's entries and the guess
@@ -99,7 +99,7 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         products.append((args[2].dtype, args[5].dtype))
         return cg_pass(*args)
 
-    def counted_advection(*args):  # the advection's: C's and M's entries, and φ
+    def counted_advection(*args):  # the advection's: its two matrices' entries, and φ
         products.extend([(args[2].dtype, args[5].dtype), (args[3].dtype, args[5].dtype)])
         return advection_pass(*args)
 
@@ -113,7 +113,7 @@ def test_mixed_precision_on_a_mesh_follows_double_under_flow(monkeypatch):
         products.clear()
         monkeypatch.setattr(sp.csr_matrix, "__matmul__", counted)
         monkeypatch.setattr(kernels, "window_conjugate_gradient", counted_cg)
-        monkeypatch.setattr(kernels, "galerkin_runge_kutta", counted_advection)
+        monkeypatch.setattr(kernels, "taylor_galerkin", counted_advection)
         monkeypatch.setattr(kernels, "residual_start", counted_start)
         for _ in range(4):
             stepper.step(state)

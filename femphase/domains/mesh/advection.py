@@ -8,10 +8,31 @@ has none, and the resolved interface held to its tanh profile by the double well
 oscillate at cell Péclet numbers above 2. A quadratic-exact semi-Lagrangian step
 (:mod:`femphase.domains.mesh.semi_lagrangian`) is as accurate from Courant number 2 on, and
 the domain takes it there in steady flows
-(:meth:`femphase.domains.mesh.domain.MeshDomain.advection`). Two steps in time:
+(:meth:`femphase.domains.mesh.domain.MeshDomain.advection`). Three steps in time:
 
-* **explicit** (:class:`GalerkinRungeKutta`, with the batched window solves, the meshes'
-  default): an explicit Runge–Kutta step of s = :data:`STAGES` stages and order s on
+* **Taylor–Galerkin** (:class:`TaylorGalerkin`, with the batched window solves, the meshes'
+  default): the third-order Taylor–Galerkin step (Donea 1984), the Taylor series of φ over
+  a substep h to h³ with the second and third time derivatives taken from the equation,
+  φ_tt = (v·∇)²φ, whose Galerkin form is −S (the streamline matrix
+  S_ij = ∫(v·∇φ_j)(v·∇φ_i), :func:`streamline_matrix`):
+
+      (M + (h²/6) S) Δ = −h (C + (h/2) S) φ,   φ ← φ + Δ,
+
+  the left-hand side inverted as M is in the Runge–Kutta step below, by its lumping (M_L: S's
+  rows sum to zero) with K = :data:`MASS_CORRECTIONS` Jacobi corrections; subcycled at the
+  same ω h ≤ :data:`COURANT`. No system is solved, and a substep costs K + 1 sparse products
+  where the Runge–Kutta step's costs s (K + 1): 0.45× its time, and 0.86× the CPU of flow on
+  examples/straight_mesh.toml (docs/decisions/0058-taylor-galerkin-mesh-advection.md).
+  Stable up to ω h ≈ 1.3 at K = 2 (tests/test_mesh_advection.py). Its S terms damp the
+  Galerkin dispersion, first order in h against the semi-discrete Galerkin solution
+  but not against the exact one: a disc translated 10 units by u = 1 lies closer to the same
+  disc relaxed there (root mean square 0.0070 against the Runge–Kutta step's 0.0133 and
+  converged Padé's 0.0114) and barely undershoots (−0.002 against −0.06), and a translating
+  disc lags by 0.10–0.15 % (Runge–Kutta 0.17 %, Padé 0.10 %). The price is a spurious
+  stretch along the flow: +0.013 over 32 units at u = 1 where the Runge–Kutta step's is
+  +0.005 (verification/README.md, "Advection on meshes");
+* **explicit Runge–Kutta** (:class:`GalerkinRungeKutta`, ``numerics.mesh_advection =
+  "runge-kutta"``): an explicit Runge–Kutta step of s = :data:`STAGES` stages and order s on
   φ' = −P C φ, P = Σ_{k≤K} (I − M_L⁻¹M)^k M_L⁻¹ the lumped mass inverse with K =
   :data:`MASS_CORRECTIONS` Jacobi corrections, subcycled so that ω h ≤ :data:`COURANT` (ω
   the spectral radius of P C). No system is solved; each stage costs K + 1 sparse products.
@@ -55,14 +76,20 @@ from femphase.fem.operators import nodes_to_dofs
 from femphase.fem.solvers import make_solver
 from femphase.flows import Flow, time_mean, velocity_at
 
-__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "GalerkinAdvection",
-           "GalerkinPade", "GalerkinRungeKutta", "QuadratureAdvection", "advection_matrix", "corrected_inverse",
-           "skew_advection", "spectral_radius"]
+__all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "ExplicitGalerkin",
+           "GalerkinAdvection", "GalerkinPade", "GalerkinRungeKutta", "QuadratureAdvection", "TaylorGalerkin",
+           "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius", "streamline_form",
+           "streamline_matrix"]
 
 
 @BilinearForm
 def skew_advection(u, v, w):
     return 0.5 * (dot(w.velocity, grad(u)) * v - dot(w.velocity, grad(v)) * u)
+
+
+@BilinearForm
+def streamline_form(u, v, w):
+    return dot(w.velocity, grad(u)) * dot(w.velocity, grad(v))
 
 
 def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float = 0.0) -> sp.csr_matrix:
@@ -78,37 +105,56 @@ def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float 
     (:func:`~femphase.flows.time_mean`; C is linear in v, so this is the mean of C over the
     step). An analytic flow's C comes from its velocities by :class:`QuadratureAdvection`,
     the domain's, kept with the flows' operators."""
+    return _velocity_matrix(domain, flow, time, span, skew_advection, "matrix")
+
+
+def streamline_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float = 0.0) -> sp.csr_matrix:
+    """The streamline matrix S_ij = ∫ (v·∇φ_j)(v·∇φ_i) on the periodic dofs: symmetric,
+    positive semidefinite, rows summing to zero; −S is the Galerkin form of (v·∇)², the
+    second time derivative of an advected field (the Taylor–Galerkin step's, with v·n = 0 on
+    the walls). The velocity as in :func:`advection_matrix`; with ``span`` > 0 S is the mean
+    velocity's (S is quadratic in v: the step's flow frozen at its mean over the step)."""
+    return _velocity_matrix(domain, flow, time, span, streamline_form, "streamline")
+
+
+def _velocity_matrix(domain: Domain, flow: Flow, time: float, span: float, form: BilinearForm,
+                     quadrature: str) -> sp.csr_matrix:
+    """``form`` with the flow's velocity on the periodic dofs: the Stokes field assembled by
+    skfem, an analytic flow's by the domain's :class:`QuadratureAdvection` (its method
+    ``quadrature``)."""
     if flow.stokes is not None:
         basis = flow.stokes.pressure_basis  # P1 on the velocity basis' quadrature points
         velocity = np.asarray(flow.stokes.velocity_basis.interpolate(flow.stokes.velocity))
         fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
-        return (fold.T @ skew_advection.assemble(basis, velocity=velocity) @ fold).tocsr()
+        return (fold.T @ form.assemble(basis, velocity=velocity) @ fold).tocsr()
     assembly = domain.advection_operators.setdefault("quadrature advection", lambda: QuadratureAdvection(domain))
     x, y = assembly.points
     velocity = (velocity_at(flow, x, y, time) if span == 0.0
                 else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
-    return assembly.matrix(velocity)
+    return getattr(assembly, quadrature)(velocity)
 
 
 class QuadratureAdvection:
-    """C (:func:`advection_matrix`) of any velocity given at the quadrature points of the P1
-    basis of degree 4, as one linear map: on element e, with ∇φ_a constant and S_a =
-    Σ_q w_q det(J_e) φ_a(x_q) v(x_q) (J_e the element map's Jacobian),
+    """C (:func:`advection_matrix`) and S (:func:`streamline_matrix`) of any velocity given
+    at the quadrature points of the P1 basis of degree 4, each as one linear or quadratic
+    map: on element e, with ∇φ_a constant, S_a = Σ_q w_q det(J_e) φ_a(x_q) v(x_q) and
+    T_e = Σ_q w_q det(J_e) v(x_q) v(x_q)ᵀ (J_e the element map's Jacobian),
 
-        C^e_ab = ½ (S_a·∇φ_b − S_b·∇φ_a),
+        C^e_ab = ½ (S_a·∇φ_b − S_b·∇φ_a),   S^e_ab = ∇φ_a · T_e ∇φ_b,
 
     summed into the entries of the domain's block pattern on the periodic dofs. The same
-    matrix as :data:`skew_advection` assembled by skfem and folded onto the dofs, to rounding,
-    in 3 ms instead of 70 on examples/straight_mesh.toml (33 480 elements): what a flow that
-    changes in time and has no fixed direction field (:attr:`~femphase.flows.Flow.profile`)
-    pays at every step."""
+    matrices as :data:`skew_advection` and :data:`streamline_form` assembled by skfem and
+    folded onto the dofs, to rounding; C in 3 ms instead of 70 on examples/straight_mesh.toml
+    (33 480 elements): what a flow that changes in time and has no fixed direction field
+    (:attr:`~femphase.flows.Flow.profile`) pays at every step."""
 
     def __init__(self, domain: Domain) -> None:
         basis = Basis(domain.mesh, ElementTriP1(), intorder=4)
         #: (x, y) of the quadrature points, each (elements, points per element)
         self.points = tuple(basis.mapping.F(basis.X))
         hats = [basis.basis[a][0] for a in range(3)]
-        self._weighted = np.stack([np.asarray(hat) * basis.dx for hat in hats])  # (3, elements, points)
+        self._dx = np.asarray(basis.dx)  # (elements, points): weight × det(J)
+        self._weighted = np.stack([np.asarray(hat) * self._dx for hat in hats])  # (3, elements, points)
         self._gradients = np.stack([hat.grad[:, :, 0] for hat in hats])  # (3, 2, elements): P1's are constant
         pattern = domain.block_pattern
         dofs = np.asarray(domain.dof_map)[domain.mesh.t].astype(np.int64)  # (3, elements)
@@ -121,13 +167,21 @@ class QuadratureAdvection:
 
     @property
     def nbytes(self) -> int:
-        return int(sum(a.nbytes for a in (*self.points, self._weighted, self._gradients, self._entries)))
+        return int(sum(a.nbytes for a in (*self.points, self._dx, self._weighted, self._gradients, self._entries)))
 
     def matrix(self, velocity: np.ndarray) -> sp.csr_matrix:
         """C of the velocity (2, elements, points per element) at :attr:`points`."""
         moments = np.einsum("aeq,ceq->ace", self._weighted, velocity)  # S_a, (3, 2, elements)
         products = np.einsum("ace,bce->abe", moments, self._gradients)  # S_a·∇φ_b
-        local = 0.5 * (products - products.transpose(1, 0, 2))
+        return self._summed(0.5 * (products - products.transpose(1, 0, 2)))
+
+    def streamline(self, velocity: np.ndarray) -> sp.csr_matrix:
+        """S of the velocity (2, elements, points per element) at :attr:`points`."""
+        tensors = np.einsum("eq,ceq,deq->cde", self._dx, velocity, velocity)  # T_e, (2, 2, elements)
+        return self._summed(np.einsum("ace,cde,bde->abe", self._gradients, tensors, self._gradients))
+
+    def _summed(self, local: np.ndarray) -> sp.csr_matrix:
+        """The element matrices ``local`` (3, 3, elements) summed on the block pattern."""
         data = np.bincount(self._entries, weights=local.ravel(), minlength=self._pattern.nnz)
         # the pattern's own index arrays copied: a caller may reorder a matrix's in place
         return sp.csr_matrix((data, self._pattern.indices.copy(), self._pattern.indptr.copy()),
@@ -219,8 +273,9 @@ class GalerkinPade(GalerkinAdvection):
         return out, layout
 
 
-#: K, the Jacobi corrections of the lumped mass inverse in :class:`GalerkinRungeKutta` (module
-#: docstring: 0.17 % lag of a translating disc at K = 2 against 0.10 % with M⁻¹ exactly).
+#: K, the Jacobi corrections of the lumped inverse in the explicit steps (module docstring:
+#: a translating disc lags by 0.10–0.15 % under the Taylor–Galerkin step at K = 2, 0.17 %
+#: under the Runge–Kutta step, 0.10 % with M⁻¹ exactly).
 MASS_CORRECTIONS = 2
 #: s, the stages and order of :class:`GalerkinRungeKutta`'s step. Three: a translating disc
 #: lags as at four (0.17 %) and stretches by +0.0045 instead of +0.0037 (dt = 1), for three
@@ -228,10 +283,12 @@ MASS_CORRECTIONS = 2
 #: (docs/decisions/0026-three-stage-mesh-advection.md). Both are time errors far below the
 #: spatial ones; the fourth-order step's extra accuracy is not needed.
 STAGES = 3
-#: The largest ω h of a substep, ω the spectral radius of P C: the step is stable on the
-#: imaginary axis up to √3 (three stages), and at 1 its time error stays below the spatial one
-#: (a disc translating at u = 1, four stages: elongation +0.004 at ω h ≤ 1 against +0.010
-#: at ≤ 2; three stages: +0.0045 at ≤ 1).
+#: The largest ω h of a substep, ω the spectral radius of P C: the Runge–Kutta step is stable
+#: on the imaginary axis up to √3 (three stages), and at 1 its time error stays below the
+#: spatial one (a disc translating at u = 1, four stages: elongation +0.004 at ω h ≤ 1
+#: against +0.010 at ≤ 2; three stages: +0.0045 at ≤ 1). The Taylor–Galerkin step at K = 2
+#: is stable up to ω h ≈ 1.3 (the amplification matrix's spectral radius on a small
+#: Delaunay channel, tests/test_mesh_advection.py).
 COURANT = 1.0
 #: Margin on the power-iteration estimate of ω (:func:`spectral_radius`).
 SPECTRAL_MARGIN = 1.25
@@ -269,27 +326,22 @@ def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterat
     return estimate
 
 
-class GalerkinRungeKutta(GalerkinAdvection):
-    """Galerkin advection with an explicit Runge–Kutta step and a corrected lumped mass
-    inverse (module docstring), on all windows at once: per layout the block-diagonal
-    matrices of the windows' principal submatrices of C and M (:mod:`femphase.fem.blocks`),
-    nothing per window.
-    C, its entries aligned to the block pattern, its block-diagonal form on the current
-    layout and ω are the flow's, shared by every dt. ``numerics`` is taken for the
-    advections' common signature; no setting of it applies."""
+class ExplicitGalerkin(GalerkinAdvection):
+    """What the explicit steps share: K (:data:`MASS_CORRECTIONS`), ω and the substeps they
+    take of each step, at ω h ≤ :data:`COURANT`. ``numerics`` is taken for the advections'
+    common signature; no setting of it applies."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
-        #: K and s (module docstring), read from :data:`MASS_CORRECTIONS` and :data:`STAGES`
-        #: when built (so a study can set them, verification/mesh_advection.py)
+        #: K (module docstring), read from :data:`MASS_CORRECTIONS` when built (so a study can
+        #: set it, verification/mesh_advection.py)
         self.corrections = MASS_CORRECTIONS
-        self.stages = STAGES
         super().__init__(domain, flow, dt)
 
     @property
     def frequency(self) -> float:
         """ω, the spectral radius of the step's P C on the whole mesh (1/time units). The windows' P C are
-        not estimated on their own: the margin and ω h ≤ 1 against the step's limit (√3 at
-        three stages) leave them room."""
+        not estimated on their own: the margin and ω h ≤ 1 against the steps' limits (√3 and
+        ≈ 1.3) leave them room."""
         ops = self.domain.operators
         inverse_lumped = 1.0 / ops.lumped_mass
         advection = self.advection
@@ -298,8 +350,28 @@ class GalerkinRungeKutta(GalerkinAdvection):
 
     @property
     def substeps(self) -> int:
-        """Runge–Kutta substeps per step of dt."""
+        """Substeps per step of dt."""
         return max(1, int(np.ceil(SPECTRAL_MARGIN * self.frequency * self.dt / COURANT)))
+
+    def _inverse_lumped(self, layout: Layout, dtype: type) -> np.ndarray:
+        """M_L⁻¹ on the layout's positions in ``dtype`` (the fields' precision: float32 in
+        single-precision steps, where a float64 operand would promote every product), kept
+        with its blocks."""
+        return self.domain.per_layout(layout, ("inverse lumped mass", dtype), lambda: (1.0 / layout.mass).astype(dtype))
+
+
+class GalerkinRungeKutta(ExplicitGalerkin):
+    """Galerkin advection with an explicit Runge–Kutta step and a corrected lumped mass
+    inverse (module docstring), on all windows at once: per layout the block-diagonal
+    matrices of the windows' principal submatrices of C and M (:mod:`femphase.fem.blocks`),
+    nothing per window.
+    C, its entries aligned to the block pattern, its block-diagonal form on the current
+    layout and ω are the flow's, shared by every dt."""
+
+    def __init__(self, domain: Domain, flow: Flow, dt: float, numerics: Numerics) -> None:
+        #: s (module docstring), read from :data:`STAGES` when built
+        self.stages = STAGES
+        super().__init__(domain, flow, dt, numerics)
 
     def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
         from femphase.fem import kernels  # numba loads only where windows are solved at once
@@ -311,8 +383,7 @@ class GalerkinRungeKutta(GalerkinAdvection):
         aligned = self._per_flow(f"aligned {dtype.__name__}", lambda: self.domain.aligned(self.advection).astype(dtype))
         advection = self.domain.window_matrix(layout, ("advection", dtype), aligned)
         mass = self.domain.window_operator(layout, "mass", dtype)
-        inverse_lumped = (1.0 / layout.mass).astype(dtype)
-
+        inverse_lumped = self._inverse_lumped(layout, dtype)
         # Σ_{k≤s} (−hPC)^k/k! x by Horner (on a linear, autonomous equation every Runge–Kutta
         # method of s stages and order s is this polynomial) in one compiled pass per product,
         # C and M sharing the layout's pattern
@@ -322,3 +393,45 @@ class GalerkinRungeKutta(GalerkinAdvection):
             unsigned(pattern.indptr), unsigned(pattern.indices), advection.data, mass.data, inverse_lumped,
             np.ascontiguousarray(phi), self.dt / substeps * self._scale, substeps, self.stages,
             self.corrections), layout
+
+
+class TaylorGalerkin(ExplicitGalerkin):
+    """Galerkin advection with the third-order Taylor–Galerkin step (module docstring) on all
+    windows at once, as :class:`GalerkinRungeKutta` but with the streamline matrix S
+    (:func:`streamline_matrix`) beside C and M, and K + 1 products a substep instead of
+    s (K + 1). For a flow of fixed direction field, v = f(t) w(x), the step is that of w at
+    the amplitude f̄ (its mean over the step): C scales with f̄ and S with f̄², which is a
+    substep of h f̄ with w's matrices."""
+
+    @property
+    def streamline(self) -> sp.csr_matrix:
+        """S (full mesh, periodic dofs) at :attr:`_when`, of the flow's profile where it has one."""
+        return self._per_flow("streamline", lambda: streamline_matrix(self.domain, self.flow.profile or self.flow,
+                                                                      *(self._when or (0.0, 0.0))))
+
+    def advect(self, phi: np.ndarray, layout: Layout, time: float) -> tuple[np.ndarray, Layout]:
+        from femphase.fem import kernels  # numba loads only where windows are solved at once
+
+        self._step_from(time)
+        dtype = np.dtype(phi.dtype).type
+        substeps = self.substeps
+        step = self.dt / substeps * self._scale
+        forward, implicit = (self.domain.window_matrix(layout, (name, step, dtype), aligned).data for name, aligned
+                             in zip(("Taylor–Galerkin F", "Taylor–Galerkin B"), self._aligned_matrices(step, dtype)))
+        pattern = self.domain.window_blocks(layout)
+        return kernels.taylor_galerkin(unsigned(pattern.indptr), unsigned(pattern.indices), forward, implicit,
+                                       self._inverse_lumped(layout, dtype), np.ascontiguousarray(phi), substeps,
+                                       self.corrections), layout
+
+    def _aligned_matrices(self, step: float, dtype: type) -> tuple[np.ndarray, np.ndarray]:
+        """The entries of F = −h (C + (h/2) S) and B = M + (h²/6) S aligned to the block pattern,
+        for substeps of h = ``step`` (:func:`~femphase.fem.kernels.taylor_galerkin`), formed in
+        double and kept in ``dtype`` per flow and h (the adaptive scheme repeats a few h), so
+        that a layout's blocks of each are one gather."""
+        def build() -> tuple[np.ndarray, np.ndarray]:
+            aligned = self.domain.aligned
+            advection, streamline = aligned(self.advection), aligned(self.streamline)
+            forward = -step * (advection + (0.5 * step) * streamline)
+            implicit = aligned(self.domain.operators.mass) + (step * step / 6.0) * streamline
+            return forward.astype(dtype), implicit.astype(dtype)
+        return self._per_flow(f"Taylor–Galerkin {step!r} {dtype.__name__}", build)

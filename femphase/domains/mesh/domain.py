@@ -42,7 +42,7 @@ from femphase.domains.advection import nodal_velocity
 from femphase.domains.base import DOMAINS, Domain
 from femphase.domains.layout import Layout
 from femphase.domains.mesh import semi_lagrangian
-from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta
+from femphase.domains.mesh.advection import GalerkinPade, GalerkinRungeKutta, TaylorGalerkin
 from femphase.domains.mesh.boxes import Box, BoxPolicy, circular_extent
 from femphase.domains.mesh.location import locate
 from femphase.domains.mesh.shapes import Shape, ShapePolicy
@@ -626,21 +626,24 @@ class MeshDomain(Domain):
         return windows
 
     # -- fast paths and flows ---------------------------------------------------------------
-    def advection(self, flow: Flow, dt: float,
-                  numerics: Numerics) -> GalerkinRungeKutta | GalerkinPade | semi_lagrangian.SemiLagrangian:
+    def advection(self, flow: Flow, dt: float, numerics: Numerics
+                  ) -> TaylorGalerkin | GalerkinRungeKutta | GalerkinPade | semi_lagrangian.SemiLagrangian:
         """By ``numerics.mesh_advection``: semi-Lagrangian in a steady flow ("auto": with the
         batched window solves, from the Courant number
         :data:`~femphase.domains.mesh.semi_lagrangian.COURANT` on; "semi-lagrangian": always;
-        :mod:`femphase.domains.mesh.semi_lagrangian`), else explicit Runge–Kutta with the
-        batched window solves and Galerkin–Padé, the exact-solve reference, with per-window
-        factorisations (:mod:`femphase.domains.mesh.advection`)."""
+        :mod:`femphase.domains.mesh.semi_lagrangian`); "runge-kutta": the explicit Runge–Kutta
+        step; else the explicit Taylor–Galerkin step with the batched window solves and
+        Galerkin–Padé, the exact-solve reference, with per-window factorisations
+        (:mod:`femphase.domains.mesh.advection`)."""
         mode, batched = numerics.mesh_advection, self.solves_batched(numerics)
         if flow.steady and (mode == "semi-lagrangian" or mode == "auto" and batched and (
                 semi_lagrangian.courant_number(self, nodal_velocity(self, flow), dt) >= semi_lagrangian.COURANT)):
             return semi_lagrangian.SemiLagrangian(self, flow, dt)
+        if mode == "runge-kutta":
+            return GalerkinRungeKutta(self, flow, dt, numerics)
         if not batched:
             return GalerkinPade(self, flow, dt, numerics)
-        return GalerkinRungeKutta(self, flow, dt, numerics)
+        return TaylorGalerkin(self, flow, dt, numerics)
 
     def shape_moments(self, layout: Layout, phi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Area with the nodal quadrature; shape tensor the exact integral of the P1 element
