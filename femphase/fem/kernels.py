@@ -103,6 +103,21 @@ def _block_rows(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, v: np
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
+def _corrected_inverse(indptr: np.ndarray, indices: np.ndarray, matrix: np.ndarray, rhs: np.ndarray,
+                       inverse_lumped: np.ndarray, corrections: int, out: np.ndarray, scratch: np.ndarray) -> None:
+    """out = Σ_{j≤K} (I − M_L⁻¹A)^j M_L⁻¹ rhs, the lumped inverse of A (``matrix``, on the
+    CSR pattern ``indptr``, ``indices``) with K = ``corrections`` Jacobi corrections, each
+    z ← z + M_L⁻¹(rhs − A z) from the whole z; ``scratch`` holds A z."""
+    n = np.uint64(rhs.size)
+    for i in range(n):
+        out[i] = rhs[i] * inverse_lumped[i]
+    for _ in range(corrections):
+        _block_rows(indptr, indices, matrix, out, scratch, 0, n, False)
+        for i in range(n):
+            out[i] += (rhs[i] - scratch[i]) * inverse_lumped[i]
+
+
+@numba.njit(cache=True, nogil=True, boundscheck=False)
 def galerkin_runge_kutta(indptr: np.ndarray, indices: np.ndarray, advection: np.ndarray, mass: np.ndarray,
                          inverse_lumped: np.ndarray, phi: np.ndarray, step: float, substeps: int, stages: int,
                          corrections: int) -> np.ndarray:
@@ -125,12 +140,7 @@ def galerkin_runge_kutta(indptr: np.ndarray, indices: np.ndarray, advection: np.
         start[:] = y
         for k in range(stages, 0, -1):
             _block_rows(indptr, indices, advection, y, product, 0, n, False)
-            for i in range(n):
-                z[i] = product[i] * inverse_lumped[i]
-            for _ in range(corrections):  # z ← z + M_L⁻¹(C y − M z), from the whole z
-                _block_rows(indptr, indices, mass, z, corrected, 0, n, False)
-                for i in range(n):
-                    z[i] += (product[i] - corrected[i]) * inverse_lumped[i]
+            _corrected_inverse(indptr, indices, mass, product, inverse_lumped, corrections, z, corrected)
             factor = dtype(-step / k)
             for i in range(n):
                 y[i] = z[i] * factor + start[i]
@@ -158,12 +168,7 @@ def taylor_galerkin(indptr: np.ndarray, indices: np.ndarray, forward: np.ndarray
     corrected = np.empty_like(phi)
     for _ in range(substeps):
         _block_rows(indptr, indices, forward, y, r, 0, n, False)
-        for i in range(n):
-            d[i] = r[i] * inverse_lumped[i]
-        for _ in range(corrections):  # d ← d + M_L⁻¹(F y − B d), from the whole d
-            _block_rows(indptr, indices, implicit, d, corrected, 0, n, False)
-            for i in range(n):
-                d[i] += (r[i] - corrected[i]) * inverse_lumped[i]
+        _corrected_inverse(indptr, indices, implicit, r, inverse_lumped, corrections, d, corrected)
         for i in range(n):
             y[i] += d[i]
     return y
