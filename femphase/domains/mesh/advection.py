@@ -129,10 +129,7 @@ def _velocity_matrix(domain: Domain, flow: Flow, time: float, span: float, form:
         fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
         return (fold.T @ form.assemble(basis, velocity=velocity) @ fold).tocsr()
     assembly = domain.advection_operators.setdefault("quadrature advection", lambda: QuadratureAdvection(domain))
-    x, y = assembly.points
-    velocity = (velocity_at(flow, x, y, time) if span == 0.0
-                else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
-    return getattr(assembly, quadrature)(velocity)
+    return getattr(assembly, quadrature)(assembly.velocity(flow, time, span))
 
 
 class QuadratureAdvection:
@@ -165,10 +162,28 @@ class QuadratureAdvection:
         if not stored.all():  # the pattern is the dofs' element connectivity: a mesh broken
             raise ValueError("the block pattern lacks pairs of dofs that share an element")
         self._pattern = pattern
+        #: the last velocity asked (:meth:`velocity`): (flow, time, span) and its values, in an
+        #: array made here so that the budget counts it from the start
+        self._asked: tuple | None = None
+        self._velocity = np.empty((2, *self._dx.shape))
 
     @property
     def nbytes(self) -> int:
-        return int(sum(a.nbytes for a in (*self.points, self._dx, self._weighted, self._gradients, self._entries)))
+        return int(sum(a.nbytes for a in (*self.points, self._dx, self._weighted, self._gradients, self._entries,
+                                          self._velocity)))
+
+    def velocity(self, flow: Flow, time: float, span: float) -> np.ndarray:
+        """(2, elements, points per element): the flow's velocity at :attr:`points` at
+        ``time``, or with ``span`` > 0 its mean over [time, time + span]
+        (:func:`~femphase.flows.time_mean`). The last one asked is kept: C and S of a step
+        ask for the same, and the mean over a step was two thirds of an oscillating shear's
+        step where both took it anew."""
+        if self._asked is None or self._asked[0] is not flow or self._asked[1:] != (time, span):
+            x, y = self.points
+            self._velocity[...] = (velocity_at(flow, x, y, time) if span == 0.0
+                                   else time_mean(lambda t: velocity_at(flow, x, y, t), time, span))
+            self._asked = (flow, time, span)
+        return self._velocity
 
     def matrix(self, velocity: np.ndarray) -> sp.csr_matrix:
         """C of the velocity (2, elements, points per element) at :attr:`points`."""
@@ -194,17 +209,18 @@ PADE_POLE = -3.0 + 1j * np.sqrt(3.0)
 
 
 class GalerkinAdvection(StepAdvection):
-    """What the two Galerkin steps share: the advection matrix C of the flow, assembled once
-    for a steady flow and at every step, as its mean over the step, for a time-dependent one, and kept in the
-    domain's budget per flow, so that advections of one flow over different dt (the adaptive
-    scheme's substep sizes) share it and what is derived from it (:meth:`_per_flow`).
+    """What the Galerkin steps share: the advection matrix C of the flow, assembled once for a
+    steady flow and at every step, as its mean over the step, for a time-dependent one, and
+    kept in the domain's budget per flow, so that advections of one flow over different dt
+    (the adaptive scheme's substep sizes) share it and what is derived from it (:meth:`_per_flow`).
 
     A flow of fixed direction field, v = f(t) w(x) (:attr:`~femphase.flows.Flow.profile`), is
     the exception: C is linear in v, so the step's C is w's, assembled once, times f's mean
     over the step (:attr:`_scale`), and so are ω and everything else derived from C.
-    Built at every step (C by :class:`QuadratureAdvection`, ω by power iteration), an
-    oscillating shear on examples/straight_mesh.toml takes 3.8× the CPU under flow of these
-    scaled operators, and 2.9× a steady shear's (benchmarks/mesh_unsteady.py)."""
+    Built at every step (C and S by :class:`QuadratureAdvection` from one mean velocity, ω
+    by power iteration), an oscillating shear on examples/straight_mesh.toml takes 5.7× the
+    CPU under flow of these scaled operators, and 6.9× a steady shear's
+    (benchmarks/mesh_unsteady.py); ω's power iteration is most of the difference."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
