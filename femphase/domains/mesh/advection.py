@@ -135,10 +135,10 @@ def _velocity_matrix(domain: Domain, flow: Flow, time: float, span: float, form:
 class QuadratureAdvection:
     """C (:func:`advection_matrix`) and S (:func:`streamline_matrix`) of any velocity given
     at the quadrature points of the P1 basis of degree 4, each as one linear or quadratic
-    map: on element e, with ∇φ_a constant, S_a = Σ_q w_q det(J_e) φ_a(x_q) v(x_q) and
+    map: on element e, with ∇φ_a constant, m_a = Σ_q w_q det(J_e) φ_a(x_q) v(x_q) and
     T_e = Σ_q w_q det(J_e) v(x_q) v(x_q)ᵀ (J_e the element map's Jacobian),
 
-        C^e_ab = ½ (S_a·∇φ_b − S_b·∇φ_a),   S^e_ab = ∇φ_a · T_e ∇φ_b,
+        C^e_ab = ½ (m_a·∇φ_b − m_b·∇φ_a),   S^e_ab = ∇φ_a · T_e ∇φ_b,
 
     summed into the entries of the domain's block pattern on the periodic dofs. The same
     matrices as :data:`skew_advection` and :data:`streamline_form` assembled by skfem and
@@ -187,8 +187,8 @@ class QuadratureAdvection:
 
     def matrix(self, velocity: np.ndarray) -> sp.csr_matrix:
         """C of the velocity (2, elements, points per element) at :attr:`points`."""
-        moments = np.einsum("aeq,ceq->ace", self._weighted, velocity)  # S_a, (3, 2, elements)
-        products = np.einsum("ace,bce->abe", moments, self._gradients)  # S_a·∇φ_b
+        moments = np.einsum("aeq,ceq->ace", self._weighted, velocity)  # m_a, (3, 2, elements)
+        products = np.einsum("ace,bce->abe", moments, self._gradients)  # m_a·∇φ_b
         return self._summed(0.5 * (products - products.transpose(1, 0, 2)))
 
     def streamline(self, velocity: np.ndarray) -> sp.csr_matrix:
@@ -414,11 +414,12 @@ class GalerkinRungeKutta(ExplicitGalerkin):
 
 class TaylorGalerkin(ExplicitGalerkin):
     """Galerkin advection with the third-order Taylor–Galerkin step (module docstring) on all
-    windows at once, as :class:`GalerkinRungeKutta` but with the streamline matrix S
-    (:func:`streamline_matrix`) beside C and M, and K + 1 products a substep instead of
-    s (K + 1). For a flow of fixed direction field, v = f(t) w(x), the step is that of w at
-    the amplitude f̄ (its mean over the step): C scales with f̄ and S with f̄², which is a
-    substep of h f̄ with w's matrices."""
+    windows at once: C and the streamline matrix S (:func:`streamline_matrix`) are the
+    flow's, and so, per substep size h, are F = −h (C + (h/2) S) and B = M + (h²/6) S,
+    aligned to the block pattern; per layout their block-diagonal forms, K + 1 products a
+    substep where :class:`GalerkinRungeKutta` takes s (K + 1). For a flow of fixed direction
+    field, v = f(t) w(x), the step is that of w at the amplitude f̄ (its mean over the
+    step): C scales with f̄ and S with f̄², which is a substep of h f̄ with w's matrices."""
 
     @property
     def streamline(self) -> sp.csr_matrix:
