@@ -86,9 +86,14 @@ def _rate(text: str) -> float | None:
 
 
 def _commit(tree: Path) -> str | None:
-    """The git commit checked out in ``tree`` (None outside git)."""
+    """The git commit checked out in ``tree`` (None outside git), with "+changes" where its
+    femphase/ differs from that commit: the run measured code no commit holds."""
     found = subprocess.run(["git", "-C", str(tree), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
-    return found.stdout.strip() or None if found.returncode == 0 else None
+    if found.returncode != 0 or not found.stdout.strip():
+        return None
+    changed = subprocess.run(["git", "-C", str(tree), "status", "--porcelain", "--", "femphase"],
+                             capture_output=True, text=True).stdout.strip()
+    return found.stdout.strip() + ("+changes" if changed else "")
 
 
 def main() -> None:

@@ -209,11 +209,10 @@ ROWS = (
 def measured_at(path: Path, data) -> str:
     """The commit a result file was measured at (see the module docstring)."""
     if isinstance(data, dict):
-        if data.get("commit"):
-            return str(data["commit"])[:7]
-        trees = data.get("trees", {})
-        if trees.get("new", {}).get("commit"):
-            return str(trees["new"]["commit"])[:7]
+        commit = data.get("commit") or data.get("trees", {}).get("new", {}).get("commit")
+        if commit:  # "+changes": the run's femphase/ differed from that commit (benchmarks/protocol.py)
+            commit = str(commit)
+            return commit[:7] + ("+changes" if commit.endswith("+changes") else "")
     done = subprocess.run(["git", "log", "-1", "--format=%h", "--", str(path)], cwd=ROOT,
                           capture_output=True, text=True)
     return done.stdout.strip() or "uncommitted"
