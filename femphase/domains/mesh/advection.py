@@ -79,8 +79,8 @@ from femphase.flows import Flow, time_mean, velocity_at
 
 __all__ = ["COURANT", "MASS_CORRECTIONS", "PADE_POLE", "SPECTRAL_MARGIN", "STAGES", "ExplicitGalerkin",
            "GalerkinAdvection", "GalerkinPade", "GalerkinRungeKutta", "QuadratureAdvection", "TaylorGalerkin",
-           "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius", "streamline_form",
-           "streamline_matrix"]
+           "WARM_ITERATIONS", "advection_matrix", "corrected_inverse", "skew_advection", "spectral_radius",
+           "streamline_form", "streamline_matrix"]
 
 
 @BilinearForm
@@ -218,9 +218,9 @@ class GalerkinAdvection(StepAdvection):
     the exception: C is linear in v, so the step's C is w's, assembled once, times f's mean
     over the step (:attr:`_scale`), and so are ω and everything else derived from C.
     Built at every step (C and S by :class:`QuadratureAdvection` from one mean velocity, ω
-    by power iteration), an oscillating shear on examples/straight_mesh.toml takes 5.7× the
-    CPU under flow of these scaled operators, and 6.9× a steady shear's
-    (benchmarks/mesh_unsteady.py); ω's power iteration is most of the difference."""
+    by :data:`WARM_ITERATIONS` power iterations), an oscillating shear on
+    examples/straight_mesh.toml takes 4.1× the CPU under flow of these scaled operators,
+    and 4.5× a steady shear's (benchmarks/mesh_unsteady.py)."""
 
     def __init__(self, domain: Domain, flow: Flow, dt: float) -> None:
         super().__init__(domain, flow, dt)
@@ -324,23 +324,37 @@ def corrected_inverse(y: np.ndarray, mass: sp.spmatrix, inverse_lumped: np.ndarr
     return z
 
 
-def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterations: int = 30) -> float:
-    """ω, the largest eigenvalue modulus of an operator with imaginary eigenvalues (``apply``: x ↦
-    A x, A skew in some inner product), by power iteration on A² from a fixed random start
-    (reproducible). A is not normal in the Euclidean norm used here, so the estimate may
-    land slightly on either side of ω, and it approaches ω more slowly where the largest
-    eigenvalues lie close together; :data:`SPECTRAL_MARGIN` leaves room for both (within
-    2 % of the dense eigenvalue on a small channel, asserted in tests/test_mesh_advection.py)."""
-    x = np.random.default_rng(0).standard_normal(size)
+def spectral_radius(apply: Callable[[np.ndarray], np.ndarray], size: int, iterations: int = 30,
+                    start: np.ndarray | None = None) -> tuple[float, np.ndarray]:
+    """(ω, the last iterate): ω the largest eigenvalue modulus of an operator with imaginary
+    eigenvalues (``apply``: x ↦ A x, A skew in some inner product), by power iteration on A²
+    from ``start`` or else a fixed random vector (reproducible). A is not normal in the
+    Euclidean norm used here, so the estimate may land slightly on either side of ω, and it
+    approaches ω more slowly where the largest eigenvalues lie close together;
+    :data:`SPECTRAL_MARGIN` leaves room for both (within 2 % of the dense eigenvalue on a
+    small channel, asserted in tests/test_mesh_advection.py). The last iterate lies near the
+    dominant eigenvectors: a start for an operator that changed a little
+    (:data:`WARM_ITERATIONS`)."""
+    x = np.random.default_rng(0).standard_normal(size) if start is None else np.array(start, dtype=float)
     x /= np.linalg.norm(x)
     estimate = 0.0
     for _ in range(iterations):
         y = apply(apply(x))
         norm = float(np.linalg.norm(y))
         if norm == 0.0:
-            return 0.0
+            return 0.0, x
         estimate, x = np.sqrt(norm), y / norm
-    return estimate
+    return estimate, x
+
+
+#: Power iterations of ω for a flow whose operators change at every step (no fixed direction
+#: field), from the last step's iterate instead of 30 from a random start. On
+#: examples/straight_mesh.toml in a flow varying in space and time, 0.1–0.7 % short of 200
+#: iterations' estimate (30 from random: 0.3–1.5 %), but up to 8.5 % short for a few steps
+#: where the flow's fastest region moved and the iterate followed it late; the margin
+#: (:data:`SPECTRAL_MARGIN`) keeps ω h ≤ 0.87 there, below both steps' limits. An oscillating
+#: shear given without its profile took 0.79× the CPU under flow (benchmarks/mesh_unsteady.py).
+WARM_ITERATIONS = 8
 
 
 class ExplicitGalerkin(GalerkinAdvection):
@@ -362,8 +376,22 @@ class ExplicitGalerkin(GalerkinAdvection):
         ops = self.domain.operators
         inverse_lumped = 1.0 / ops.lumped_mass
         advection = self.advection
-        return abs(self._scale) * self._per_flow(f"frequency {self.corrections}", lambda: spectral_radius(
-            lambda x: corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections), self.domain.n_dofs))
+
+        def apply(x: np.ndarray) -> np.ndarray:
+            return corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections)
+
+        def estimate() -> float:
+            if self._when is None:  # the flow's operators, built once
+                return spectral_radius(apply, self.domain.n_dofs)[0]
+            # built at every step: from the last step's iterate, kept per flow
+            key = ("frequency iterate", id(self.flow))
+            kept = self.domain.advection_operators.get(key)
+            warm = kept is not None and kept[0] is self.flow
+            value, iterate = spectral_radius(apply, self.domain.n_dofs, WARM_ITERATIONS if warm else 30,
+                                             kept[1] if warm else None)
+            self.domain.advection_operators.put(key, (self.flow, iterate), iterate.nbytes)
+            return value
+        return abs(self._scale) * self._per_flow(f"frequency {self.corrections}", estimate)
 
     @property
     def substeps(self) -> int:
