@@ -132,7 +132,7 @@ def _span(values: list[float], digits: int) -> str:
 
 #: What the mesh kinds of benchmarks/mesh_parity.py are called in the table
 MESH_KINDS = {"mesh": "shaped windows", "mesh_boxes": "boxes",
-              "mesh_runge_kutta": "shaped windows with the Runge–Kutta advection"}
+              "mesh_runge_kutta": "shaped windows with the Runge–Kutta advection at every Courant number"}
 
 
 def _mesh_parity_interleaved(data: dict) -> str:
