@@ -319,7 +319,12 @@ class Domain(ABC):
         operator ``name`` ("mass" or "stiffness") with entries of ``dtype`` (float64, or
         float32 for single-precision steps), for the last layout asked."""
         dtype = np.dtype(dtype).type
-        return self.window_matrix(layout, (name, dtype), self._operator_data[name, dtype])
+        return self.window_matrix(layout, (name, dtype), self.aligned_operator(name, dtype))
+
+    def aligned_operator(self, name: str, dtype: type = np.float64) -> np.ndarray:
+        """The P1 operator ``name`` ("mass" or "stiffness")'s entries aligned to
+        :attr:`block_pattern` (:meth:`aligned`) in ``dtype``, made once per domain."""
+        return self._operator_data[name, np.dtype(dtype).type]
 
     def window_diagonal(self, layout: Layout, name: Hashable, diagonal: np.ndarray) -> np.ndarray:
         """The diagonal of :meth:`window_matrix` from the full matrix's ``diagonal`` (or any

@@ -113,8 +113,7 @@ def _corrected_inverse(indptr: np.ndarray, indices: np.ndarray, matrix: np.ndarr
         out[i] = rhs[i] * inverse_lumped[i]
     for _ in range(corrections):
         _block_rows(indptr, indices, matrix, out, scratch, 0, n, False)
-        for i in range(n):
-            out[i] += (rhs[i] - scratch[i]) * inverse_lumped[i]
+        jacobi_correction(out, rhs, scratch, inverse_lumped)
 
 
 @numba.njit(cache=True, nogil=True, boundscheck=False)
@@ -258,7 +257,7 @@ def window_conjugate_gradient(indptr: np.ndarray, indices: np.ndarray, data: np.
 def jacobi_correction(z: np.ndarray, y: np.ndarray, product: np.ndarray, inverse: np.ndarray) -> None:
     """One Jacobi correction toward the solution of M z = y, in place: z += (y − M z) D⁻¹
     (``product`` = M z, ``inverse`` = D⁻¹), rounded as numpy's three passes round it."""
-    for i in range(z.size):
+    for i in range(np.uint64(z.size)):
         z[i] += (y[i] - product[i]) * inverse[i]
 
 

@@ -106,7 +106,7 @@ def advection_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float 
     (:func:`~femphase.flows.time_mean`; C is linear in v, so this is the mean of C over the
     step). An analytic flow's C comes from its velocities by :class:`QuadratureAdvection`,
     the domain's, kept with the flows' operators."""
-    return _velocity_matrix(domain, flow, time, span, skew_advection, "matrix")
+    return _velocity_matrix(domain, flow, time, span, skew_advection, lambda assembly: assembly.matrix)
 
 
 def streamline_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float = 0.0) -> sp.csr_matrix:
@@ -115,21 +115,22 @@ def streamline_matrix(domain: Domain, flow: Flow, time: float = 0.0, span: float
     second time derivative of an advected field (the Taylor–Galerkin step's, with v·n = 0 on
     the walls). The velocity as in :func:`advection_matrix`; with ``span`` > 0 S is the mean
     velocity's (S is quadratic in v: the step's flow frozen at its mean over the step)."""
-    return _velocity_matrix(domain, flow, time, span, streamline_form, "streamline")
+    return _velocity_matrix(domain, flow, time, span, streamline_form, lambda assembly: assembly.streamline)
 
 
 def _velocity_matrix(domain: Domain, flow: Flow, time: float, span: float, form: BilinearForm,
-                     quadrature: str) -> sp.csr_matrix:
+                     quadrature: Callable[["QuadratureAdvection"], Callable[[np.ndarray], sp.csr_matrix]]
+                     ) -> sp.csr_matrix:
     """``form`` with the flow's velocity on the periodic dofs: the Stokes field assembled by
-    skfem, an analytic flow's by the domain's :class:`QuadratureAdvection` (its method
-    ``quadrature``)."""
+    skfem, an analytic flow's by the domain's :class:`QuadratureAdvection` (its map
+    ``quadrature(assembly)``)."""
     if flow.stokes is not None:
         basis = flow.stokes.pressure_basis  # P1 on the velocity basis' quadrature points
         velocity = np.asarray(flow.stokes.velocity_basis.interpolate(flow.stokes.velocity))
         fold = nodes_to_dofs(domain.dof_map, domain.n_dofs)
         return (fold.T @ form.assemble(basis, velocity=velocity) @ fold).tocsr()
     assembly = domain.advection_operators.setdefault("quadrature advection", lambda: QuadratureAdvection(domain))
-    return getattr(assembly, quadrature)(assembly.velocity(flow, time, span))
+    return quadrature(assembly)(assembly.velocity(flow, time, span))
 
 
 class QuadratureAdvection:
@@ -373,14 +374,13 @@ class ExplicitGalerkin(GalerkinAdvection):
         """ω, the spectral radius of the step's P C on the whole mesh (1/time units). The windows' P C are
         not estimated on their own: the margin and ω h ≤ 1 against the steps' limits (√3 and
         ≈ 1.3) leave them room."""
-        ops = self.domain.operators
-        inverse_lumped = 1.0 / ops.lumped_mass
-        advection = self.advection
-
-        def apply(x: np.ndarray) -> np.ndarray:
-            return corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections)
-
         def estimate() -> float:
+            ops, advection = self.domain.operators, self.advection
+            inverse_lumped = 1.0 / ops.lumped_mass
+
+            def apply(x: np.ndarray) -> np.ndarray:
+                return corrected_inverse(advection @ x, ops.mass, inverse_lumped, self.corrections)
+
             if self._when is None:  # the flow's operators, built once
                 return spectral_radius(apply, self.domain.n_dofs)[0]
             # built at every step: from the last step's iterate, kept per flow
@@ -478,6 +478,6 @@ class TaylorGalerkin(ExplicitGalerkin):
             aligned = self.domain.aligned
             advection, streamline = aligned(self.advection), aligned(self.streamline)
             forward = -step * (advection + (0.5 * step) * streamline)
-            implicit = aligned(self.domain.operators.mass) + (step * step / 6.0) * streamline
+            implicit = self.domain.aligned_operator("mass") + (step * step / 6.0) * streamline
             return forward.astype(dtype), implicit.astype(dtype)
         return self._per_flow(f"Taylor–Galerkin {step!r} {dtype.__name__}", build)
